@@ -1,0 +1,34 @@
+"""Name -> tracker factory. `create(name, **overrides)` builds a tracker with config overrides."""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from jsar.api import Tracker
+
+
+def _factories() -> dict[str, Callable[..., Tracker]]:
+    # Imported lazily so `import jsar` stays cheap and a missing optional piece names itself.
+    from jsar.tracking.jsar_tracker import make_jsar, make_strcf
+
+    factories: dict[str, Callable[..., Tracker]] = {"jsar": make_jsar, "strcf": make_strcf}
+    try:
+        from jsar.redetect.jsar_re import make_jsar_re
+    except ModuleNotFoundError as exc:
+        if exc.name != "jsar.redetect.jsar_re":
+            raise
+    else:
+        factories["jsar-re"] = make_jsar_re
+    return factories
+
+
+def available() -> list[str]:
+    """Names accepted by `create`."""
+    return sorted(_factories())
+
+
+def create(name: str, **overrides: Any) -> Tracker:
+    """Build tracker `name` ("jsar", "strcf", "jsar-re") with parameter overrides (ValueError if unknown)."""
+    factories = _factories()
+    if name not in factories:
+        raise ValueError(f"unknown tracker {name!r}; available: {', '.join(sorted(factories))}")
+    return factories[name](**overrides)

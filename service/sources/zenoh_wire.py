@@ -1,0 +1,86 @@
+"""Wire format of camera frames published over Zenoh (sim harness -> service).
+
+One Zenoh sample per frame: a 32-byte little-endian header followed by the pixel data.
+
+    offset size  field
+    0      4     magic b"JFR1"
+    4      4     pixel format: b"BGR3" (raw bgr24), b"GRAY" (raw 8-bit), b"JPEG" (JPEG bytes)
+    8      4     width  (uint32, pixels)
+    12     4     height (uint32, pixels)
+    16     8     frame id (uint64, increasing per publisher)
+    24     8     capture timestamp (float64, seconds, publisher's clock.time())
+    32     ...   data: width*height*3 bytes (BGR3), width*height (GRAY), or a JPEG stream
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+MAGIC = b"JFR1"
+HEADER = struct.Struct("<4s4sIIQd")
+PIXEL_FORMATS = (b"BGR3", b"GRAY", b"JPEG")
+
+
+@dataclass(frozen=True)
+class WireFrame:
+    """A decoded frame: image HxWx3 (BGR) or HxW (grey) uint8, frame id, capture time in seconds."""
+
+    image: np.ndarray
+    frame_id: int
+    timestamp: float
+
+
+def encode_frame(image: np.ndarray, frame_id: int, timestamp: float, pixel_format: bytes = b"BGR3",
+                 jpeg_quality: int = 90) -> bytes:
+    """Serialise a uint8 BGR (HxWx3) or grey (HxW) image into one Zenoh payload."""
+    if image.dtype != np.uint8:
+        raise ValueError(f"frame must be uint8, got {image.dtype}")
+    height, width = image.shape[:2]
+    if pixel_format == b"BGR3":
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"BGR3 needs an HxWx3 image, got shape {image.shape}")
+        data = np.ascontiguousarray(image).tobytes()
+    elif pixel_format == b"GRAY":
+        if image.ndim != 2:
+            raise ValueError(f"GRAY needs an HxW image, got shape {image.shape}")
+        data = np.ascontiguousarray(image).tobytes()
+    elif pixel_format == b"JPEG":
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        data = buf.tobytes()
+    else:
+        raise ValueError(f"unknown pixel format {pixel_format!r}; expected one of {PIXEL_FORMATS}")
+    return HEADER.pack(MAGIC, pixel_format, width, height, int(frame_id), float(timestamp)) + data
+
+
+def decode_frame(payload: bytes | bytearray | memoryview) -> WireFrame:
+    """Parse one payload; ValueError on a bad magic, unknown format, size mismatch or corrupt JPEG."""
+    view = memoryview(payload)
+    if len(view) < HEADER.size:
+        raise ValueError(f"frame payload too short: {len(view)} bytes")
+    magic, pixel_format, width, height, frame_id, timestamp = HEADER.unpack_from(view, 0)
+    if magic != MAGIC:
+        raise ValueError(f"bad frame magic {magic!r}")
+    if width == 0 or height == 0:
+        raise ValueError(f"frame size {width}x{height} is empty")
+    data = view[HEADER.size:]
+    if pixel_format in (b"BGR3", b"GRAY"):
+        channels = 3 if pixel_format == b"BGR3" else 1
+        expected = width * height * channels
+        if len(data) != expected:
+            raise ValueError(f"{pixel_format.decode()} {width}x{height} needs {expected} bytes, got {len(data)}")
+        image = np.frombuffer(data, dtype=np.uint8)
+        image = image.reshape((height, width, 3) if channels == 3 else (height, width))
+    elif pixel_format == b"JPEG":
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        if image is None:
+            raise ValueError("corrupt JPEG frame")
+        if image.shape[:2] != (height, width):
+            raise ValueError(f"JPEG is {image.shape[1]}x{image.shape[0]}, header says {width}x{height}")
+    else:
+        raise ValueError(f"unknown pixel format {pixel_format!r}")
+    return WireFrame(image=image, frame_id=frame_id, timestamp=timestamp)

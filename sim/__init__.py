@@ -1,0 +1,1 @@
+"""Sim harness: mock autopilot, recorded-video replay, closed-loop synthetic scene, ground station."""

@@ -1,0 +1,46 @@
+"""Shared test fixtures: the real-data root, loopback port allocation."""
+from __future__ import annotations
+
+import os
+import socket
+from pathlib import Path
+
+os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink import
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def data_root() -> Path:
+    """The shared UAV sequences (OTB layout) from JSAR_DATA_ROOT; skip with a message when absent."""
+    root = os.environ.get("JSAR_DATA_ROOT")
+    if not root:
+        pytest.skip("JSAR_DATA_ROOT is not set: real-sequence tests need the shared UAV data")
+    path = Path(root)
+    if not path.is_dir():
+        pytest.skip(f"JSAR_DATA_ROOT={root} is not a directory")
+    return path
+
+
+def free_tcp_port() -> int:
+    """A loopback TCP port that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def free_udp_port() -> int:
+    """A loopback UDP port that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def tcp_port() -> int:
+    return free_tcp_port()
+
+
+@pytest.fixture
+def udp_port() -> int:
+    return free_udp_port()

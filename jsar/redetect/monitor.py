@@ -1,0 +1,134 @@
+"""JSAR-Re failure monitor: a pure, I/O-free state machine over the translation response peak.
+
+Per frame the caller passes the raw translation peak (the tracker's FFT convention: forward DFT
+unnormalised, inverse 1/N, as MATLAB, so the peak is the spatial correlation value and a filter's
+response to its own training sample peaks near the Gaussian label's 1), the last confident target box
+(x, y, w, h) in pixels, the image size and the 0-based frame index (0 = the initialisation frame).
+
+Rules (paper, Algorithm 1, and the original's gating, with the choices stated here):
+- confident  <=> peak > enable_peak (zeta_e): commit the frame as usual;
+- reliable   <=> peak > reliable_peak (zeta_s): also train the decision filter on that sample;
+- re-detect  <=> not confident and eligible, where eligible = frame_index >= warmup_frames (the
+  original's "after frame 30", 1-based) and min_area < w*h < max_area and the box is inside the image
+  (`inside_rule`: "full" = the whole box, as the original; "centre" = its centre, which keeps
+  re-detection available while the target leaves the view across a border). A frame that is not
+  confident but not eligible is committed as usual (plain JSAR behaviour).
+- while re-detecting, each failed attempt multiplies omega by omega_growth and divides eta_d by
+  accept_decay for the next frame; an accepted proposal or a confident frame resets omega and eta_d
+  to their initial values. The monitor never asks for a re-initialisation other than on the frame a
+  proposal is accepted (the original's never-cleared flag retrained from scratch on every later frame).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+InsideRule = Literal["full", "centre"]
+
+
+@dataclass(frozen=True)
+class MonitorParams:
+    """Failure-monitor thresholds; peaks in the tracker's raw response units (MATLAB FFT scaling)."""
+
+    enable_peak: float = 0.01  # zeta_e (paper 0.0105; the original's code 0.01)
+    reliable_peak: float = 0.013  # zeta_s
+    accept_peak: float = 0.02  # eta_d at the first failed frame
+    omega: float = 5.0  # side of the proposal square, in units of sqrt(w*h)
+    omega_growth: float = 1.05
+    accept_decay: float = 1.005
+    warmup_frames: int = 30
+    min_area_px2: float = 100.0
+    max_area_px2: float = 20000.0
+    inside_rule: InsideRule = "full"
+
+    def __post_init__(self) -> None:
+        if not 0 < self.enable_peak <= self.reliable_peak:
+            raise ValueError(
+                f"need 0 < enable_peak <= reliable_peak, got {self.enable_peak}, {self.reliable_peak}")
+        if self.accept_peak <= 0 or self.omega <= 0:
+            raise ValueError(f"accept_peak and omega must be > 0, got {self.accept_peak}, {self.omega}")
+        if self.omega_growth < 1 or self.accept_decay < 1:
+            raise ValueError(
+                f"omega_growth and accept_decay must be >= 1, got {self.omega_growth}, {self.accept_decay}")
+        if self.warmup_frames < 0 or not 0 <= self.min_area_px2 < self.max_area_px2:
+            raise ValueError("need warmup_frames >= 0 and 0 <= min_area_px2 < max_area_px2")
+        if self.inside_rule not in ("full", "centre"):
+            raise ValueError(f"inside_rule must be 'full' or 'centre', got {self.inside_rule!r}")
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What to do with one frame: redetect (do not commit; search proposals with omega, accept above eta_d)."""
+
+    redetect: bool
+    reliable: bool
+    omega: float
+    eta_d: float
+    failed_frames: int  # consecutive frames with a failed re-detection before this one
+
+
+def box_is_inside(box: tuple[float, float, float, float], image_wh: tuple[int, int], rule: InsideRule) -> bool:
+    """Whether box (x, y, w, h) px lies inside a W x H image: whole box ("full") or its centre ("centre")."""
+    x, y, w, h = box
+    width, height = image_wh
+    if rule == "full":
+        return x >= 0 and y >= 0 and x + w <= width and y + h <= height
+    cx, cy = x + w / 2, y + h / 2
+    return 0 <= cx < width and 0 <= cy < height
+
+
+class FailureMonitor:
+    """Decides per frame between committing, re-detecting, and training the decision filter."""
+
+    def __init__(self, params: MonitorParams = MonitorParams()) -> None:
+        self.params = params
+        self._omega = params.omega
+        self._eta_d = params.accept_peak
+        self._failed_frames = 0
+        self._awaiting_result = False
+
+    @property
+    def searching(self) -> bool:
+        """True after a failed re-detection until a proposal is accepted or a frame is confident."""
+        return self._failed_frames > 0
+
+    def eligible(self, box: tuple[float, float, float, float], image_wh: tuple[int, int], frame_index: int) -> bool:
+        """Whether re-detection may run on this frame (warm-up over, target size and position sane)."""
+        p = self.params
+        area = box[2] * box[3]
+        return (frame_index >= p.warmup_frames and p.min_area_px2 < area < p.max_area_px2
+                and box_is_inside(box, image_wh, p.inside_rule))
+
+    def assess(self, peak: float, box: tuple[float, float, float, float], image_wh: tuple[int, int],
+               frame_index: int) -> Verdict:
+        """One frame's verdict from its raw translation peak and the last confident box (pixels)."""
+        if not math.isfinite(peak):
+            raise ValueError(f"translation peak must be finite, got {peak}")
+        if self._awaiting_result:
+            raise RuntimeError("assess() called again before redetection_result() of the last re-detection")
+        p = self.params
+        confident = peak > p.enable_peak
+        if confident or not self.eligible(box, image_wh, frame_index):
+            if confident:
+                self._reset()
+            return Verdict(False, peak > p.reliable_peak, self._omega, self._eta_d, self._failed_frames)
+        self._awaiting_result = True
+        return Verdict(True, False, self._omega, self._eta_d, self._failed_frames)
+
+    def redetection_result(self, accepted: bool) -> None:
+        """Report the outcome of the re-detection `assess` asked for: accepted resets, failure widens."""
+        if not self._awaiting_result:
+            raise RuntimeError("redetection_result() without a re-detection verdict from assess()")
+        self._awaiting_result = False
+        if accepted:
+            self._reset()
+        else:
+            self._failed_frames += 1
+            self._omega *= self.params.omega_growth
+            self._eta_d /= self.params.accept_decay
+
+    def _reset(self) -> None:
+        self._omega = self.params.omega
+        self._eta_d = self.params.accept_peak
+        self._failed_frames = 0

@@ -1,0 +1,132 @@
+"""EdgeBoxes object proposals around the last target position (first stage of JSAR-Re's re-detection).
+
+Boxes are (x, y, w, h) in full-frame pixels, 0-based, top-left origin (the project's convention).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from jsar.redetect.edges import edge_maps
+
+# Image (HxW[x3]) -> (edge magnitude 0..1, orientation radians [0, pi)), float32 HxW each.
+EdgeFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class EdgeBoxesSettings:
+    """cv2.ximgproc.EdgeBoxes settings (the original's values) plus how the search region is prepared.
+
+    min_area_fraction: EdgeBoxes' minimum box area = this * target area (pixels^2), at least
+    min_area_floor_px2, so targets down to the failure monitor's 100 px^2 stay findable (the original
+    kept EdgeBoxes' fixed 1000 px^2). working_target_side_px: the region is resampled so that the
+    target's sqrt(w*h) spans about this many pixels (scale clamped to [min_working_scale,
+    max_working_scale]); this bounds the cost on big targets and gives tiny ones enough edge pixels.
+    """
+
+    alpha: float = 0.625
+    beta: float = 0.85
+    min_score: float = 0.01
+    max_boxes: int = 30
+    max_aspect_ratio: float = 3.0
+    min_area_fraction: float = 0.3
+    min_area_floor_px2: float = 16.0
+    working_target_side_px: float = 40.0
+    min_working_scale: float = 0.125
+    max_working_scale: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.alpha < 1 or not 0 < self.beta <= 1:
+            raise ValueError(f"EdgeBoxes alpha, beta must be in (0, 1), got {self.alpha}, {self.beta}")
+        if self.max_boxes < 1:
+            raise ValueError(f"EdgeBoxes max_boxes must be >= 1, got {self.max_boxes}")
+        if self.max_aspect_ratio < 1:
+            raise ValueError(f"EdgeBoxes max_aspect_ratio must be >= 1, got {self.max_aspect_ratio}")
+        if self.min_area_fraction <= 0 or self.min_area_floor_px2 <= 0:
+            raise ValueError("EdgeBoxes min_area_fraction and min_area_floor_px2 must be > 0")
+        if not 0 < self.min_working_scale <= self.max_working_scale or self.working_target_side_px <= 0:
+            raise ValueError("EdgeBoxes working scale bounds must satisfy 0 < min <= max, side > 0")
+
+
+@dataclass(frozen=True)
+class Proposals:
+    """EdgeBoxes output: boxes float64 (N, 4) full-frame (x, y, w, h) pixels, scores float32 (N,), best first."""
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    region: tuple[int, int, int, int]  # searched region (x, y, w, h), integer pixels, inside the image
+
+
+def search_region(center_xy: tuple[float, float], target_wh: tuple[float, float], omega: float,
+                  image_wh: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Square of side omega*sqrt(w*h) px centred at center_xy, clipped to the image -> (x, y, w, h) ints.
+
+    A square larger than the image gives the whole image. Raises ValueError if the clipped region is
+    empty (centre far outside the image) or the inputs are not positive.
+    """
+    w, h = target_wh
+    if not (w > 0 and h > 0 and omega > 0):
+        raise ValueError(f"search region needs positive target size and omega, got {target_wh}, {omega}")
+    image_w, image_h = image_wh
+    side = omega * math.sqrt(w * h)
+    x0 = max(0, int(math.floor(center_xy[0] - side / 2)))
+    y0 = max(0, int(math.floor(center_xy[1] - side / 2)))
+    x1 = min(image_w, int(math.ceil(center_xy[0] + side / 2)))
+    y1 = min(image_h, int(math.ceil(center_xy[1] + side / 2)))
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        raise ValueError(f"search region around {center_xy} of side {side:.1f} px misses the {image_w}x{image_h} image")
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def working_scale(target_wh: tuple[float, float], settings: EdgeBoxesSettings) -> float:
+    """Resampling factor (working px per image px) that makes sqrt(w*h) span working_target_side_px."""
+    scale = settings.working_target_side_px / math.sqrt(target_wh[0] * target_wh[1])
+    return min(settings.max_working_scale, max(settings.min_working_scale, scale))
+
+
+def min_box_area(target_wh: tuple[float, float], settings: EdgeBoxesSettings) -> float:
+    """EdgeBoxes minimum box area in image pixels^2: a fraction of the target's, with a small floor."""
+    return max(settings.min_area_floor_px2, settings.min_area_fraction * target_wh[0] * target_wh[1])
+
+
+def generate_proposals(frame: np.ndarray, center_xy: tuple[float, float], target_wh: tuple[float, float],
+                       omega: float, settings: EdgeBoxesSettings = EdgeBoxesSettings(),
+                       edges: EdgeFunction = edge_maps) -> Proposals:
+    """EdgeBoxes proposals in the omega-square around center_xy; boxes in full-frame pixels, best first.
+
+    frame: HxW[x3] uint8. target_wh: last confident target size (pixels). `edges` computes the edge
+    and orientation maps (default: smoothed gradients; a `StructuredEdges` instance when a model file
+    is configured).
+    """
+    image_h, image_w = frame.shape[:2]
+    rx, ry, rw, rh = search_region(center_xy, target_wh, omega, (image_w, image_h))
+    scale = working_scale(target_wh, settings)
+    region = frame[ry:ry + rh, rx:rx + rw]
+    out_w, out_h = max(3, round(rw * scale)), max(3, round(rh * scale))
+    if (out_w, out_h) != (rw, rh):
+        interpolation = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+        region = cv2.resize(region, (out_w, out_h), interpolation=interpolation)
+    # Exact per-axis factors after rounding, to map boxes back without drift.
+    scale_x, scale_y = out_w / rw, out_h / rh
+    magnitude, orientation = edges(region)
+    box_finder = cv2.ximgproc.createEdgeBoxes(
+        alpha=settings.alpha, beta=settings.beta, minScore=settings.min_score, maxBoxes=settings.max_boxes,
+        maxAspectRatio=settings.max_aspect_ratio,
+        minBoxArea=float(min_box_area(target_wh, settings) * scale_x * scale_y),
+    )
+    boxes, scores = box_finder.getBoundingBoxes(magnitude, orientation)
+    if boxes is None or len(boxes) == 0:
+        return Proposals(np.zeros((0, 4)), np.zeros((0,), np.float32), (rx, ry, rw, rh))
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    scores = np.asarray(scores, dtype=np.float32).reshape(-1)
+    full = np.empty_like(boxes)
+    full[:, 0] = rx + boxes[:, 0] / scale_x
+    full[:, 1] = ry + boxes[:, 1] / scale_y
+    full[:, 2] = boxes[:, 2] / scale_x
+    full[:, 3] = boxes[:, 3] / scale_y
+    order = np.argsort(-scores, kind="stable")
+    return Proposals(full[order], scores[order], (rx, ry, rw, rh))

@@ -1,0 +1,186 @@
+"""Correlation-filter math: labels, windows, the STRCF ADMM solve, responses and sub-cell peaks.
+
+Conventions: feature stacks are channels first, (C, H, W) in cells; spectra are rfft2 half
+spectra (C, H, W//2+1) complex64 in the MATLAB scaling (forward unnormalised, inverse 1/N, see
+jsar.fourier). Position (0, 0) is the label peak and "zero displacement"; a response peak at
+(dy, dx) (wrapped to [-H/2, H/2) x [-W/2, W/2)) means the target moved by +dy rows, +dx cols.
+The response is r(t) = sum_c sum_n f_c(n) x_c(n + t), i.e. spectrum sum_c conj(F_c) X_c.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from jsar import fourier
+
+
+def gaussian_label(shape_hw: tuple[int, int], sigma: float) -> np.ndarray:
+    """(H, W) float32 Gaussian of std `sigma` cells, peak 1 at (0, 0), circularly wrapped."""
+    height, width = shape_hw
+    if sigma <= 0:
+        raise ValueError(f"label sigma must be > 0, got {sigma}")
+    rows = np.fft.fftfreq(height, 1.0 / height)  # 0, 1, ..., -2, -1: offsets from (0, 0)
+    cols = np.fft.fftfreq(width, 1.0 / width)
+    return np.exp(-0.5 * (rows[:, None] ** 2 + cols[None, :] ** 2) / sigma**2).astype(np.float32)
+
+
+def label_sigma(target_cells_hw: tuple[int, int], sigma_factor: float) -> float:
+    """Label std in cells: factor * sqrt(prod(target size in whole cells)) (at least one cell area)."""
+    return sigma_factor * math.sqrt(max(1, target_cells_hw[0]) * max(1, target_cells_hw[1]))
+
+
+def hann_window(shape_hw: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32 cosine window without zero rows (hann(n+2) with its end points dropped)."""
+
+    def hann_1d(n: int) -> np.ndarray:
+        k = np.arange(1, n + 1)
+        return 0.5 * (1.0 - np.cos(2.0 * np.pi * k / (n + 1)))
+
+    return np.outer(hann_1d(shape_hw[0]), hann_1d(shape_hw[1])).astype(np.float32)
+
+
+def regularisation_window(
+    shape_hw: tuple[int, int], target_cells_hw: tuple[float, float], inside: float, outside: float
+) -> np.ndarray:
+    """(H, W) float32 spatial penalty: `inside` on a centred box of floor(target) cells, else `outside`.
+
+    The filter's support sits at the array centre because the training patch is centred on the
+    target. The box is at least 1 cell and at most the whole array.
+    """
+    height, width = shape_hw
+    box_h = int(min(height, max(1, math.floor(target_cells_hw[0]))))
+    box_w = int(min(width, max(1, math.floor(target_cells_hw[1]))))
+    window = np.full(shape_hw, outside, dtype=np.float32)
+    top = (height - box_h) // 2
+    left = (width - box_w) // 2
+    window[top : top + box_h, left : left + box_w] = inside
+    return window
+
+
+def response_spectrum(filter_f: np.ndarray, sample_f: np.ndarray) -> np.ndarray:
+    """(H, W//2+1) spectrum of the response: sum_c conj(F_c) * X_c (channels first)."""
+    return np.einsum("chw,chw->hw", filter_f.conj(), sample_f)
+
+
+def response(filter_f: np.ndarray, sample_f: np.ndarray, shape_hw: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32 response IFFT(sum_c conj(F_c) X_c) in the MATLAB scaling; peak at the shift."""
+    return fourier.irfft2(response_spectrum(filter_f, sample_f), shape_hw).astype(np.float32)
+
+
+def wrap_displacement(index: float, size: int) -> float:
+    """Cell index in [0, size) -> signed displacement in [-size/2, size/2)."""
+    return ((index + size / 2.0) % size) - size / 2.0
+
+
+def subpixel_peak(
+    resp: np.ndarray, resp_f: np.ndarray, iterations: int
+) -> tuple[float, float, float]:
+    """(dy, dx, peak): the response maximum refined by Newton steps on its Fourier interpolant.
+
+    `resp` is the (H, W) response, `resp_f` its half spectrum. dy, dx are signed displacements
+    in cells (wrapped); `peak` is the raw maximum of `resp` on the cell grid (the confidence the
+    JSAR-Re thresholds are defined on). A Newton step that leaves the starting cell's
+    neighbourhood, or a non-concave point, stops the refinement (the grid maximum is kept).
+    """
+    height, width = resp.shape
+    flat = int(np.argmax(resp))
+    row, col = divmod(flat, width)
+    peak = float(resp[row, col])
+    y, x = float(row), float(col)
+    for _ in range(iterations):
+        _, grad, hess = fourier.interpolated_value_and_derivatives(resp_f, (height, width), y, x)
+        det = hess[0, 0] * hess[1, 1] - hess[0, 1] ** 2
+        if not (hess[0, 0] < 0 and det > 0):
+            break  # not at a concave point: Newton would walk to a saddle or a minimum
+        step = np.linalg.solve(hess, grad)
+        y_new, x_new = y - float(step[0]), x - float(step[1])
+        if abs(y_new - row) > 1.0 or abs(x_new - col) > 1.0:
+            break
+        y, x = y_new, x_new
+    return wrap_displacement(y, height), wrap_displacement(x, width), peak
+
+
+def admm_solve(
+    sample_f: np.ndarray,
+    label_f: np.ndarray,
+    reg_window: np.ndarray,
+    previous_f: np.ndarray | None,
+    *,
+    lam: float,
+    mu: float,
+    iterations: int,
+    penalty_init: float,
+    penalty_growth: float,
+    penalty_max: float,
+) -> np.ndarray:
+    """STRCF filter spectrum (C, H, W//2+1) complex64 minimising, by ADMM,
+
+        E(f) = 1/2 sum_k |sum_c conj(F_c) X_c - Y|^2 + lam/2 ||reg_window * f||^2
+               + mu/2 sum_k ||F - F_prev||^2,
+
+    sums over the full spectrum in MATLAB units and the regulariser on the spatial filter (the
+    units of STRCF's code: the regulariser weight acts as lam / N against the data term).
+    Split f = g (g carries the spatial penalty); the f-step is a per-frequency rank-one system
+    solved by Sherman-Morrison over channels, the g-step is element-wise in the spatial domain.
+    mu is ignored (0) when `previous_f` is None (first frame). The last g-step is skipped: it
+    would not change the returned f. Returns F (the unconstrained split variable), which after
+    the last, large-penalty iteration agrees with the constrained g to within the ADMM residual.
+    """
+    channels, height, half_w = sample_f.shape
+    shape_hw = (height, reg_window.shape[1])
+    n = float(height * shape_hw[1])
+    if previous_f is None:
+        mu = 0.0
+    # Terms that do not change over the iterations.
+    sxx = np.einsum("chw,chw->hw", sample_f.conj(), sample_f).real.astype(np.float32)
+    constant = sample_f * np.conj(label_f)[None]
+    if mu > 0.0:
+        constant = constant + np.float32(mu) * previous_f
+    reg_sq = (np.float32(lam / n) * reg_window.astype(np.float32) ** 2)[None]
+    g_f = np.zeros_like(sample_f)
+    h_f = np.zeros_like(sample_f)
+    penalty = penalty_init
+    filter_f = g_f
+    for it in range(iterations):
+        # f-step: (x x^H + (mu + p) I) f = q, q = x conj(y) + mu f_prev + p g - h.
+        q = constant + np.float32(penalty) * g_f - h_f if it else constant.copy()
+        xhq = np.einsum("chw,chw->hw", sample_f.conj(), q)
+        denom = np.float32(mu + penalty)
+        coeff = xhq / (denom + sxx)
+        q -= sample_f * coeff[None]
+        q *= np.float32(1.0 / (mu + penalty))
+        filter_f = q
+        if it == iterations - 1:
+            break
+        # g-step: g = (p f + h) / (lam w^2 / N + p), spatial, element-wise.
+        spatial = fourier.irfft2(np.float32(penalty) * filter_f + h_f, shape_hw)
+        spatial /= reg_sq + np.float32(penalty)
+        g_f = fourier.rfft2(spatial.astype(np.float32))
+        # dual ascent on the constraint f = g
+        h_f = h_f + np.float32(penalty) * (filter_f - g_f)
+        penalty = min(penalty * penalty_growth, penalty_max)
+    return filter_f.astype(np.complex64, copy=False)
+
+
+def strcf_objective(
+    filter_f: np.ndarray,
+    sample_f: np.ndarray,
+    label_f: np.ndarray,
+    reg_window: np.ndarray,
+    previous_f: np.ndarray | None,
+    *,
+    lam: float,
+    mu: float,
+) -> float:
+    """E(f) of `admm_solve` (same units), evaluated on a filter spectrum (for tests and checks)."""
+    shape_hw = reg_window.shape
+    weights = fourier.half_spectrum_weights(shape_hw)[None, :]
+    residual = response_spectrum(filter_f, sample_f) - label_f
+    data = 0.5 * float(np.sum(weights * np.abs(residual) ** 2))
+    spatial = fourier.irfft2(filter_f, shape_hw)
+    reg = 0.5 * lam * float(np.sum((reg_window[None] * spatial) ** 2))
+    temporal = 0.0
+    if previous_f is not None and mu > 0:
+        temporal = 0.5 * mu * float(np.sum(weights[None] * np.abs(filter_f - previous_f) ** 2))
+    return data + reg + temporal

@@ -1,0 +1,379 @@
+"""Pure model of a multicopter with a 2-axis gimbal, as ArduCopter or PX4 treats the service's messages.
+
+Functional core of the mock autopilot: no sockets, no wall clock. The caller supplies the time
+(`now_s`, seconds on the caller's clock: simulated time in the closed loop, wall time in real-time
+runs) and steps the dynamics with `step(dt_s)`.
+
+Frames and units: local NED position in metres from home (north, east, down); velocities m/s in NED;
+vehicle yaw radians clockwise from north; gimbal pitch radians in the earth frame (stabilised,
+0 = horizon, negative = down), gimbal yaw radians relative to the vehicle heading (positive = right).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+Flavour = Literal["ardupilot", "px4"]
+FLAVOURS: tuple[str, ...] = ("ardupilot", "px4")
+
+# ArduCopter custom_mode numbers (the subset the service may meet).
+ARDUCOPTER_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
+                    "LAND": 9, "POSHOLD": 16, "FOLLOW": 23}
+# PX4: custom_mode = main_mode << 16 | sub_mode << 24 (px4_custom_mode.h).
+PX4_MAIN = {"MANUAL": 1, "ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "ACRO": 5, "OFFBOARD": 6, "STABILIZED": 7}
+PX4_AUTO_SUB = {"READY": 1, "TAKEOFF": 2, "LOITER": 3, "MISSION": 4, "RTL": 5, "LAND": 6,
+                "FOLLOW_TARGET": 8}
+PX4_MODES = {"POSCTL": (3, 0), "OFFBOARD": (6, 0), "HOLD": (4, 3), "FOLLOW_TARGET": (4, 8),
+             "MANUAL": (1, 0), "ALTCTL": (2, 0)}
+
+# type_mask bits of SET_POSITION_TARGET_LOCAL_NED: a set bit means "ignore this field".
+IGNORE_VX, IGNORE_VY, IGNORE_VZ = 8, 16, 32
+IGNORE_YAW_RATE = 2048
+FRAME_LOCAL_NED, FRAME_BODY_NED, FRAME_BODY_OFFSET_NED = 1, 8, 9
+
+
+def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
+    """PX4 heartbeat custom_mode: main mode in bits 16..23, sub mode in bits 24..31."""
+    return (main_mode << 16) | (sub_mode << 24)
+
+
+def custom_mode_of(flavour: Flavour, mode: str) -> int:
+    """Heartbeat custom_mode of a named flight mode for the firmware `flavour` (ValueError if unknown)."""
+    if flavour == "ardupilot":
+        if mode not in ARDUCOPTER_MODES:
+            raise ValueError(f"unknown ArduCopter mode {mode!r}; known: {sorted(ARDUCOPTER_MODES)}")
+        return ARDUCOPTER_MODES[mode]
+    if flavour == "px4":
+        if mode not in PX4_MODES:
+            raise ValueError(f"unknown PX4 mode {mode!r}; known: {sorted(PX4_MODES)}")
+        return px4_custom_mode(*PX4_MODES[mode])
+    raise ValueError(f"unknown autopilot flavour {flavour!r}; expected one of {FLAVOURS}")
+
+
+def guidance_mode(flavour: Flavour) -> str:
+    """The mode in which the firmware honours external velocity setpoints (GUIDED / OFFBOARD)."""
+    return "GUIDED" if flavour == "ardupilot" else "OFFBOARD"
+
+
+def follow_mode(flavour: Flavour) -> str:
+    """The mode in which the firmware follows FOLLOW_TARGET (FOLLOW / Follow-Me)."""
+    return "FOLLOW" if flavour == "ardupilot" else "FOLLOW_TARGET"
+
+
+def wrap_pi(angle: float) -> float:
+    """Angle in radians wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def clamp(value: float, low: float, high: float) -> float:
+    """`value` limited to [low, high]."""
+    return min(max(value, low), high)
+
+
+def approach(current: float, target: float, max_step: float) -> float:
+    """Move `current` towards `target` by at most `max_step` (rate / acceleration limiting)."""
+    return current + clamp(target - current, -max_step, max_step)
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """Dynamics limits and firmware timing. Angles in degrees here for readability; the model uses radians."""
+
+    flavour: Flavour = "ardupilot"
+    system_id: int = 1
+    home_lat_deg: float = 47.397742  # any fixed place: the flat-earth model only needs a reference
+    home_lon_deg: float = 8.545594
+    home_alt_m: float = 488.0  # AMSL of the ground plane
+    start_altitude_m: float = 40.0  # above ground
+    start_mode: str = ""  # "" = the firmware's guidance mode (GUIDED / OFFBOARD)
+    max_speed_m_s: float = 12.0
+    max_accel_m_s2: float = 4.0
+    max_yaw_rate_deg_s: float = 90.0
+    gimbal_max_rate_deg_s: float = 120.0
+    gimbal_pitch_min_deg: float = -90.0
+    gimbal_pitch_max_deg: float = 20.0
+    gimbal_yaw_min_deg: float = -160.0
+    gimbal_yaw_max_deg: float = 160.0
+    gimbal_start_pitch_deg: float = -45.0
+    # ArduCopter GUIDED: a velocity target older than 3 s is replaced by zero velocity (vehicle stops).
+    ardupilot_guided_timeout_s: float = 3.0
+    # PX4 OFFBOARD: COM_OF_LOSS_T. PX4 documents 1 s by default on recent releases and 0.5 s on older
+    # ones; we take the stricter 0.5 s so a service that only passes the mock at 1 s fails here.
+    px4_offboard_loss_s: float = 0.5
+    # PX4 refuses to enter OFFBOARD unless setpoints have streamed (> 2 Hz) for about 1 s.
+    px4_offboard_prestream_s: float = 1.0
+    follow_distance_m: float = 15.0
+    follow_timeout_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.flavour not in FLAVOURS:
+            raise ValueError(f"flavour must be one of {FLAVOURS}, got {self.flavour!r}")
+        if not 1 <= self.system_id <= 255:
+            raise ValueError(f"system_id must be 1..255, got {self.system_id}")
+        if self.start_mode:
+            custom_mode_of(self.flavour, self.start_mode)
+        for name in ("max_speed_m_s", "max_accel_m_s2", "max_yaw_rate_deg_s", "gimbal_max_rate_deg_s",
+                     "ardupilot_guided_timeout_s", "px4_offboard_loss_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+
+    @property
+    def setpoint_timeout_s(self) -> float:
+        """How long the firmware keeps acting on the last velocity setpoint."""
+        return self.ardupilot_guided_timeout_s if self.flavour == "ardupilot" else self.px4_offboard_loss_s
+
+
+@dataclass
+class VehicleState:
+    """Kinematic state: NED metres / m/s, yaw rad (clockwise from north), gimbal rad (see module doc)."""
+
+    north: float = 0.0
+    east: float = 0.0
+    down: float = -40.0
+    v_north: float = 0.0
+    v_east: float = 0.0
+    v_down: float = 0.0
+    yaw: float = 0.0
+    yaw_rate: float = 0.0
+    gimbal_pitch: float = math.radians(-45.0)
+    gimbal_yaw: float = 0.0
+    gimbal_pitch_rate: float = 0.0
+    gimbal_yaw_rate: float = 0.0
+
+
+@dataclass(frozen=True)
+class ReceivedCommand:
+    """One MAVLink message the autopilot received: when (caller's clock), from whom, what it did with it."""
+
+    time_s: float
+    link: str
+    src_system: int
+    src_component: int
+    msg_type: str
+    fields: dict
+    outcome: str  # "applied", "ignored: <why>", "ack <result>", "forwarded", "dropped: link down"
+
+
+@dataclass
+class VelocityTarget:
+    """Commanded velocity in NED m/s and yaw rate rad/s, with the time it was received."""
+
+    v_north: float
+    v_east: float
+    v_down: float
+    yaw_rate: float
+    received_s: float
+
+
+@dataclass
+class FollowTarget:
+    """Last FOLLOW_TARGET position in local NED metres, with its time."""
+
+    north: float
+    east: float
+    received_s: float
+
+
+@dataclass
+class VehicleModel:
+    """Mock ArduCopter / PX4 vehicle + gimbal: message handling and dynamics, stepped by the caller."""
+
+    config: VehicleConfig = field(default_factory=VehicleConfig)
+    state: VehicleState = field(default_factory=VehicleState)
+    mode: str = ""
+    armed: bool = True
+    time_s: float = 0.0
+    velocity_target: VelocityTarget | None = None
+    follow_target: FollowTarget | None = None
+    gimbal_primary: tuple[int, int] = (0, 0)  # (sysid, compid) in control of the gimbal (PX4 manager)
+    gimbal_rate_target: tuple[float, float] = (0.0, 0.0)  # (pitch, yaw) rad/s
+    gimbal_angle_target: tuple[float, float] | None = None  # (pitch, yaw) rad, when in angle mode
+    setpoint_times: list[float] = field(default_factory=list)  # recent setpoint arrivals (PX4 pre-stream)
+    events: list[tuple[float, str]] = field(default_factory=list)  # mode changes, failsafes
+
+    def __post_init__(self) -> None:
+        if not self.mode:
+            self.mode = self.config.start_mode or guidance_mode(self.config.flavour)
+        self.state.down = -self.config.start_altitude_m
+        self.state.gimbal_pitch = math.radians(self.config.gimbal_start_pitch_deg)
+
+    # ----- identity -----------------------------------------------------------------------------
+    @property
+    def custom_mode(self) -> int:
+        """Heartbeat custom_mode of the current flight mode."""
+        return custom_mode_of(self.config.flavour, self.mode)
+
+    @property
+    def in_guidance_mode(self) -> bool:
+        """True in GUIDED (ArduCopter) / OFFBOARD (PX4): external velocity setpoints are honoured."""
+        return self.mode == guidance_mode(self.config.flavour)
+
+    def operator_set_mode(self, mode: str) -> None:
+        """The pilot switches mode (RC / ground station); PX4 refuses OFFBOARD without a setpoint stream."""
+        custom_mode_of(self.config.flavour, mode)
+        if self.config.flavour == "px4" and mode == "OFFBOARD":
+            window = self.config.px4_offboard_prestream_s
+            recent = [t for t in self.setpoint_times if self.time_s - t <= window]
+            # > 2 Hz over the last second, and the newest one still fresh.
+            if len(recent) < 2 * window + 1 or self.time_s - recent[-1] > self.config.px4_offboard_loss_s:
+                raise ValueError("PX4 rejects OFFBOARD: no setpoint stream (> 2 Hz for 1 s) before the switch")
+        self._set_mode(mode, "operator")
+
+    def _set_mode(self, mode: str, why: str) -> None:
+        if mode != self.mode:
+            self.events.append((self.time_s, f"mode {self.mode} -> {mode} ({why})"))
+            self.mode = mode
+            self.velocity_target = None
+
+    # ----- messages -----------------------------------------------------------------------------
+    def set_gimbal_rates(self, pitch_rate: float, yaw_rate: float) -> None:
+        """Rate mode: angular rates in rad/s (positive = up / right), NaN taken as 0."""
+        self.gimbal_rate_target = (0.0 if math.isnan(pitch_rate) else pitch_rate,
+                                   0.0 if math.isnan(yaw_rate) else yaw_rate)
+        self.gimbal_angle_target = None
+
+    def set_gimbal_angles(self, pitch: float, yaw: float) -> None:
+        """Angle mode: pitch (earth frame) and yaw (vehicle frame) in radians."""
+        self.gimbal_angle_target = (pitch, yaw)
+        self.gimbal_rate_target = (0.0, 0.0)
+
+    def set_velocity(self, frame: int, type_mask: int, vx: float, vy: float, vz: float, yaw_rate: float,
+                     now_s: float) -> str:
+        """Apply a SET_POSITION_TARGET_LOCAL_NED velocity setpoint; returns the outcome for the record."""
+        self.setpoint_times.append(now_s)
+        del self.setpoint_times[:-64]
+        if not self.in_guidance_mode:
+            return f"ignored: mode {self.mode} is not {guidance_mode(self.config.flavour)}"
+        if frame not in (FRAME_LOCAL_NED, FRAME_BODY_NED, FRAME_BODY_OFFSET_NED):
+            return f"ignored: coordinate frame {frame} not supported"
+        values = [0.0 if (type_mask & bit) else v for bit, v in
+                  ((IGNORE_VX, vx), (IGNORE_VY, vy), (IGNORE_VZ, vz))]
+        if not all(math.isfinite(v) for v in values):
+            return "ignored: non-finite velocity"
+        rate = 0.0 if (type_mask & IGNORE_YAW_RATE) or not math.isfinite(yaw_rate) else yaw_rate
+        forward, right, down = values
+        if frame == FRAME_LOCAL_NED:
+            north, east = forward, right
+        else:  # body frames: x forward, y right along the current heading
+            c, s = math.cos(self.state.yaw), math.sin(self.state.yaw)
+            north, east = c * forward - s * right, s * forward + c * right
+        self.velocity_target = VelocityTarget(north, east, down, rate, now_s)
+        return "applied"
+
+    def set_follow_target(self, north: float, east: float, src_system: int, now_s: float) -> str:
+        """Apply a FOLLOW_TARGET position (local NED metres) as each firmware does."""
+        if self.config.flavour == "ardupilot" and src_system == self.config.system_id:
+            # ArduCopter FOLLOW ignores FOLLOW_TARGET carrying its own system id (AP_Follow).
+            return "ignored: ArduPilot FOLLOW ignores its own system id"
+        self.follow_target = FollowTarget(north, east, now_s)
+        if self.mode != follow_mode(self.config.flavour):
+            return f"stored: mode {self.mode} is not {follow_mode(self.config.flavour)}"
+        return "applied"
+
+    def configure_gimbal_manager(self, primary_sysid: float, primary_compid: float,
+                                 src: tuple[int, int]) -> str:
+        """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE p1/p2: -1 unchanged, -2 the sender, -3 release."""
+        if primary_sysid == -1:
+            return "applied (unchanged)"
+        if primary_sysid == -2:
+            self.gimbal_primary = src
+        elif primary_sysid == -3:
+            self.gimbal_primary = (0, 0)
+        else:
+            self.gimbal_primary = (int(primary_sysid), int(primary_compid))
+        self.events.append((self.time_s, f"gimbal primary control {self.gimbal_primary}"))
+        return "applied"
+
+    # ----- dynamics -----------------------------------------------------------------------------
+    def step(self, dt_s: float) -> None:
+        """Advance the vehicle and gimbal by `dt_s` seconds (timeouts, then rate/accel-limited motion)."""
+        if not dt_s > 0:
+            raise ValueError(f"dt_s must be > 0, got {dt_s}")
+        cfg, st = self.config, self.state
+        self.time_s += dt_s
+        self._apply_timeouts()
+        target_n = target_e = target_d = target_yaw_rate = 0.0
+        if self.velocity_target is not None and self.in_guidance_mode:
+            vt = self.velocity_target
+            target_n, target_e, target_d, target_yaw_rate = vt.v_north, vt.v_east, vt.v_down, vt.yaw_rate
+        elif self.mode == follow_mode(cfg.flavour) and self.follow_target is not None:
+            target_n, target_e, target_yaw_rate = self._follow_velocity()
+        speed = math.hypot(target_n, target_e)
+        if speed > cfg.max_speed_m_s:
+            target_n, target_e = target_n * cfg.max_speed_m_s / speed, target_e * cfg.max_speed_m_s / speed
+        target_d = clamp(target_d, -3.0, 3.0)
+        dv = cfg.max_accel_m_s2 * dt_s
+        st.v_north = approach(st.v_north, target_n, dv)
+        st.v_east = approach(st.v_east, target_e, dv)
+        st.v_down = approach(st.v_down, target_d, dv)
+        max_yaw_rate = math.radians(cfg.max_yaw_rate_deg_s)
+        st.yaw_rate = clamp(target_yaw_rate, -max_yaw_rate, max_yaw_rate)
+        st.north += st.v_north * dt_s
+        st.east += st.v_east * dt_s
+        st.down = min(st.down + st.v_down * dt_s, -2.0)  # never below 2 m above ground
+        st.yaw = wrap_pi(st.yaw + st.yaw_rate * dt_s)
+        self._step_gimbal(dt_s)
+
+    def _apply_timeouts(self) -> None:
+        cfg = self.config
+        vt = self.velocity_target
+        if vt is not None and self.time_s - vt.received_s > cfg.setpoint_timeout_s:
+            self.velocity_target = None
+            if cfg.flavour == "px4" and self.mode == "OFFBOARD":
+                # Offboard loss failsafe (COM_OBL_RC_ACT default): switch to Hold; the pilot must re-engage.
+                self._set_mode("HOLD", "offboard setpoint stream lost")
+            else:
+                self.events.append((self.time_s, "guided setpoint timeout: stopping"))
+        ft = self.follow_target
+        if ft is not None and self.time_s - ft.received_s > cfg.follow_timeout_s:
+            self.follow_target = None
+            self.events.append((self.time_s, "follow target timeout: holding"))
+
+    def _follow_velocity(self) -> tuple[float, float, float]:
+        """Velocity (NED m/s) and yaw rate (rad/s) towards `follow_distance_m` from the follow target."""
+        ft, st, cfg = self.follow_target, self.state, self.config
+        assert ft is not None
+        dn, de = ft.north - st.north, ft.east - st.east
+        dist = math.hypot(dn, de)
+        if dist < 1e-6:
+            return 0.0, 0.0, 0.0
+        gain = 0.5  # 1/s: closes half the distance error per second, like a P position controller
+        excess = dist - cfg.follow_distance_m
+        heading_error = wrap_pi(math.atan2(de, dn) - st.yaw)
+        return gain * excess * dn / dist, gain * excess * de / dist, 1.0 * heading_error
+
+    def _step_gimbal(self, dt_s: float) -> None:
+        cfg, st = self.config, self.state
+        max_rate = math.radians(cfg.gimbal_max_rate_deg_s)
+        if self.gimbal_angle_target is not None:
+            pitch_t, yaw_t = self.gimbal_angle_target
+            pitch_rate = clamp((pitch_t - st.gimbal_pitch) / dt_s, -max_rate, max_rate)
+            yaw_rate = clamp(wrap_pi(yaw_t - st.gimbal_yaw) / dt_s, -max_rate, max_rate)
+        else:
+            pitch_rate = clamp(self.gimbal_rate_target[0], -max_rate, max_rate)
+            yaw_rate = clamp(self.gimbal_rate_target[1], -max_rate, max_rate)
+        pitch = clamp(st.gimbal_pitch + pitch_rate * dt_s, math.radians(cfg.gimbal_pitch_min_deg),
+                      math.radians(cfg.gimbal_pitch_max_deg))
+        yaw = clamp(st.gimbal_yaw + yaw_rate * dt_s, math.radians(cfg.gimbal_yaw_min_deg),
+                    math.radians(cfg.gimbal_yaw_max_deg))
+        st.gimbal_pitch_rate = (pitch - st.gimbal_pitch) / dt_s
+        st.gimbal_yaw_rate = (yaw - st.gimbal_yaw) / dt_s
+        st.gimbal_pitch, st.gimbal_yaw = pitch, yaw
+
+    # ----- geodesy (flat earth around home) -----------------------------------------------------
+    def lat_lon_of(self, north: float, east: float) -> tuple[float, float]:
+        """Local NED metres -> latitude, longitude in degrees (equirectangular around home)."""
+        earth_radius = 6378137.0
+        lat = self.config.home_lat_deg + math.degrees(north / earth_radius)
+        lon = self.config.home_lon_deg + math.degrees(
+            east / (earth_radius * math.cos(math.radians(self.config.home_lat_deg))))
+        return lat, lon
+
+    def local_of(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        """Latitude, longitude in degrees -> local (north, east) metres from home."""
+        earth_radius = 6378137.0
+        north = math.radians(lat_deg - self.config.home_lat_deg) * earth_radius
+        east = math.radians(lon_deg - self.config.home_lon_deg) * earth_radius * math.cos(
+            math.radians(self.config.home_lat_deg))
+        return north, east

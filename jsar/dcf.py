@@ -116,11 +116,12 @@ def admm_solve(
 ) -> np.ndarray:
     """STRCF filter spectrum (C, H, W//2+1) complex64 minimising, by ADMM,
 
-        E(f) = 1/2 sum_k |sum_c conj(F_c) X_c - Y|^2 + lam/2 ||reg_window * f||^2
-               + mu/2 sum_k ||F - F_prev||^2,
+        E(f) = 1/2 sum_k |sum_c conj(F_c) X_c - Y|^2 + N lam/2 ||reg_window * f||^2
+               + N mu/2 sum_k ||F - F_prev||^2,
 
-    sums over the full spectrum in MATLAB units and the regulariser on the spatial filter (the
-    units of STRCF's code: the regulariser weight acts as lam / N against the data term).
+    with sums over the full spectrum in MATLAB units, f = IFFT(F) the spatial filter and
+    N = H*W. These are the units of STRCF's reference code (its per-frequency system is
+    x x^H / N + (penalty + mu)), which is what the paper's mu = 16 and penalty schedule mean.
     Split f = g (g carries the spatial penalty); the f-step is a per-frequency rank-one system
     solved by Sherman-Morrison over channels, the g-step is element-wise in the spatial domain.
     mu is ignored (0) when `previous_f` is None (first frame). The last g-step is skipped: it
@@ -132,34 +133,37 @@ def admm_solve(
     n = float(height * shape_hw[1])
     if previous_f is None:
         mu = 0.0
+    # Work with the system multiplied by N: penalty and mu scaled by N, data term as is.
+    mu_n = mu * n
     # Terms that do not change over the iterations.
     sxx = np.einsum("chw,chw->hw", sample_f.conj(), sample_f).real.astype(np.float32)
     constant = sample_f * np.conj(label_f)[None]
     if mu > 0.0:
-        constant = constant + np.float32(mu) * previous_f
-    reg_sq = (np.float32(lam / n) * reg_window.astype(np.float32) ** 2)[None]
+        constant = constant + np.float32(mu_n) * previous_f
+    reg_sq = (np.float32(lam) * reg_window.astype(np.float32) ** 2)[None]
     g_f = np.zeros_like(sample_f)
     h_f = np.zeros_like(sample_f)
-    penalty = penalty_init
+    penalty = penalty_init * n
+    penalty_cap = penalty_max * n
     filter_f = g_f
     for it in range(iterations):
         # f-step: (x x^H + (mu + p) I) f = q, q = x conj(y) + mu f_prev + p g - h.
         q = constant + np.float32(penalty) * g_f - h_f if it else constant.copy()
         xhq = np.einsum("chw,chw->hw", sample_f.conj(), q)
-        denom = np.float32(mu + penalty)
+        denom = np.float32(mu_n + penalty)
         coeff = xhq / (denom + sxx)
         q -= sample_f * coeff[None]
-        q *= np.float32(1.0 / (mu + penalty))
+        q *= np.float32(1.0 / (mu_n + penalty))
         filter_f = q
         if it == iterations - 1:
             break
-        # g-step: g = (p f + h) / (lam w^2 / N + p), spatial, element-wise.
+        # g-step: g = (p f + h) / (lam w^2 + p), spatial, element-wise (p already scaled by N).
         spatial = fourier.irfft2(np.float32(penalty) * filter_f + h_f, shape_hw)
         spatial /= reg_sq + np.float32(penalty)
         g_f = fourier.rfft2(spatial.astype(np.float32))
         # dual ascent on the constraint f = g
         h_f = h_f + np.float32(penalty) * (filter_f - g_f)
-        penalty = min(penalty * penalty_growth, penalty_max)
+        penalty = min(penalty * penalty_growth, penalty_cap)
     return filter_f.astype(np.complex64, copy=False)
 
 
@@ -179,8 +183,9 @@ def strcf_objective(
     residual = response_spectrum(filter_f, sample_f) - label_f
     data = 0.5 * float(np.sum(weights * np.abs(residual) ** 2))
     spatial = fourier.irfft2(filter_f, shape_hw)
-    reg = 0.5 * lam * float(np.sum((reg_window[None] * spatial) ** 2))
+    n = float(shape_hw[0] * shape_hw[1])
+    reg = 0.5 * lam * n * float(np.sum((reg_window[None] * spatial) ** 2))
     temporal = 0.0
     if previous_f is not None and mu > 0:
-        temporal = 0.5 * mu * float(np.sum(weights[None] * np.abs(filter_f - previous_f) ** 2))
+        temporal = 0.5 * mu * n * float(np.sum(weights[None] * np.abs(filter_f - previous_f) ** 2))
     return data + reg + temporal

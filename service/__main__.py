@@ -1,0 +1,54 @@
+"""`jsar-service` / `python -m service`: run the onboard tracking daemon."""
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+
+import service.mavlink  # noqa: F401  (MAVLINK20 before pymavlink loads)
+from service.config import ConfigError, load_config, with_overrides
+from service.logs import setup_logging
+
+log = logging.getLogger("service")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="jsar-service", description=__doc__)
+    parser.add_argument("--config", required=True, help="YAML configuration (see config.yaml)")
+    parser.add_argument("--source", help="override source: /dev/videoN, a video file or image folder, or 'zenoh'")
+    parser.add_argument("--mavlink", help="override mavlink.url (pymavlink connection string)")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Load and validate the config, run until SIGTERM / SIGINT; exit 2 on a config error."""
+    args = parse_args(argv)
+    try:
+        config = with_overrides(load_config(args.config), args.source, args.mavlink)
+    except ConfigError as exc:
+        print(f"jsar-service: configuration error: {exc}", file=sys.stderr)
+        return 2
+    setup_logging(config.logging)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        log.info("event=signal signal=%s", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    from service.app import Service  # heavy imports after the config is known to be good
+
+    try:
+        daemon = Service(config)
+    except (ConnectionError, ValueError) as exc:
+        log.error('event=startup_failed error="%s"', exc)
+        return 1
+    daemon.run(stop)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

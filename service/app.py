@@ -1,0 +1,117 @@
+"""The imperative shell: build the adapters from config, run the tracking loop, shut down cleanly."""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+import jsar
+from service.config import ServiceConfig, as_plain
+from service.loop import FrameReport, TrackingLoop
+from service.mavlink.camera import CameraComponent
+from service.mavlink.link import MavlinkLink
+from service.mavlink.outputs import MavlinkOutputs
+from service.sources import CaptureWorker, LatestSlot, make_reader
+from service.sources.base import Frame
+from service.systemd import sd_notify, watchdog_interval_s
+from service.telemetry import Telemetry, open_session
+
+log = logging.getLogger("service")
+
+
+class Service:
+    """All parts of the daemon; `run(stop)` blocks until `stop` is set."""
+
+    def __init__(self, config: ServiceConfig) -> None:
+        self.config = config
+        self.started_s = time.monotonic()
+        tracker_cfg = config.tracker
+        jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
+        self._session = open_session(config.zenoh) if config.zenoh.enabled else None
+        try:
+            self.mailbox: LatestSlot[Frame] = LatestSlot()
+            reader = make_reader(config.source, self._session, config.zenoh.prefix)
+            self.worker = CaptureWorker(reader, self.mailbox, config.source.retry_initial_s, config.source.retry_max_s)
+            self.selections: LatestSlot = LatestSlot()
+            self.link = MavlinkLink(config.mavlink, config.mavlink.system_id or config.mavlink.provisional_system_id)
+            health = self.worker.health
+            self.camera = CameraComponent(
+                config, self.link, self.selections,
+                frame_size=lambda: health.last_frame_size,
+                source_ok=lambda: health.state == "ok",
+                source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}")
+            self.outputs = MavlinkOutputs(config, self.link, self.camera.autopilot, self.camera.time_boot_ms)
+            self.telemetry = Telemetry(self._session, config.zenoh.prefix, self.status) if self._session else None
+            self.loop = TrackingLoop(
+                config, self.selections, lambda: jsar.create(tracker_cfg.name, **tracker_cfg.params),
+                self.outputs, self.camera.autopilot, publish_snapshot=self.camera.publish,
+                publish_report=self._publish_report, dropped=lambda: self.worker.dropped)
+        except BaseException:
+            if self._session is not None:
+                self._session.close()
+            raise
+        self._last_report: FrameReport | None = None
+
+    def _publish_report(self, report: FrameReport) -> None:
+        self._last_report = report
+        if self.telemetry is not None:
+            self.telemetry.publish(report.as_json())
+
+    def status(self) -> dict[str, Any]:
+        """Status, counters and effective configuration (answer of the <prefix>/status queryable)."""
+        health = self.worker.health.snapshot()
+        view = self.camera.autopilot()
+        report = self._last_report
+        return {
+            "status": "ok" if health["state"] == "ok" else "error" if health["state"] in ("error", "ended") else "starting",
+            "uptime_s": round(time.monotonic() - self.started_s, 3),
+            "source": health,
+            "track": {"state": self.loop.state, "box_px": list(self.loop.box) if self.loop.box else None,
+                      "last_frame_id": report.frame_id if report else None},
+            "counters": {"dropped_frames": self.worker.dropped, **self.loop.counters,
+                         **{f"mavlink_{k}": v for k, v in self.camera.counters.items()},
+                         **{f"out_{k}": v for k, v in self.outputs.counters.items()},
+                         "mavlink_sent": self.link.sent, "mavlink_send_errors": self.link.send_errors},
+            "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
+                          "custom_mode": view.custom_mode},
+            "mavlink_system_id": self.link.system_id,
+            "config": as_plain(self.config),
+        }
+
+    def run(self, stop: threading.Event) -> None:
+        """Start the threads, notify systemd, run the loop until `stop`, then shut down (< 2 s)."""
+        self.worker.start()
+        self.camera.start()
+        watchdog_s = watchdog_interval_s()
+        last_ping = [0.0]
+
+        def ping() -> None:
+            now = time.monotonic()
+            if watchdog_s is not None and now - last_ping[0] >= watchdog_s:
+                sd_notify("WATCHDOG=1")
+                last_ping[0] = now
+
+        sd_notify("READY=1")
+        log.info("event=started source=%s tracker=%s mavlink=%s gimbal=%s guidance=%s watchdog_s=%s",
+                 self.worker.reader.name, self.config.tracker.name, self.config.mavlink.url,
+                 self.config.gimbal.backend, self.config.guidance.mode, watchdog_s)
+        try:
+            self.loop.run(self.mailbox, stop.is_set, on_iteration=ping)
+        finally:
+            self.shutdown()
+
+    def shutdown(self) -> None:
+        """Zero the gimbal if tracking, stop threads, close links."""
+        sd_notify("STOPPING=1")
+        if self.loop.tracker is not None:
+            from service.loop import ControlCommand
+            self.outputs.apply(time.monotonic(), ControlCommand("idle", True, (0.0, 0.0), None, None))
+        self.camera.stop(timeout_s=0.5)
+        self.worker.stop(timeout_s=0.5)
+        if self.telemetry is not None:
+            self.telemetry.close()
+        self.link.close()
+        if self._session is not None:
+            self._session.close()
+        log.info("event=stopped frames=%d dropped=%d", self.loop.counters["frames"], self.worker.dropped)

@@ -1,0 +1,321 @@
+"""The service's one typed configuration: nested frozen dataclasses loaded from YAML.
+
+Every key is validated at start. Unknown keys are rejected and every error names the key path,
+e.g. ``gimbal.max_rate_deg_s: must be > 0, got -3``. Defaults are the documented defaults of the
+top-level ``config.yaml``. Units are in the key names (``_deg``, ``_s``, ``_hz``, ``_m``);
+"fraction" means a fraction of the image width.
+"""
+from __future__ import annotations
+
+import collections.abc
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Literal, Mapping
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown or out of range; the message names the key path."""
+
+
+Check = Callable[[Any], "str | None"]
+
+
+def _positive(value: float) -> str | None:
+    return None if value > 0 else f"must be > 0, got {value}"
+
+
+def _non_negative(value: float) -> str | None:
+    return None if value >= 0 else f"must be >= 0, got {value}"
+
+
+def _in_range(low: float, high: float) -> Check:
+    def check(value: float) -> str | None:
+        return None if low <= value <= high else f"must be in [{low}, {high}], got {value}"
+    return check
+
+
+def _checked(default: Any, *checks: Check) -> Any:
+    """A dataclass field with a default and value checks run by the loader."""
+    if isinstance(default, (list, dict)):
+        raise TypeError("mutable defaults are not allowed; use tuples")
+    return field(default=default, metadata={"checks": checks})
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """Where frames come from. `kind` v4l2: device; file: path (video file or image folder); zenoh."""
+
+    kind: Literal["v4l2", "file", "zenoh"] = "v4l2"
+    device: str = "/dev/video0"
+    path: str = ""
+    width: int = _checked(640, _positive)  # v4l2 requested capture size, pixels
+    height: int = _checked(480, _positive)
+    fps: float = _checked(30.0, _positive)  # v4l2 requested rate; image-folder pacing rate
+    fourcc: str = "MJPG"
+    realtime: bool = True  # file: pace at the file's own frame rate, like a camera
+    loop: bool = False  # file: start again at the end instead of reporting end of file
+    retry_initial_s: float = _checked(0.5, _positive)  # first reconnect delay after a failure
+    retry_max_s: float = _checked(8.0, _positive)  # backoff doubles up to this delay
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """`jsar.create(name, **params)`; an unknown name is a configuration error."""
+
+    name: str = "jsar-re"
+    params: Mapping[str, Any] = field(default_factory=lambda: types.MappingProxyType({}))
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Optics and identity of the tracking camera, and how a clicked point becomes a box."""
+
+    hfov_deg: float = _checked(70.0, _in_range(1.0, 179.0))  # horizontal field of view
+    default_point_radius: float = _checked(0.04, _in_range(0.001, 0.5))  # fraction of width when radius = 0
+    min_box_px: float = _checked(12.0, _positive)  # smallest initial box side from a point
+    point_proposal: bool = False  # refine a point's box with an EdgeBoxes proposal around it
+    vendor_name: str = "JSAR"
+    model_name: str = "jsar-tracker"
+
+
+@dataclass(frozen=True)
+class SigningConfig:
+    """MAVLink 2 signing: off when key_file is empty. The key file holds 32 raw bytes or 64 hex chars."""
+
+    key_file: str = ""
+    allow_unsigned: bool = False  # accept unsigned packets too (migration); rejected by default
+    link_id: int = _checked(0, _in_range(0, 255))
+
+
+@dataclass(frozen=True)
+class MavlinkConfig:
+    """The one MAVLink link (pymavlink connection string) and the camera component's identity."""
+
+    url: str = "udpout:127.0.0.1:14555"
+    baud: int = _checked(921600, _positive)  # serial devices only
+    system_id: int = _checked(0, _in_range(0, 255))  # 0 = learn from the autopilot's heartbeat
+    provisional_system_id: int = _checked(1, _in_range(1, 255))  # used until it is learned
+    component_id: int = _checked(100, _in_range(100, 105))  # MAV_COMP_ID_CAMERA .. CAMERA6
+    heartbeat_timeout_s: float = _checked(3.0, _positive)  # autopilot considered gone after this
+    default_status_interval_s: float = _checked(0.1, _positive)  # 275 interval when asked for "default"
+    signing: SigningConfig = field(default_factory=SigningConfig)
+
+
+@dataclass(frozen=True)
+class GimbalConfig:
+    """PI(D) on angular error (radians) -> gimbal rates; gains in SI (rad/s per rad, ...)."""
+
+    backend: Literal["ardupilot", "px4", "none"] = "ardupilot"
+    device_id: int = _checked(0, _in_range(0, 255))  # 0 = primary gimbal
+    kp: float = _checked(2.0, _non_negative)  # 1/s
+    ki: float = _checked(0.4, _non_negative)  # 1/s^2
+    kd: float = _checked(0.0, _non_negative)  # dimensionless (s * 1/s)
+    max_rate_deg_s: float = _checked(60.0, _positive)
+    max_accel_deg_s2: float = _checked(400.0, _positive)  # slew limit on the commanded rate
+    integrator_limit_deg_s: float = _checked(15.0, _non_negative)  # |ki * integral| bound
+    deadband_deg: float = _checked(0.0, _non_negative)
+    claim_interval_s: float = _checked(1.0, _positive)  # px4: re-send the claim while not primary
+
+
+@dataclass(frozen=True)
+class GuidanceConfig:
+    """Vehicle guidance, off by default. Never arms, never changes modes."""
+
+    mode: Literal["off", "velocity", "follow_target"] = "off"
+    rate_hz: float = _checked(10.0, _in_range(2.5, 50.0))  # > 2 Hz: PX4 offboard needs it
+    yaw_gain: float = _checked(1.0, _non_negative)  # yaw rate per rad of target bearing, 1/s
+    max_yaw_rate_deg_s: float = _checked(30.0, _positive)
+    forward_gain: float = _checked(0.3, _non_negative)  # m/s per m of range error
+    max_speed_m_s: float = _checked(5.0, _positive)
+    follow_distance_m: float = _checked(15.0, _positive)  # desired ground range to the target
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """Telemetry / frames over Zenoh; keys under `prefix`."""
+
+    enabled: bool = True
+    mode: Literal["peer", "client"] = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    prefix: str = "jsar"
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    """Structured logs on stderr (journald picks them up)."""
+
+    level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    format: Literal["kv", "json"] = "kv"
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """The whole service configuration (top-level config.yaml)."""
+
+    source: SourceConfig = field(default_factory=SourceConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    gimbal: GimbalConfig = field(default_factory=GimbalConfig)
+    guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
+
+
+def load_config(path: str | Path) -> ServiceConfig:
+    """Read and validate a YAML file; ConfigError naming the file or the key path on any problem."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from exc
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
+    return config_from_mapping({} if raw is None else raw)
+
+
+def config_from_mapping(raw: object) -> ServiceConfig:
+    """Build and validate a ServiceConfig from plain data (as parsed YAML)."""
+    config = _build(ServiceConfig, raw, "")
+    _check_cross_fields(config)
+    return config
+
+
+def with_overrides(config: ServiceConfig, source: str | None = None, mavlink_url: str | None = None) -> ServiceConfig:
+    """Apply the command-line overrides: --source (device, file/folder or `zenoh`) and --mavlink URL."""
+    if source is not None:
+        if source == "zenoh":
+            src = dataclasses.replace(config.source, kind="zenoh")
+        elif source.startswith("/dev/video"):
+            src = dataclasses.replace(config.source, kind="v4l2", device=source)
+        else:
+            src = dataclasses.replace(config.source, kind="file", path=source)
+        config = dataclasses.replace(config, source=src)
+    if mavlink_url is not None:
+        config = dataclasses.replace(config, mavlink=dataclasses.replace(config.mavlink, url=mavlink_url))
+    _check_cross_fields(config)
+    return config
+
+
+def as_plain(config: ServiceConfig) -> dict[str, Any]:
+    """The effective configuration as plain JSON-able data (tuples -> lists)."""
+    def plain(value: Any) -> Any:
+        if dataclasses.is_dataclass(value):
+            return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        if isinstance(value, (tuple, list)):
+            return [plain(v) for v in value]
+        if isinstance(value, Mapping):
+            return {str(k): plain(v) for k, v in value.items()}
+        return value
+    return plain(config)
+
+
+def _check_cross_fields(config: ServiceConfig) -> None:
+    """Checks that involve several keys."""
+    src = config.source
+    if src.kind == "file" and not src.path:
+        raise ConfigError("source.path: must name a video file or an image folder when source.kind is file")
+    if src.kind == "v4l2" and not src.device:
+        raise ConfigError("source.device: must name a device when source.kind is v4l2")
+    if src.kind == "v4l2" and len(src.fourcc) != 4:
+        raise ConfigError(f"source.fourcc: must be 4 characters, got {src.fourcc!r}")
+    if src.retry_max_s < src.retry_initial_s:
+        raise ConfigError(f"source.retry_max_s: must be >= source.retry_initial_s ({src.retry_initial_s}), "
+                          f"got {src.retry_max_s}")
+    if not config.mavlink.url:
+        raise ConfigError("mavlink.url: must not be empty")
+    if not config.zenoh.prefix or config.zenoh.prefix.strip("/") != config.zenoh.prefix:
+        raise ConfigError(f"zenoh.prefix: must be non-empty without leading/trailing '/', got {config.zenoh.prefix!r}")
+    if src.kind == "zenoh" and not config.zenoh.enabled:
+        raise ConfigError("zenoh.enabled: must be true when source.kind is zenoh")
+    from jsar.registry import available  # lazily: keeps config parsing importable on its own
+
+    names = available()
+    if config.tracker.name not in names:
+        raise ConfigError(f"tracker.name: unknown tracker {config.tracker.name!r}; available: {', '.join(names)}")
+
+
+def _build(cls: type, raw: object, path: str) -> Any:
+    """Instantiate dataclass `cls` from a mapping, recursively, checking keys, types and ranges."""
+    where = path or "config"
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f"{where}: must be a mapping, got {type(raw).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(map(str, raw)) - set(fields))
+    if unknown:
+        raise ConfigError(f"{_join(path, unknown[0])}: unknown key (known: {', '.join(fields)})")
+    hints = typing.get_type_hints(cls)
+    values: dict[str, Any] = {}
+    for name, f in fields.items():
+        if name not in raw:
+            continue
+        key_path = _join(path, name)
+        value = _coerce(hints[name], raw[name], key_path)
+        for check in f.metadata.get("checks", ()):
+            problem = check(value)
+            if problem:
+                raise ConfigError(f"{key_path}: {problem}")
+        values[name] = value
+    built = cls(**values)
+    # defaults must pass their own checks too (guards against a wrong default in this file)
+    for name, f in fields.items():
+        for check in f.metadata.get("checks", ()):
+            problem = check(getattr(built, name))
+            if problem:
+                raise ConfigError(f"{_join(path, name)}: {problem}")
+    return built
+
+
+def _coerce(hint: Any, value: object, key_path: str) -> Any:
+    """Check `value` against type `hint`; ints are accepted for floats, nothing else is converted."""
+    origin = typing.get_origin(hint)
+    if dataclasses.is_dataclass(hint):
+        return _build(hint, value, key_path)
+    if origin is Literal:
+        choices = typing.get_args(hint)
+        if value not in choices:
+            raise ConfigError(f"{key_path}: must be one of {', '.join(map(str, choices))}, got {value!r}")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key_path}: must be true or false, got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key_path}: must be an integer, got {value!r}")
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key_path}: must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{key_path}: must be finite, got {value!r}")
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key_path}: must be a string, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key_path}: must be a list, got {value!r}")
+        item = typing.get_args(hint)[0]
+        return tuple(_coerce(item, v, f"{key_path}[{i}]") for i, v in enumerate(value))
+    if origin in (collections.abc.Mapping, dict):
+        if value is None:
+            return types.MappingProxyType({})
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{key_path}: must be a mapping, got {value!r}")
+        return types.MappingProxyType(dict(value))
+    raise TypeError(f"{key_path}: unsupported config type {hint!r}")
+
+
+def _join(path: str, name: str) -> str:
+    return f"{path}.{name}" if path else name

@@ -1,0 +1,1 @@
+"""Control laws (pure): gimbal PI(D) on angular error, guidance setpoints, target geolocation."""

@@ -1,0 +1,94 @@
+"""Target geolocation (pure): camera ray through the box centre, intersected with flat ground.
+
+Frames: NED (north, east, down) earth frame; camera frame (forward, right, down) along the optical
+axis. Angles in radians. Flat ground at the home altitude: height above ground = the vehicle's
+relative altitude (GLOBAL_POSITION_INT.relative_alt).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+EARTH_RADIUS_M = 6378137.0
+GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME = 64
+
+
+@dataclass(frozen=True)
+class VehiclePose:
+    """Vehicle position (deg, m AMSL, m above home) and attitude (rad, NED: roll, pitch, yaw)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    height_m: float
+    roll: float
+    pitch: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class GimbalAttitude:
+    """Gimbal pitch (rad, earth-referenced, negative = down) and yaw (rad) in vehicle or earth frame."""
+
+    pitch: float
+    yaw: float
+    yaw_in_earth_frame: bool
+
+
+@dataclass(frozen=True)
+class GroundTarget:
+    """Target position on the ground: degrees, m AMSL; horizontal range (m) and bearing (rad from north)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    ground_range_m: float
+    bearing_rad: float
+
+
+def quaternion_to_euler(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
+    """MAVLink quaternion (w, x, y, z) -> (roll, pitch, yaw) rad, ZYX convention."""
+    w, x, y, z = q
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if not math.isfinite(norm) or norm < 1e-9:
+        raise ValueError(f"quaternion must be finite and non-zero, got {q}")
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def gimbal_attitude_from_status(q: tuple[float, float, float, float], flags: int) -> GimbalAttitude:
+    """GIMBAL_DEVICE_ATTITUDE_STATUS (q, flags) -> attitude; yaw is vehicle-relative unless flagged earth."""
+    _, pitch, yaw = quaternion_to_euler(q)
+    return GimbalAttitude(pitch, yaw, bool(flags & GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME))
+
+
+def camera_ray_ned(yaw_error: float, pitch_error: float, gimbal: GimbalAttitude, vehicle_yaw: float) -> np.ndarray:
+    """Unit NED direction of the ray through the target; errors as in control.gimbal.angular_error.
+
+    The gimbal is assumed stabilised in roll and pitch (earth-referenced), as gimbal managers report.
+    """
+    # ray in the camera frame (forward, right, down): right = tan(yaw_err), up = tan(pitch_err)
+    ray = np.array([1.0, math.tan(yaw_error), -math.tan(pitch_error)])
+    yaw = gimbal.yaw if gimbal.yaw_in_earth_frame else vehicle_yaw + gimbal.yaw
+    cp, sp, cy, sy = math.cos(gimbal.pitch), math.sin(gimbal.pitch), math.cos(yaw), math.sin(yaw)
+    pitch_rot = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])  # about the right axis
+    yaw_rot = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])  # about down
+    ned = yaw_rot @ pitch_rot @ ray
+    return ned / np.linalg.norm(ned)
+
+
+def locate_on_ground(vehicle: VehiclePose, ray_ned: np.ndarray) -> GroundTarget | None:
+    """Intersect the ray with flat ground `height_m` below the vehicle; None if it points above the horizon."""
+    if vehicle.height_m <= 0 or ray_ned[2] <= 1e-6:
+        return None
+    scale = vehicle.height_m / ray_ned[2]
+    north, east = float(ray_ned[0] * scale), float(ray_ned[1] * scale)
+    lat = vehicle.lat_deg + math.degrees(north / EARTH_RADIUS_M)
+    lon = vehicle.lon_deg + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(vehicle.lat_deg))))
+    return GroundTarget(lat, lon, vehicle.alt_amsl_m - vehicle.height_m, math.hypot(north, east),
+                        math.atan2(east, north))

@@ -1,0 +1,281 @@
+"""The ONE tracking loop: frame -> tracker -> controller -> outputs (MAVLink, telemetry).
+
+`TrackingLoop.step(frame)` is the whole per-frame work and does no I/O itself: selections arrive
+through a one-slot mailbox, commands leave through an `Outputs` object, telemetry through a
+callback. Angles in radians, boxes (x, y, w, h) pixels unless named normalised.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Literal, Protocol
+
+import numpy as np
+
+from jsar.api import Tracker, TrackResult
+from service.config import ServiceConfig
+from service.control.geo import GroundTarget, camera_ray_ned, locate_on_ground
+from service.control.gimbal import GimbalState, PidGains, angular_error, gimbal_step
+from service.mavlink import messages
+from service.mavlink.autopilot import AutopilotView
+from service.mavlink.camera import TrackSnapshot
+from service.mavlink.commands import StopTracking, TrackPoint, TrackRectangle
+from service.selection import normalised_box, point_box, proposal_box, rectangle_box, rescale_box
+from service.sources.base import Frame, LatestSlot
+
+log = logging.getLogger("service.loop")
+LoopState = Literal["idle", "tracking", "lost", "recovered"]
+MIN_DT_S, MAX_DT_S = 1e-3, 0.5  # controller time step bounds (a stall must not kick the integrator)
+
+
+@dataclass(frozen=True)
+class ControlCommand:
+    """One frame's decision for the outputs.
+
+    state: loop state after this frame; stopped: tracking just ended (send zeros once);
+    rates: (yaw_rate, pitch_rate) rad/s or None (no gimbal command); bearing: target direction from
+    the vehicle nose (rad, + right) or None; ground: flat-ground target estimate or None.
+    """
+
+    state: LoopState
+    stopped: bool
+    rates: tuple[float, float] | None
+    bearing: float | None
+    ground: GroundTarget | None
+
+
+class Outputs(Protocol):
+    """Where commands go (MAVLink in the service, a recorder in tests)."""
+
+    def apply(self, now_s: float, command: ControlCommand) -> None: ...
+
+
+@dataclass(frozen=True)
+class FrameReport:
+    """Per-frame telemetry (published on <prefix>/track)."""
+
+    frame_id: int
+    capture_time_s: float
+    image_size: tuple[int, int]
+    box: tuple[float, float, float, float] | None
+    box_normalised: tuple[float, float, float, float] | None
+    score: float | None
+    state: LoopState
+    queue_ms: float
+    track_ms: float
+    total_ms: float  # frame read -> commands sent
+    dropped_frames: int
+
+    def as_json(self) -> dict[str, Any]:
+        return {"frame_id": self.frame_id, "capture_time": self.capture_time_s,
+                "image_size": list(self.image_size),
+                "box_px": list(self.box) if self.box else None,
+                "box_norm": list(self.box_normalised) if self.box_normalised else None,
+                "score": self.score, "state": self.state,
+                "latency_ms": {"queue": round(self.queue_ms, 3), "track": round(self.track_ms, 3),
+                               "total": round(self.total_ms, 3)},
+                "dropped_frames": self.dropped_frames}
+
+
+class TrackingLoop:
+    """Owns the tracker and the gimbal controller state; one call to `step` per frame."""
+
+    def __init__(self, config: ServiceConfig, selections: LatestSlot, make_tracker: Callable[[], Tracker],
+                 outputs: Outputs, autopilot: Callable[[], AutopilotView],
+                 publish_snapshot: Callable[[TrackSnapshot], None] = lambda snapshot: None,
+                 publish_report: Callable[[FrameReport], None] = lambda report: None,
+                 dropped: Callable[[], int] = lambda: 0) -> None:
+        self.config = config
+        self.selections = selections
+        self.make_tracker = make_tracker
+        self.outputs = outputs
+        self.autopilot = autopilot
+        self.publish_snapshot = publish_snapshot
+        self.publish_report = publish_report
+        self.dropped = dropped
+        self.gains = PidGains.from_config(config.gimbal)
+        self.hfov = math.radians(config.camera.hfov_deg)
+        self.state: LoopState = "idle"
+        self.mode = messages.TRACKING_MODE_NONE
+        self.tracker: Tracker | None = None
+        self.box: tuple[float, float, float, float] | None = None
+        self.tracked_size: tuple[int, int] | None = None
+        self.gimbal = GimbalState()
+        self.last_time: float | None = None
+        self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
+                         "resized": 0}
+
+    # --- the loop -----------------------------------------------------------------------------
+    def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
+            on_iteration: Callable[[], None] = lambda: None) -> None:
+        """Take the newest frame and step, until should_stop(); on_iteration pings the watchdog."""
+        while not should_stop():
+            on_iteration()
+            frame = mailbox.take(timeout_s=0.2)
+            if frame is None:
+                self._apply_selection_without_frame()
+                continue
+            try:
+                self.step(frame)
+            except Exception:  # noqa: BLE001 - never crash the daemon on one frame
+                log.exception("event=step_failed frame_id=%d", frame.frame_id)
+                self._stop_tracking("step failed")
+
+    def step(self, frame: Frame) -> FrameReport:
+        """Process one frame: apply a pending selection, track, control, report."""
+        start = time.monotonic()
+        image = frame.image
+        size = (image.shape[1], image.shape[0])
+        self.counters["frames"] += 1
+        stopped = self._apply_selection(image, size)
+        if self.tracker is not None and self.tracked_size != size:
+            self._handle_resize(image, size)
+        result: TrackResult | None = None
+        if self.tracker is not None and not stopped:
+            result = self._track(image)
+        track_done = time.monotonic()
+        command = self._control(frame, size, result, stopped)
+        self.outputs.apply(time.monotonic(), command)
+        sent = time.monotonic()
+        box_norm = normalised_box(self.box, size) if self.box is not None and self.state != "idle" else None
+        status = messages.TrackingStatus(
+            status={"idle": messages.TRACKING_STATUS_IDLE, "lost": messages.TRACKING_STATUS_COASTING}.get(
+                self.state, messages.TRACKING_STATUS_ACTIVE),
+            mode=self.mode if self.state != "idle" else messages.TRACKING_MODE_NONE, box=box_norm)
+        pose = self.autopilot().pose()
+        self.publish_snapshot(TrackSnapshot(status, command.ground, pose.alt_amsl_m if pose else None))
+        report = FrameReport(
+            frame_id=frame.frame_id, capture_time_s=frame.capture_time_s, image_size=size,
+            box=self.box if self.state != "idle" else None, box_normalised=box_norm,
+            score=result.score if result is not None else None, state=self.state,
+            queue_ms=(start - frame.read_monotonic_s) * 1e3, track_ms=(track_done - start) * 1e3,
+            total_ms=(sent - frame.read_monotonic_s) * 1e3, dropped_frames=self.dropped())
+        self.publish_report(report)
+        return report
+
+    # --- pieces -------------------------------------------------------------------------------
+    def _apply_selection(self, image: np.ndarray, size: tuple[int, int]) -> bool:
+        """Apply a pending selection; True if tracking was just stopped."""
+        selection = self.selections.take(timeout_s=0.0)
+        if selection is None:
+            return False
+        if isinstance(selection, StopTracking):
+            return self._stop_tracking("stop requested")
+        self.counters["selections"] += 1
+        if isinstance(selection, TrackRectangle):
+            box, mode, how = rectangle_box(selection, size), messages.TRACKING_MODE_RECTANGLE, "rectangle"
+        elif isinstance(selection, TrackPoint):
+            box, mode, how = point_box(selection, size, self.config.camera), messages.TRACKING_MODE_POINT, "point"
+            if self.config.camera.point_proposal:
+                proposal = proposal_box(image, selection, box)
+                how = "point+proposal" if proposal is not None else "point (no proposal qualified)"
+                box = proposal or box
+        else:
+            raise TypeError(f"unexpected selection {selection!r}")
+        try:
+            tracker = self.make_tracker()
+            tracker.init(image, box)
+        except ValueError as exc:
+            log.error('event=track_init_failed box=%s reason="%s"', _fmt_box(box), exc)
+            return self._stop_tracking("init failed")
+        self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
+        self.state = "tracking"
+        self.gimbal = GimbalState()
+        self.last_time = None
+        log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
+        return False
+
+    def _apply_selection_without_frame(self) -> None:
+        """A stop must take effect even while no frames arrive (camera unplugged)."""
+        pending = self.selections.take(timeout_s=0.0)
+        if pending is None:
+            return
+        if isinstance(pending, StopTracking):
+            if self._stop_tracking("stop requested"):
+                self.outputs.apply(time.monotonic(), ControlCommand("idle", True, (0.0, 0.0), None, None))
+        else:
+            self.selections.put(pending)  # keep it for the next frame
+
+    def _stop_tracking(self, why: str) -> bool:
+        was_active = self.tracker is not None
+        if was_active:
+            log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
+        self.tracker, self.box, self.tracked_size = None, None, None
+        self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
+        self.gimbal = GimbalState()
+        self.last_time = None
+        return was_active
+
+    def _handle_resize(self, image: np.ndarray, size: tuple[int, int]) -> None:
+        """Frame size changed mid-stream: rescale the box (same field of view) and re-initialise."""
+        assert self.box is not None and self.tracked_size is not None
+        old = self.tracked_size
+        box = rescale_box(self.box, old, size)
+        self.counters["resized"] += 1
+        log.warning("event=frame_size_changed old=%dx%d new=%dx%d box=%s", old[0], old[1], size[0], size[1], _fmt_box(box))
+        try:
+            tracker = self.make_tracker()
+            tracker.init(image, box)
+        except ValueError as exc:
+            log.error('event=reinit_failed reason="%s"', exc)
+            self._stop_tracking("re-init after resize failed")
+            return
+        self.tracker, self.box, self.tracked_size = tracker, box, size
+
+    def _track(self, image: np.ndarray) -> TrackResult | None:
+        assert self.tracker is not None
+        try:
+            result = self.tracker.update(image)
+        except Exception as exc:  # noqa: BLE001 - a tracker failure is a lost track, not a crash
+            self.counters["tracker_errors"] += 1
+            log.error('event=tracker_error error="%s: %s"', type(exc).__name__, exc)
+            self._set_state("lost")
+            return None
+        if all(math.isfinite(v) for v in result.box):
+            self.box = result.box
+        self._set_state("lost" if result.state == "lost" else result.state)
+        return result
+
+    def _set_state(self, state: LoopState) -> None:
+        if state == self.state:
+            return
+        if state == "lost":
+            self.counters["lost"] += 1
+        elif self.state == "lost":
+            self.counters["recovered"] += 1
+        log.info("event=track_state from=%s to=%s", self.state, state)
+        self.state = state
+
+    def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None,
+                 stopped: bool) -> ControlCommand:
+        if stopped or self.state == "idle":
+            return ControlCommand("idle", stopped, (0.0, 0.0) if stopped else None, None, None)
+        if self.state == "lost" or self.box is None:
+            self.gimbal = GimbalState()  # reset the integrator; hold the gimbal still while coasting
+            self.last_time = None
+            return ControlCommand("lost", False, (0.0, 0.0), None, None)
+        dt = 1.0 / 30.0 if self.last_time is None else frame.read_monotonic_s - self.last_time
+        self.last_time = frame.read_monotonic_s
+        yaw_err, pitch_err = angular_error(self.box, size, self.hfov)
+        self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err,
+                                                        min(max(dt, MIN_DT_S), MAX_DT_S), self.gains)
+        view = self.autopilot()
+        bearing: float | None = None
+        ground: GroundTarget | None = None
+        pose = view.pose()
+        if view.gimbal is not None:
+            gimbal_yaw = view.gimbal.yaw - (pose.yaw if pose and view.gimbal.yaw_in_earth_frame else 0.0)
+            if view.gimbal.yaw_in_earth_frame and pose is None:
+                gimbal_yaw = float("nan")
+            bearing = gimbal_yaw + yaw_err if math.isfinite(gimbal_yaw) else None
+            if pose is not None:
+                ground = locate_on_ground(pose, camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw))
+        elif self.config.gimbal.backend == "none":
+            bearing = yaw_err  # fixed camera, assumed looking along the vehicle's nose
+        return ControlCommand(self.state, False, (yaw_rate, pitch_rate), bearing, ground)
+
+
+def _fmt_box(box: tuple[float, float, float, float]) -> str:
+    return "[" + ",".join(f"{v:.1f}" for v in box) + "]"

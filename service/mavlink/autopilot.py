@@ -1,0 +1,77 @@
+"""What the service knows about the autopilot and vehicle, as heard on the link (pure updates).
+
+`observe` folds one received message into an immutable AutopilotView. Times are time.monotonic()
+seconds; positions degrees / metres; angles radians (NED).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from service.control.geo import GimbalAttitude, VehiclePose, gimbal_attitude_from_status
+
+MAV_AUTOPILOT_INVALID = 8
+MAV_COMP_ID_AUTOPILOT1 = 1
+
+
+@dataclass(frozen=True)
+class AutopilotView:
+    """Latest autopilot facts; None = never heard."""
+
+    system_id: int | None = None
+    autopilot: int | None = None  # MAV_AUTOPILOT of its heartbeat
+    vehicle_type: int | None = None  # MAV_TYPE
+    custom_mode: int | None = None
+    last_heartbeat_s: float | None = None
+    position: tuple[float, float, float, float] | None = None  # lat deg, lon deg, alt AMSL m, height above home m
+    attitude: tuple[float, float, float] | None = None  # roll, pitch, yaw rad
+    gimbal: GimbalAttitude | None = None
+    gimbal_primary: tuple[int, int] | None = None  # (sysid, compid) in control per GIMBAL_MANAGER_STATUS
+
+    def alive(self, now_s: float, timeout_s: float) -> bool:
+        """Heartbeat heard within timeout_s."""
+        return self.last_heartbeat_s is not None and now_s - self.last_heartbeat_s <= timeout_s
+
+    def pose(self) -> VehiclePose | None:
+        """Vehicle pose when both position and attitude have been heard."""
+        if self.position is None or self.attitude is None:
+            return None
+        lat, lon, alt, height = self.position
+        return VehiclePose(lat, lon, alt, height, *self.attitude)
+
+
+def is_autopilot_heartbeat(source_component: int, autopilot: int) -> bool:
+    """A heartbeat from a flight controller (component 1, a real autopilot type)."""
+    return source_component == MAV_COMP_ID_AUTOPILOT1 and autopilot != MAV_AUTOPILOT_INVALID
+
+
+def observe(view: AutopilotView, msg: object, now_s: float, expected_system: int | None) -> AutopilotView:
+    """Fold one pymavlink message into the view; messages from other systems than the autopilot's are ignored."""
+    kind = msg.get_type()  # type: ignore[attr-defined]
+    source_system = msg.get_srcSystem()  # type: ignore[attr-defined]
+    source_component = msg.get_srcComponent()  # type: ignore[attr-defined]
+    if kind == "HEARTBEAT":
+        if not is_autopilot_heartbeat(source_component, msg.autopilot):  # type: ignore[attr-defined]
+            return view
+        if expected_system is not None and source_system != expected_system:
+            return view
+        return replace(view, system_id=source_system, autopilot=msg.autopilot, vehicle_type=msg.type,  # type: ignore[attr-defined]
+                       custom_mode=msg.custom_mode, last_heartbeat_s=now_s)  # type: ignore[attr-defined]
+    if view.system_id is None or source_system != view.system_id:
+        return view
+    if kind == "GLOBAL_POSITION_INT":
+        return replace(view, position=(msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0,  # type: ignore[attr-defined]
+                                       msg.relative_alt / 1000.0))  # type: ignore[attr-defined]
+    if kind == "ATTITUDE":
+        return replace(view, attitude=(msg.roll, msg.pitch, msg.yaw))  # type: ignore[attr-defined]
+    if kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+        q = tuple(msg.q)  # type: ignore[attr-defined]
+        if not all(math.isfinite(v) for v in q):
+            return view
+        try:
+            return replace(view, gimbal=gimbal_attitude_from_status(q, msg.flags))  # type: ignore[attr-defined,arg-type]
+        except ValueError:
+            return view
+    if kind == "GIMBAL_MANAGER_STATUS":
+        return replace(view, gimbal_primary=(msg.primary_control_sysid, msg.primary_control_compid))  # type: ignore[attr-defined]
+    return view

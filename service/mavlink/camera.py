@@ -1,0 +1,237 @@
+"""The camera component on the link: receive thread (commands, autopilot state) and send scheduler
+(heartbeat 1 Hz, CAMERA_INFORMATION, 275 / 276 at the requested intervals).
+
+Command validation is pure (commands.decide); this class only applies decisions and answers.
+Tracking intents go to the tracking loop through a one-slot mailbox (a newer selection replaces one
+not yet applied).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from service.config import ServiceConfig
+from service.control.geo import GroundTarget
+from service.mavlink import messages
+from service.mavlink.autopilot import AutopilotView, observe
+from service.mavlink.commands import (
+    CAMERA_COMMANDS, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MSG_ID_CAMERA_INFORMATION,
+    MSG_ID_CAMERA_TRACKING_GEO_STATUS, MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, Decision, RequestMessage,
+    SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide, is_for_us,
+)
+from service.mavlink.link import MavlinkLink
+from service.sources.base import LatestSlot
+
+log = logging.getLogger("service.mavlink")
+RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+
+
+@dataclass(frozen=True)
+class TrackSnapshot:
+    """What the loop last reported, for 275 / 276: status, ground estimate, vehicle altitude."""
+
+    image: messages.TrackingStatus = messages.TrackingStatus()
+    ground: GroundTarget | None = None
+    vehicle_alt_amsl_m: float | None = None
+
+
+class CameraComponent:
+    """MAVLink camera: answers commands, tracks the autopilot, streams status."""
+
+    def __init__(self, config: ServiceConfig, link: MavlinkLink, selections: LatestSlot,
+                 frame_size: Callable[[], tuple[int, int] | None], source_ok: Callable[[], bool],
+                 source_reason: Callable[[], str]) -> None:
+        self.config = config
+        self.link = link
+        self.selections = selections
+        self._frame_size = frame_size
+        self._source_ok = source_ok
+        self._source_reason = source_reason
+        self._lock = threading.Lock()
+        self._view = AutopilotView()
+        self._snapshot = TrackSnapshot()
+        self._intervals: dict[int, float | None] = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: None,
+                                                    MSG_ID_CAMERA_TRACKING_GEO_STATUS: None}
+        self._info_requested = threading.Event()
+        self._started = time.monotonic()
+        self._stop = threading.Event()
+        self._autopilot_alive = False
+        self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "status_sent": 0}
+        self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
+                         threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)]
+
+    # --- shared state -------------------------------------------------------------------------
+    def autopilot(self) -> AutopilotView:
+        with self._lock:
+            return self._view
+
+    def autopilot_alive(self, now_s: float | None = None) -> bool:
+        now_s = time.monotonic() if now_s is None else now_s
+        return self.autopilot().alive(now_s, self.config.mavlink.heartbeat_timeout_s)
+
+    def publish(self, snapshot: TrackSnapshot) -> None:
+        """Latest tracking state from the loop (read by the status scheduler)."""
+        with self._lock:
+            self._snapshot = snapshot
+
+    def intervals(self) -> dict[int, float | None]:
+        with self._lock:
+            return dict(self._intervals)
+
+    def time_boot_ms(self) -> int:
+        return int((time.monotonic() - self._started) * 1000) & 0xFFFFFFFF
+
+    def start(self) -> None:
+        for thread in self._threads:
+            thread.start()
+
+    def stop(self, timeout_s: float = 1.0) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout_s)
+
+    # --- receive ------------------------------------------------------------------------------
+    def _receive_loop(self) -> None:
+        expected = self.config.mavlink.system_id or None
+        while not self._stop.is_set():
+            msg = self.link.recv(timeout_s=0.2)
+            if msg is None:
+                continue
+            try:
+                self._handle(msg, expected)
+            except Exception:  # noqa: BLE001 - one bad message must not stop the receiver
+                log.exception("event=message_handling_failed type=%s", msg.get_type())
+
+    def _handle(self, msg: object, expected_system: int | None) -> None:
+        kind = msg.get_type()  # type: ignore[attr-defined]
+        if kind in ("COMMAND_LONG", "COMMAND_INT"):
+            self._handle_command(msg, kind)
+            return
+        with self._lock:
+            before = self._view
+            self._view = observe(before, msg, time.monotonic(), expected_system)
+            learned = before.system_id is None and self._view.system_id is not None
+        if learned and self.link.system_id != self._view.system_id:
+            log.info("event=system_id_learned system_id=%d", self._view.system_id)
+            self.link.set_system_id(self._view.system_id)  # type: ignore[arg-type]
+            self._info_requested.set()  # re-announce under the right system id
+
+    def _handle_command(self, msg: object, kind: str) -> None:
+        own = self.config.mavlink.component_id
+        if kind == "COMMAND_LONG":
+            params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)  # type: ignore[attr-defined]
+        else:
+            params = command_int_params(msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)  # type: ignore[attr-defined]
+        if msg.target_system not in (0, self.link.system_id):  # type: ignore[attr-defined]
+            return
+        if not is_for_us(msg.target_component, msg.command, params, own):  # type: ignore[attr-defined]
+            return
+        decision = decide(msg.command, params, own)  # type: ignore[attr-defined]
+        decision = self._apply(decision)
+        self.counters["commands"] += 1
+        self.counters["accepted" if decision.result == MAV_RESULT_ACCEPTED else "rejected"] += 1
+        level = logging.INFO if decision.result == MAV_RESULT_ACCEPTED else logging.WARNING
+        log.log(level, 'event=command command=%d via=%s from=%d/%d result=%s reason="%s"', msg.command, kind,  # type: ignore[attr-defined]
+                msg.get_srcSystem(), msg.get_srcComponent(), RESULT_NAMES.get(decision.result, decision.result),  # type: ignore[attr-defined]
+                decision.reason)
+        self.link.send(self.link.mav.command_ack_encode(  # type: ignore[attr-defined]
+            msg.command, decision.result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))  # type: ignore[attr-defined]
+        if decision.result == MAV_RESULT_ACCEPTED and isinstance(decision.intent, RequestMessage):
+            self._send_requested(decision.intent.message_id)
+
+    def _apply(self, decision: Decision) -> Decision:
+        """Carry out an accepted decision; may turn it into FAILED (e.g. no camera frames)."""
+        intent = decision.intent
+        if decision.result != MAV_RESULT_ACCEPTED or intent is None:
+            return decision
+        if isinstance(intent, (TrackPoint, TrackRectangle)):
+            if not self._source_ok() or self._frame_size() is None:
+                return Decision(MAV_RESULT_FAILED, f"no camera frames: {self._source_reason()}")
+            self.selections.put(intent)
+        elif isinstance(intent, StopTracking):
+            self.selections.put(intent)
+        elif isinstance(intent, SetMessageInterval):
+            interval = intent.interval_s
+            if interval == "default":
+                interval = self.config.mavlink.default_status_interval_s
+            with self._lock:
+                self._intervals[intent.message_id] = interval  # type: ignore[assignment]
+        return decision
+
+    # --- send ---------------------------------------------------------------------------------
+    def _send_requested(self, message_id: int) -> None:
+        if message_id == MSG_ID_CAMERA_INFORMATION:
+            self._send_camera_information()
+        elif message_id == MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
+            self._send_image_status()
+        elif message_id == MSG_ID_CAMERA_TRACKING_GEO_STATUS:
+            self._send_geo_status()
+
+    def _send_camera_information(self) -> None:
+        size = self._frame_size() or (0, 0)
+        cam = self.config.camera
+        self.link.send(messages.camera_information(
+            self.link.mav, self.time_boot_ms(), cam.vendor_name, cam.model_name, size,
+            geo_status=self.config.guidance.mode == "follow_target"))
+
+    def _send_image_status(self) -> None:
+        with self._lock:
+            status = self._snapshot.image
+        self.link.send(messages.tracking_image_status(self.link.mav, status))
+        self.counters["status_sent"] += 1
+
+    def _send_geo_status(self) -> None:
+        with self._lock:
+            snap = self._snapshot
+        self.link.send(messages.tracking_geo_status(self.link.mav, snap.image.status, snap.ground,
+                                                    snap.vehicle_alt_amsl_m))
+
+    def _send_loop(self) -> None:
+        next_heartbeat = time.monotonic()
+        next_due: dict[int, float] = {}
+        announced_size: tuple[int, int] | None = None
+        self._info_requested.set()  # once at start
+        senders = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self._send_image_status,
+                   MSG_ID_CAMERA_TRACKING_GEO_STATUS: self._send_geo_status}
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_heartbeat:
+                self.link.send(messages.heartbeat(self.link.mav, self._source_ok()))
+                next_heartbeat += 1.0
+                if next_heartbeat < now:
+                    next_heartbeat = now + 1.0
+                self._watch_autopilot(now)
+            size = self._frame_size()
+            if size is not None and size != announced_size:
+                announced_size = size  # first real frame size, or a size change mid-stream
+                self._info_requested.set()
+            if self._info_requested.is_set():
+                self._info_requested.clear()
+                self._send_camera_information()
+            wake = next_heartbeat
+            for message_id, interval in self.intervals().items():
+                if interval is None:
+                    next_due.pop(message_id, None)
+                    continue
+                due = next_due.setdefault(message_id, now)
+                if now >= due:
+                    senders[message_id]()
+                    due = due + interval if due + interval > now else now + interval
+                    next_due[message_id] = due
+                wake = min(wake, due)
+            self._stop.wait(max(0.0, min(wake - time.monotonic(), 0.05)))
+
+    def _watch_autopilot(self, now: float) -> None:
+        alive = self.autopilot_alive(now)
+        if alive != self._autopilot_alive:
+            self._autopilot_alive = alive
+            if alive:
+                log.info("event=autopilot_connected system_id=%s", self.autopilot().system_id)
+            else:
+                log.warning("event=autopilot_heartbeat_timeout timeout_s=%.1f", self.config.mavlink.heartbeat_timeout_s)
+
+

@@ -1,0 +1,106 @@
+"""The MAVLink socket adapter: one pymavlink connection, thread-safe sends, optional signing."""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+
+import service.mavlink  # noqa: F401  (sets MAVLINK20 before pymavlink loads)
+from pymavlink import mavutil
+
+from service.config import MavlinkConfig, SigningConfig
+
+log = logging.getLogger("service.mavlink")
+# pymavlink counts signing time in 10 us units since 2015-01-01
+SIGNING_EPOCH_S = 1420070400
+
+
+def read_signing_key(path: str) -> bytes:
+    """32-byte secret from a file holding 32 raw bytes or 64 hex characters; ValueError otherwise."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"mavlink.signing.key_file: cannot read {path}: {exc.strerror}") from exc
+    text = data.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    if len(data) == 32:
+        return data
+    raise ValueError(f"mavlink.signing.key_file: {path} must hold 32 raw bytes or 64 hex characters, "
+                     f"got {len(data)} bytes")
+
+
+class MavlinkLink:
+    """A pymavlink connection with a send lock; `recv` is called from one receive thread only."""
+
+    def __init__(self, config: MavlinkConfig, source_system: int) -> None:
+        self.config = config
+        self._lock = threading.Lock()
+        self.send_errors = 0
+        self.sent = 0
+        try:
+            self._conn = mavutil.mavlink_connection(
+                config.url, baud=config.baud, source_system=source_system,
+                source_component=config.component_id, autoreconnect=True)
+        except Exception as exc:  # pymavlink raises OSError / SerialException / ValueError variously
+            raise ConnectionError(f"mavlink.url: cannot open {config.url}: {exc}") from exc
+        if config.signing.key_file:
+            self._setup_signing(config.signing)
+
+    @property
+    def mav(self) -> object:
+        """The pymavlink MAVLink object (message encoders)."""
+        return self._conn.mav
+
+    def set_system_id(self, system_id: int) -> None:
+        """Send as `system_id` from now on (learned from the autopilot)."""
+        with self._lock:
+            self._conn.mav.srcSystem = system_id
+
+    @property
+    def system_id(self) -> int:
+        return self._conn.mav.srcSystem
+
+    def send(self, msg: object) -> bool:
+        """Send one message; False (counted, logged at debug) if the OS refused it."""
+        with self._lock:
+            try:
+                self._conn.mav.send(msg)
+            except OSError as exc:
+                self.send_errors += 1
+                log.debug("event=send_failed error=%s", exc)
+                return False
+            self.sent += 1
+            return True
+
+    def recv(self, timeout_s: float) -> object | None:
+        """Next valid message or None after timeout_s (bad / unsigned packets are skipped)."""
+        try:
+            msg = self._conn.recv_match(blocking=True, timeout=timeout_s)
+        except OSError as exc:
+            log.warning("event=recv_failed error=%s", exc)
+            time.sleep(min(timeout_s, 0.1))  # an OS error repeats at once; do not spin the CPU
+            return None
+        if msg is None or msg.get_type() == "BAD_DATA":
+            return None
+        return msg
+
+    def close(self) -> None:
+        try:
+            self._conn.close()
+        except OSError:
+            pass
+
+    def _setup_signing(self, signing: SigningConfig) -> None:
+        key = read_signing_key(signing.key_file)
+        allow = signing.allow_unsigned
+        # timestamp must only move forward; start at the current time like MAVLink's reference code
+        stamp = int((time.time() - SIGNING_EPOCH_S) * 1e5)
+        self._conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda mav, msg_id: allow,
+                                 initial_timestamp=stamp, link_id=signing.link_id)
+        log.info("event=signing_enabled allow_unsigned=%s link_id=%d pid=%d", allow, signing.link_id, os.getpid())

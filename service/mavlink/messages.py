@@ -1,0 +1,121 @@
+"""MAVLink message builders (pure: pymavlink `*_encode`, no I/O) for the camera, gimbal and guidance.
+
+Normalised image coordinates 0..1 (top-left origin); rates rad/s, positive = pitch up / yaw right;
+velocities m/s body frame (forward, right, down).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from service.control.geo import GroundTarget
+from service.control.guidance import MAV_FRAME_BODY_OFFSET_NED, VELOCITY_YAW_RATE_TYPE_MASK, VelocitySetpoint
+
+NAN = float("nan")
+MAV_TYPE_CAMERA = 30
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_ACTIVE = 4
+MAV_STATE_CRITICAL = 5
+CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM = 256
+CAMERA_CAP_FLAGS_HAS_TRACKING_POINT = 512
+CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE = 1024
+CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS = 2048
+TRACKING_STATUS_IDLE = 0
+TRACKING_STATUS_ACTIVE = 1
+TRACKING_STATUS_ERROR = 2
+TRACKING_STATUS_COASTING = 8
+TRACKING_MODE_NONE = 0
+TRACKING_MODE_POINT = 1
+TRACKING_MODE_RECTANGLE = 2
+TRACKING_TARGET_DATA_NONE = 0
+TRACKING_TARGET_DATA_IN_STATUS = 4
+GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME = 32
+MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE = 1001
+FOLLOW_TARGET_CAP_POSITION = 1
+
+
+@dataclass(frozen=True)
+class TrackingStatus:
+    """What 275 reports: status flag, mode, and the target's normalised box (x, y, w, h) or None."""
+
+    status: int = TRACKING_STATUS_IDLE
+    mode: int = TRACKING_MODE_NONE
+    box: tuple[float, float, float, float] | None = None
+
+
+def heartbeat(mav: object, healthy: bool) -> object:
+    """Camera heartbeat: MAV_TYPE_CAMERA, autopilot INVALID; CRITICAL while the frame source is failing."""
+    return mav.heartbeat_encode(MAV_TYPE_CAMERA, MAV_AUTOPILOT_INVALID, 0, 0,  # type: ignore[attr-defined]
+                                MAV_STATE_ACTIVE if healthy else MAV_STATE_CRITICAL)
+
+
+def camera_information(mav: object, time_boot_ms: int, vendor: str, model: str, frame_size: tuple[int, int],
+                       geo_status: bool) -> object:
+    """CAMERA_INFORMATION with tracking flags and the real frame size (0x0 until a frame was seen)."""
+    flags = CAMERA_CAP_FLAGS_HAS_TRACKING_POINT | CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE
+    if geo_status:
+        flags |= CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS
+    return mav.camera_information_encode(  # type: ignore[attr-defined]
+        time_boot_ms, _fixed(vendor, 32), _fixed(model, 32), 0, NAN, NAN, NAN,
+        frame_size[0], frame_size[1], 0, flags, 0, b"")
+
+
+def tracking_image_status(mav: object, status: TrackingStatus) -> object:
+    """CAMERA_TRACKING_IMAGE_STATUS (275): point = box centre, radius = half width / image width."""
+    if status.box is None:
+        return mav.camera_tracking_image_status_encode(  # type: ignore[attr-defined]
+            status.status, status.mode, TRACKING_TARGET_DATA_NONE, NAN, NAN, NAN, NAN, NAN, NAN, NAN)
+    x, y, w, h = status.box
+    return mav.camera_tracking_image_status_encode(  # type: ignore[attr-defined]
+        status.status, status.mode, TRACKING_TARGET_DATA_IN_STATUS, x + w / 2, y + h / 2, w / 2,
+        x, y, x + w, y + h)
+
+
+def tracking_geo_status(mav: object, status: int, target: GroundTarget | None, vehicle_alt_amsl_m: float | None) -> object:
+    """CAMERA_TRACKING_GEO_STATUS (276) from a ground estimate; NaN / 0 where unknown."""
+    if target is None:
+        return mav.camera_tracking_geo_status_encode(status, 0, 0, NAN, NAN, NAN, NAN, NAN, NAN, NAN,  # type: ignore[attr-defined]
+                                                      NAN, NAN, NAN)
+    dist = math.hypot(target.ground_range_m, (vehicle_alt_amsl_m or target.alt_amsl_m) - target.alt_amsl_m)
+    return mav.camera_tracking_geo_status_encode(  # type: ignore[attr-defined]
+        status, round(target.lat_deg * 1e7), round(target.lon_deg * 1e7), target.alt_amsl_m,
+        NAN, NAN, NAN, NAN, NAN, NAN, dist, NAN, NAN)
+
+
+def gimbal_rates_ardupilot(mav: object, target: tuple[int, int], device_id: int, yaw_rate: float,
+                           pitch_rate: float) -> object:
+    """GIMBAL_MANAGER_SET_PITCHYAW (287): both angles NaN, both rates set (what ArduPilot accepts)."""
+    return mav.gimbal_manager_set_pitchyaw_encode(target[0], target[1], 0, device_id, NAN, NAN,  # type: ignore[attr-defined]
+                                                  pitch_rate, yaw_rate)
+
+
+def gimbal_rates_px4(mav: object, target: tuple[int, int], device_id: int, yaw_rate: float, pitch_rate: float) -> object:
+    """GIMBAL_MANAGER_SET_ATTITUDE (282): q NaN, angular velocity (roll NaN, pitch, yaw), yaw in vehicle frame."""
+    return mav.gimbal_manager_set_attitude_encode(  # type: ignore[attr-defined]
+        target[0], target[1], GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME, device_id, [NAN, NAN, NAN, NAN],
+        NAN, pitch_rate, yaw_rate)
+
+
+def gimbal_claim_px4(mav: object, target: tuple[int, int], own: tuple[int, int], device_id: int) -> object:
+    """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (1001): make (own sysid, compid) primary; secondary unchanged (-1)."""
+    return mav.command_long_encode(target[0], target[1], MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, 0,  # type: ignore[attr-defined]
+                                   own[0], own[1], -1, -1, 0, 0, device_id)
+
+
+def velocity_target(mav: object, target: tuple[int, int], time_boot_ms: int, setpoint: VelocitySetpoint) -> object:
+    """SET_POSITION_TARGET_LOCAL_NED (84), body frame, velocity + yaw rate only (type_mask 0x05C7)."""
+    return mav.set_position_target_local_ned_encode(  # type: ignore[attr-defined]
+        time_boot_ms, target[0], target[1], MAV_FRAME_BODY_OFFSET_NED, VELOCITY_YAW_RATE_TYPE_MASK,
+        0, 0, 0, setpoint.forward, setpoint.right, setpoint.down, 0, 0, 0, 0, setpoint.yaw_rate)
+
+
+def follow_target(mav: object, timestamp_ms: int, target: GroundTarget) -> object:
+    """FOLLOW_TARGET (144) carrying the target's position only (est_capabilities bit 0)."""
+    return mav.follow_target_encode(  # type: ignore[attr-defined]
+        timestamp_ms, FOLLOW_TARGET_CAP_POSITION, round(target.lat_deg * 1e7), round(target.lon_deg * 1e7),
+        target.alt_amsl_m, [0, 0, 0], [0, 0, 0], [1, 0, 0, 0], [0, 0, 0], [0, 0, 0], 0)
+
+
+def _fixed(text: str, size: int) -> list[int]:
+    data = text.encode("ascii", "replace")[:size]
+    return list(data) + [0] * (size - len(data))

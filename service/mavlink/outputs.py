@@ -1,0 +1,106 @@
+"""Loop decisions -> MAVLink messages: the gimbal backend (ardupilot / px4 / none) and guidance.
+
+Guidance is gated on the autopilot's heartbeat (alive, GUIDED / OFFBOARD) and throttled to
+guidance.rate_hz; velocity mode commands zero velocity while the track is lost and once when it
+stops. follow_target sends FOLLOW_TARGET only while there is a ground estimate of a tracked target
+(when it stops, the autopilot's follow timeout holds the vehicle). Never arms, never changes modes.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Callable
+
+from service.config import ServiceConfig
+from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
+from service.loop import ControlCommand
+from service.mavlink import messages
+from service.mavlink.autopilot import MAV_COMP_ID_AUTOPILOT1, AutopilotView
+
+log = logging.getLogger("service.control")
+
+
+class MavlinkOutputs:
+    """Implements loop.Outputs over a link (`send(msg)`, `mav`, `system_id`)."""
+
+    def __init__(self, config: ServiceConfig, link: object, autopilot: Callable[[], AutopilotView],
+                 time_boot_ms: Callable[[], int]) -> None:
+        self.config = config
+        self.link = link
+        self.autopilot = autopilot
+        self.time_boot_ms = time_boot_ms
+        self._last_claim_s: float | None = None
+        self._last_guidance_s: float | None = None
+        self._guidance_was_allowed = False
+        self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0}
+
+    def apply(self, now_s: float, command: ControlCommand) -> None:
+        view = self.autopilot()
+        if view.system_id is None:
+            return  # nobody to command yet
+        target = (view.system_id, MAV_COMP_ID_AUTOPILOT1)
+        if command.rates is not None:
+            self._gimbal(now_s, view, target, command.rates, tracking=command.state != "idle")
+        mode = self.config.guidance.mode
+        if mode == "velocity":
+            self._velocity(now_s, view, target, command)
+        elif mode == "follow_target":
+            self._follow(now_s, command)
+
+    # --- gimbal -------------------------------------------------------------------------------
+    def _gimbal(self, now_s: float, view: AutopilotView, target: tuple[int, int], rates: tuple[float, float],
+                tracking: bool) -> None:
+        backend, gimbal = self.config.gimbal.backend, self.config.gimbal
+        yaw_rate, pitch_rate = rates
+        mav = self.link.mav  # type: ignore[attr-defined]
+        if backend == "ardupilot":
+            self.link.send(messages.gimbal_rates_ardupilot(mav, target, gimbal.device_id, yaw_rate, pitch_rate))  # type: ignore[attr-defined]
+            self.counters["gimbal"] += 1
+        elif backend == "px4":
+            own = (self.link.system_id, self.config.mavlink.component_id)  # type: ignore[attr-defined]
+            if view.gimbal_primary == own:
+                self.link.send(messages.gimbal_rates_px4(mav, target, gimbal.device_id, yaw_rate, pitch_rate))  # type: ignore[attr-defined]
+                self.counters["gimbal"] += 1
+            elif tracking and (self._last_claim_s is None or now_s - self._last_claim_s >= gimbal.claim_interval_s):
+                # PX4 honours 282 only from the primary controller: claim, then wait for 281 to confirm
+                self.link.send(messages.gimbal_claim_px4(mav, target, own, gimbal.device_id))  # type: ignore[attr-defined]
+                self._last_claim_s = now_s
+                self.counters["claims"] += 1
+                log.info("event=gimbal_claim primary=%s", view.gimbal_primary)
+
+    # --- guidance -----------------------------------------------------------------------------
+    def _due(self, now_s: float, force: bool) -> bool:
+        period = 1.0 / self.config.guidance.rate_hz
+        if force or self._last_guidance_s is None or now_s - self._last_guidance_s >= period:
+            self._last_guidance_s = now_s
+            return True
+        return False
+
+    def _velocity(self, now_s: float, view: AutopilotView, target: tuple[int, int], command: ControlCommand) -> None:
+        alive = view.alive(now_s, self.config.mavlink.heartbeat_timeout_s)
+        allowed = alive and guidance_allowed(view.autopilot or 0, view.vehicle_type or 0, view.custom_mode or 0)
+        if allowed != self._guidance_was_allowed:
+            log.info("event=guidance_gate allowed=%s alive=%s custom_mode=%s", allowed, alive, view.custom_mode)
+            self._guidance_was_allowed = allowed
+        if not allowed:
+            if command.state != "idle":
+                self.counters["gated"] += 1
+            return
+        if command.state == "idle" and not command.stopped:
+            return
+        if not self._due(now_s, force=command.stopped):
+            return
+        if command.state in ("tracking", "recovered") and command.bearing is not None:
+            ground_range = command.ground.ground_range_m if command.ground is not None else None
+            setpoint = velocity_setpoint(command.bearing, ground_range, self.config.guidance)
+        else:
+            setpoint = ZERO_VELOCITY  # lost, stopped, or no bearing estimate: hold position
+        self.link.send(messages.velocity_target(self.link.mav, target, self.time_boot_ms(), setpoint))  # type: ignore[attr-defined]
+        self.counters["velocity"] += 1
+
+    def _follow(self, now_s: float, command: ControlCommand) -> None:
+        if command.state not in ("tracking", "recovered") or command.ground is None:
+            return
+        if not self._due(now_s, force=False):
+            return
+        self.link.send(messages.follow_target(self.link.mav, self.time_boot_ms(), command.ground))  # type: ignore[attr-defined]
+        self.counters["follow_target"] += 1

@@ -1,0 +1,232 @@
+"""Frame sources: the reader protocol, the latest-frame-wins mailbox and the capture worker.
+
+A reader (v4l2, file, zenoh) only knows how to open, read one frame and close. The capture worker
+runs it on its own thread, pushes each frame into a one-slot mailbox (a frame not yet taken is
+replaced and counted as dropped, never queued), reports health, and on failure closes the reader and
+retries with exponential backoff. End of stream (a file without `loop`) is terminal.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Generic, Literal, Protocol, TypeVar
+
+import numpy as np
+
+log = logging.getLogger("service.source")
+
+T = TypeVar("T")
+HealthState = Literal["starting", "ok", "error", "ended"]
+
+
+class SourceError(Exception):
+    """The source failed (device absent or unplugged, file unreadable); the worker retries."""
+
+
+class CorruptFrame(Exception):
+    """One frame could not be decoded; it is counted and skipped."""
+
+
+class EndOfStream(Exception):
+    """The source has no more frames (end of a file played without `loop`)."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One captured frame: HxWx3 BGR or HxW grey uint8 image.
+
+    frame_id: increasing per source; capture_time_s: the source's timestamp (seconds, wall clock, the
+    publisher's clock for zenoh); read_monotonic_s: time.monotonic() when the worker received it, the
+    start of the service's latency measurements.
+    """
+
+    image: np.ndarray
+    frame_id: int
+    capture_time_s: float
+    read_monotonic_s: float
+
+
+class FrameReader(Protocol):
+    """An I/O adapter producing frames; the worker calls open, read repeatedly, close."""
+
+    name: str
+
+    def open(self) -> None:
+        """Open the device / file / subscription; SourceError on failure."""
+
+    def read(self, timeout_s: float) -> Frame | None:
+        """Next frame, or None if none arrived within timeout_s; CorruptFrame, EndOfStream, SourceError."""
+
+    def close(self) -> None:
+        """Release the device; safe to call twice."""
+
+    def frame_interval_s(self) -> float | None:
+        """Pacing interval the worker keeps between frames (a file at its frame rate), None = unpaced."""
+
+
+class LatestSlot(Generic[T]):
+    """A one-slot mailbox: put replaces an untaken item and counts it as dropped; take waits."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: T | None = None
+        self.dropped = 0
+        self.put_count = 0
+
+    def put(self, item: T) -> None:
+        """Store `item`, replacing (and counting as dropped) one not yet taken."""
+        with self._cond:
+            if self._item is not None:
+                self.dropped += 1
+            self._item = item
+            self.put_count += 1
+            self._cond.notify_all()
+
+    def take(self, timeout_s: float) -> T | None:
+        """The newest item, waiting up to timeout_s; None on timeout."""
+        with self._cond:
+            if self._item is None:
+                self._cond.wait_for(lambda: self._item is not None, timeout=timeout_s)
+            item, self._item = self._item, None
+            return item
+
+
+@dataclass
+class SourceHealth:
+    """Thread-safe health and counters of a source, read by status reports."""
+
+    state: HealthState = "starting"
+    reason: str = ""
+    frames: int = 0
+    corrupt: int = 0
+    failures: int = 0
+    last_frame_size: tuple[int, int] | None = None  # (width, height) pixels
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def set(self, state: HealthState, reason: str = "") -> None:
+        with self._lock:
+            changed = (state, reason) != (self.state, self.reason)
+            self.state, self.reason = state, reason
+        if changed:
+            level = logging.INFO if state == "ok" else logging.WARNING
+            log.log(level, "event=source_state state=%s reason=%s", state, _quote(reason))
+
+    def snapshot(self) -> dict[str, object]:
+        with self._lock:
+            return {"state": self.state, "reason": self.reason, "frames": self.frames,
+                    "corrupt": self.corrupt, "failures": self.failures,
+                    "frame_size": list(self.last_frame_size) if self.last_frame_size else None}
+
+
+def backoff_delays(initial_s: float, max_s: float):
+    """Infinite generator of retry delays: initial, doubled each time, capped at max_s (seconds)."""
+    delay = initial_s
+    while True:
+        yield delay
+        delay = min(delay * 2.0, max_s)
+
+
+class CaptureWorker:
+    """Runs a FrameReader on a thread, feeding `mailbox`; retries failures with backoff."""
+
+    STALL_S = 2.0  # no frame for this long while open -> health "error" (stalled), until one arrives
+
+    def __init__(self, reader: FrameReader, mailbox: LatestSlot[Frame], retry_initial_s: float,
+                 retry_max_s: float) -> None:
+        self.reader = reader
+        self.mailbox = mailbox
+        self.health = SourceHealth()
+        self._retry = (retry_initial_s, retry_max_s)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"capture-{reader.name}", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 1.0) -> None:
+        self._stop.set()
+        self._thread.join(timeout_s)
+
+    @property
+    def dropped(self) -> int:
+        return self.mailbox.dropped + getattr(self.reader, "dropped", 0)
+
+    def _run(self) -> None:
+        delays = backoff_delays(*self._retry)
+        while not self._stop.is_set():
+            try:
+                self.reader.open()
+            except SourceError as exc:
+                if not self._fail(str(exc), next(delays)):
+                    return
+                continue
+            self.health.set("starting", "opened, waiting for the first frame")
+            try:
+                if self._pump():
+                    delays = backoff_delays(*self._retry)
+            except EndOfStream as exc:
+                self.reader.close()
+                self.health.set("ended", str(exc) or "end of stream")
+                return
+            except SourceError as exc:
+                self.reader.close()
+                if not self._fail(str(exc), next(delays)):
+                    return
+                continue
+            except Exception as exc:  # noqa: BLE001 - a reader bug must not kill the service
+                log.exception("event=source_crash reader=%s", self.reader.name)
+                self.reader.close()
+                if not self._fail(f"{type(exc).__name__}: {exc}", next(delays)):
+                    return
+                continue
+            self.reader.close()
+
+    def _fail(self, reason: str, delay_s: float) -> bool:
+        """Record a failure, wait delay_s (or until stopped); False when stopping."""
+        with self.health._lock:
+            self.health.failures += 1
+        self.health.set("error", f"{reason}; retry in {delay_s:.1f} s")
+        return not self._stop.wait(delay_s)
+
+    def _pump(self) -> bool:
+        """Read frames until stopped; returns True if at least one frame was read."""
+        got_any = False
+        interval = self.reader.frame_interval_s()
+        next_due: float | None = None
+        last_frame = time.monotonic()
+        while not self._stop.is_set():
+            if interval is not None and next_due is not None:
+                # pace like a camera: one frame per interval; after a stall, restart the clock
+                wait_s = next_due - time.monotonic()
+                if wait_s > 0 and self._stop.wait(wait_s):
+                    return got_any
+            try:
+                frame = self.reader.read(timeout_s=0.2)
+            except CorruptFrame as exc:
+                with self.health._lock:
+                    self.health.corrupt += 1
+                log.warning("event=corrupt_frame reader=%s reason=%s", self.reader.name, _quote(str(exc)))
+                continue
+            now = time.monotonic()
+            if frame is None:
+                if now - last_frame > self.STALL_S:
+                    self.health.set("error", f"no frame for {now - last_frame:.1f} s")
+                continue
+            if interval is not None:
+                next_due = now + interval if next_due is None or next_due < now - interval else next_due + interval
+            last_frame = now
+            height, width = frame.image.shape[:2]
+            with self.health._lock:
+                self.health.frames += 1
+                self.health.last_frame_size = (width, height)
+            self.health.set("ok")
+            got_any = True
+            self.mailbox.put(frame)
+        return got_any
+
+
+def _quote(text: str) -> str:
+    """A log value with spaces quoted (key=value logs)."""
+    return '"' + text.replace('"', "'") + '"' if (" " in text or not text) else text

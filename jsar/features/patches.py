@@ -1,0 +1,148 @@
+"""Image patches: crop a region (possibly partly or wholly outside the image) and resample it.
+
+Conventions: continuous pixel coordinates, pixel k covers [k, k+1); a region is given by its
+centre (cx, cy) and size (w, h) in pixels (floats) and covers [cx - w/2, cx + w/2) x
+[cy - h/2, cy + h/2); the output size is (out_w, out_h) pixels. Arrays are (rows, cols[, 3]).
+
+Resampling is separable and chosen per axis from that axis' scale s = region size / output size:
+- s > 1 (shrinking): output pixel j is the exact mean of the image over its footprint
+  [x0 + j*s, x0 + (j+1)*s) (what cv2.INTER_AREA computes; fractional region offsets included);
+- s <= 1 (enlarging): linear interpolation at the output pixel's centre x0 + (j+0.5)*s, which is the
+  mean over a 1 px footprint centred there (cv2.INTER_LINEAR's sampling positions).
+Outside the image the border pixels are replicated. This is folded into the resampling weights by
+clamping source indices, so only the in-image part of the region is read and no padded copy is
+allocated, however far outside the image or however large the region is.
+The result is rounded to the nearest integer and returned as uint8, like cv2.resize on uint8 input.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AxisWeights:
+    """Sparse 1-D resampling operator: out[..., j] = sum_k weight[..., j, k] * src[index[..., j, k]]."""
+
+    index: np.ndarray  # int32 (..., n_out, taps), source indices already clamped into [0, n_src)
+    weight: np.ndarray  # float32 (..., n_out, taps), each row sums to 1
+
+
+def axis_weights(start: np.ndarray, size: np.ndarray, n_out: int, n_src: int) -> AxisWeights:
+    """Resampling weights along one axis for regions [start, start+size) (arrays (...,), pixels) -> n_out samples.
+
+    Footprint of sample j: centred at start + (j + 0.5) * s with width max(s, 1), s = size / n_out;
+    source pixel q covers [q, q+1) and indices outside [0, n_src) are clamped (border replicated).
+    """
+    start = np.asarray(start, dtype=np.float64)
+    size = np.asarray(size, dtype=np.float64)
+    step = size / n_out
+    width = np.maximum(step, 1.0)
+    centre = start[..., None] + (np.arange(n_out) + 0.5) * step[..., None]
+    lo = centre - 0.5 * width[..., None]
+    hi = centre + 0.5 * width[..., None]
+    # Pixel 0 stands for everything left of the image and pixel n_src - 1 for everything right of
+    # it (border replication), so a footprint never needs more taps than the image has pixels.
+    first = np.clip(np.floor(lo), 0, n_src - 1)
+    last = np.clip(np.ceil(hi) - 1, 0, n_src - 1)
+    taps = int(np.max(last - first)) + 1
+    pixel = first[..., None] + np.arange(taps)  # (..., n_out, taps)
+    cell_lo = np.where(pixel <= 0, -np.inf, pixel)
+    cell_hi = np.where(pixel >= n_src - 1, np.inf, pixel + 1.0)
+    cell_lo = np.where(pixel > last[..., None], np.inf, cell_lo)  # padding taps get no weight
+    overlap = np.minimum(hi[..., None], cell_hi) - np.maximum(lo[..., None], cell_lo)
+    weight = np.clip(overlap, 0.0, None) / (hi - lo)[..., None]
+    index = np.minimum(pixel, n_src - 1).astype(np.int32)
+    return AxisWeights(index=index, weight=weight.astype(np.float32))
+
+
+def _region_window(lo: float, hi: float, n_src: int) -> tuple[int, int]:
+    """Integer source window [a, b) (1 <= b - a) that holds every pixel the region [lo, hi) may touch, clamped."""
+    a = int(np.clip(np.floor(lo) - 1, 0, n_src - 1))
+    b = int(np.clip(np.ceil(hi) + 1, a + 1, n_src))
+    return a, b
+
+
+def _check_image(image: np.ndarray) -> None:
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"image must be a numpy array, got {type(image).__name__}")
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+        raise ValueError(f"image must be HxW or HxWx3, got shape {image.shape}")
+    if image.shape[0] < 1 or image.shape[1] < 1:
+        raise ValueError(f"image is empty: shape {image.shape}")
+
+
+def _check_out(out_wh: tuple[int, int]) -> tuple[int, int]:
+    try:
+        out_w, out_h = (int(v) for v in out_wh)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"out_wh must be two integers (out_w, out_h), got {out_wh!r}") from exc
+    if out_w < 1 or out_h < 1:
+        raise ValueError(f"out_wh must be positive, got {out_wh!r}")
+    return out_w, out_h
+
+
+def _check_regions(center_xy: object, sizes_wh: object) -> tuple[np.ndarray, np.ndarray]:
+    centre = np.asarray(center_xy, dtype=np.float64)
+    sizes = np.asarray(sizes_wh, dtype=np.float64)
+    if centre.shape != (2,):
+        raise ValueError(f"center_xy must be two numbers (cx, cy), got shape {centre.shape}")
+    if sizes.ndim != 2 or sizes.shape[1] != 2 or sizes.shape[0] < 1:
+        raise ValueError(f"sizes_wh must be an (N, 2) array of (w, h), got shape {sizes.shape}")
+    if not (np.all(np.isfinite(centre)) and np.all(np.isfinite(sizes))):
+        raise ValueError("center_xy and sizes_wh must be finite")
+    if np.any(sizes <= 0):
+        raise ValueError(f"region sizes must be positive, got min {sizes.min()}")
+    return centre, sizes
+
+
+def resample_regions(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+    """Float32 (N, out_h, out_w[, C]) resampling of N regions sharing one centre; see the module docstring."""
+    _check_image(image)
+    out_w, out_h = _check_out(out_wh)
+    centre, sizes = _check_regions(center_xy, sizes_wh)
+    height, width = image.shape[:2]
+    left = centre[0] - 0.5 * sizes[:, 0]
+    top = centre[1] - 0.5 * sizes[:, 1]
+    # Read only the part of the image the largest region can touch (a view, no copy).
+    x0, x1 = _region_window(float(left.min()), float((left + sizes[:, 0]).max()), width)
+    y0, y1 = _region_window(float(top.min()), float((top + sizes[:, 1]).max()), height)
+    window = image[y0:y1, x0:x1]
+    wx = axis_weights(left - x0, sizes[:, 0], out_w, x1 - x0)
+    wy = axis_weights(top - y0, sizes[:, 1], out_h, y1 - y0)
+    return _apply_separable(window, wy, wx)
+
+
+def _apply_separable(window: np.ndarray, wy: AxisWeights, wx: AxisWeights) -> np.ndarray:
+    """(N, out_h, out_w[, C]) float32 = Wy_n @ window @ Wx_n^T for every region n."""
+    src = window.astype(np.float32, copy=False)
+    n = wy.index.shape[0]
+    # Rows first: gathering whole rows is a contiguous copy.
+    rows = src[wy.index]  # (N, out_h, ty, Wc[, C])
+    wgt = wy.weight.reshape(wy.weight.shape + (1,) * (src.ndim - 1))
+    rows = (rows * wgt).sum(axis=2)  # (N, out_h, Wc[, C])
+    idx = wx.index  # (N, out_w, tx)
+    batch = np.arange(n)[:, None, None, None]
+    line = np.arange(rows.shape[1])[None, :, None, None]
+    cols = rows[batch, line, idx[:, None, :, :]]  # (N, out_h, out_w, tx[, C])
+    wgt = wx.weight[:, None, :, :].reshape((n, 1) + wx.weight.shape[1:] + (1,) * (src.ndim - 2))
+    return (cols * wgt).sum(axis=3)
+
+
+def _to_uint8(values: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+
+
+def sample_patches(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+    """uint8 (N, out_h, out_w[, 3]): N regions of sizes sizes_wh (N, 2) pixels centred at center_xy, resampled."""
+    values = resample_regions(image, center_xy, sizes_wh, out_wh)
+    return _to_uint8(values)
+
+
+def sample_patch(image: np.ndarray, center_xy: object, size_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+    """uint8 (out_h, out_w[, 3]): the region of size size_wh (w, h pixels) centred at center_xy (x, y), resampled."""
+    size = np.asarray(size_wh, dtype=np.float64)
+    if size.shape != (2,):
+        raise ValueError(f"size_wh must be two numbers (w, h), got shape {size.shape}")
+    return sample_patches(image, center_xy, size[None, :], out_wh)[0]

@@ -1,0 +1,90 @@
+"""fHOG properties: shape, orientation bins, clipping, contrast invariance, zeros, batch consistency."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from jsar.features import fhog as fh
+
+
+def ramp(angle_deg: float, size: int = 32, slope: float = 3.0) -> np.ndarray:
+    """Float image whose gradient points at angle_deg (image coordinates: x right, y down)."""
+    y, x = np.mgrid[0:size, 0:size].astype(np.float64)
+    theta = np.deg2rad(angle_deg)
+    return (128.0 + slope * (x * np.cos(theta) + y * np.sin(theta))).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def texture() -> np.ndarray:
+    rng = np.random.default_rng(7)
+    return cv2.GaussianBlur(rng.uniform(0, 100, (64, 48)).astype(np.float32), (0, 0), 1.5)
+
+
+def test_shape_and_dtype(texture):
+    out = fh.fhog(texture, cell=4)
+    assert out.shape == (16, 12, 31) and out.dtype == np.float32
+    assert fh.fhog(np.zeros((18, 23, 3), np.uint8), cell=4).shape == (4, 5, 31)
+
+
+@pytest.mark.parametrize("k", [0, 2, 5, 9, 13, 17])
+def test_gradient_direction_lands_in_its_signed_and_unsigned_bins(k):
+    out = fh.fhog(ramp(20.0 * k))
+    inner = out[1:-1, 1:-1]  # away from the one-sided border gradients
+    assert np.all(np.argmax(inner[..., :18], axis=-1) == k)
+    assert np.all(np.argmax(inner[..., 18:27], axis=-1) == k % 9)
+
+
+def test_between_two_bins_the_magnitude_is_split_evenly():
+    hist = fh.orientation_histograms(*fh.gradients(ramp(30.0)[None]), cell=4)[0, 2, 2]
+    assert hist[1] == pytest.approx(hist[2], rel=1e-3) and hist[1] > 0
+    assert np.sum(hist) == pytest.approx(hist[1] + hist[2], rel=1e-5)
+
+
+def test_normalised_values_are_clipped_at_0_2(texture):
+    # What is tested: every block-normalised histogram value min(h * n_k, 0.2), before the four
+    # blocks are summed, is <= 0.2, and the clip is active (a single-orientation cell reaches it).
+    for image in (texture, ramp(40.0)):
+        hist = fh.orientation_histograms(*fh.gradients(image[None]), cell=4)
+        clipped = fh.clipped_normalised(hist)
+        assert clipped.max() <= fh.CLIP
+    assert np.isclose(fh.clipped_normalised(fh.orientation_histograms(*fh.gradients(ramp(40.0)[None]), 4)).max(), 0.2)
+    out = fh.fhog(texture)
+    assert out[..., :27].max() <= 0.5 * 4 * 0.2 + 1e-6  # four clipped blocks, halved
+    assert out[..., 27:].max() <= fh.TEXTURE_SCALE * 4 * 0.2 * 18 + 1e-6
+
+
+def test_contrast_invariance(texture):
+    base = fh.fhog(texture)
+    for k in (0.5, 2.5):
+        assert np.abs(fh.fhog(texture * k) - base).max() < 1e-3  # equal up to eps / energy
+
+
+def test_zero_and_constant_images_give_zero_features():
+    assert not np.any(fh.fhog(np.zeros((20, 20), np.uint8)))
+    assert not np.any(fh.fhog(np.full((20, 20, 3), 77, np.uint8)))
+
+
+def test_colour_uses_the_channel_with_the_strongest_gradient(texture):
+    colour = np.zeros(texture.shape + (3,), np.float32)
+    colour[..., 1] = texture
+    colour[..., 2] = texture * 0.3  # weaker copy: never the strongest
+    assert np.allclose(fh.fhog(colour), fh.fhog(texture), atol=1e-6)
+
+
+def test_batch_equals_per_image(texture):
+    rng = np.random.default_rng(3)
+    images = rng.integers(0, 256, (5, 16, 32), dtype=np.uint8)
+    batch = fh.fhog_batch(images)
+    assert batch.shape == (5, 4, 8, 31)
+    for n in range(5):
+        assert np.allclose(batch[n], fh.fhog(images[n]), atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "image, cell",
+    [(np.zeros((3, 8)), 4), (np.zeros((8, 8, 2)), 4), (np.zeros((8, 8)), 0), ([[1, 2]], 1), (np.zeros((8, 8), complex), 4)],
+)
+def test_bad_input_raises_value_error(image, cell):
+    with pytest.raises(ValueError):
+        fh.fhog(image, cell)

@@ -1,0 +1,110 @@
+"""Patch sampling: agreement with OpenCV's resize on whole-pixel regions, border replication, bounds."""
+from __future__ import annotations
+
+import tracemalloc
+
+import cv2
+import numpy as np
+import pytest
+
+from jsar.features.patches import resample_regions, sample_patch, sample_patches
+
+
+@pytest.fixture(scope="module")
+def frame() -> np.ndarray:
+    rng = np.random.default_rng(1)
+    noise = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    return cv2.GaussianBlur(noise, (0, 0), 2.0)
+
+
+@pytest.mark.parametrize("x, y, w, h, out_w, out_h", [(40, 30, 150, 120, 50, 40), (10, 20, 97, 53, 32, 16)])
+def test_shrinking_whole_pixel_region_equals_cv2_inter_area(frame, x, y, w, h, out_w, out_h):
+    patch = sample_patch(frame, (x + w / 2, y + h / 2), (w, h), (out_w, out_h))
+    expected = cv2.resize(frame[y:y + h, x:x + w], (out_w, out_h), interpolation=cv2.INTER_AREA)
+    assert patch.dtype == np.uint8 and patch.shape == (out_h, out_w, 3)
+    assert np.abs(patch.astype(int) - expected).max() <= 1
+
+
+def test_enlarging_matches_cv2_inter_linear(frame):
+    x, y, w, h = 50, 60, 40, 30
+    patch = sample_patch(frame, (x + w / 2, y + h / 2), (w, h), (200, 150))
+    expected = cv2.resize(frame[y:y + h, x:x + w], (200, 150), interpolation=cv2.INTER_LINEAR)
+    # OpenCV quantises interpolation weights to 1/32 (fixed point); this module does not.
+    # Outer samples differ: cv2.resize replicates the crop's edge, this reads the image around it.
+    assert np.abs(patch.astype(int) - expected)[5:-5, 5:-5].max() <= 3
+
+
+def test_region_across_the_border_replicates_border_pixels(frame):
+    x, y, w, h = -30, -20, 100, 80  # sticks out left and top
+    pad = cv2.copyMakeBorder(frame, 20, 0, 30, 0, cv2.BORDER_REPLICATE)
+    expected = cv2.resize(pad[0:h, 0:w], (50, 40), interpolation=cv2.INTER_AREA)
+    patch = sample_patch(frame, (x + w / 2, y + h / 2), (w, h), (50, 40))
+    assert np.abs(patch.astype(int) - expected).max() <= 1
+
+
+def test_region_far_outside_is_the_replicated_edge_without_a_huge_copy(frame):
+    tracemalloc.start()
+    patch = sample_patch(frame, (-1e6, 100.0), (5e4, 100.0), (20, 20))
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    # Far left: every column is the image's column 0 (rows 50..149) averaged down to 20 rows.
+    column = cv2.resize(frame[50:150, :1], (1, 20), interpolation=cv2.INTER_AREA)
+    assert np.abs(patch.astype(int) - column).max() <= 1
+    assert peak < 2_000_000  # a padded copy of the region would need 15 MB
+
+
+def test_huge_region_is_not_copied(frame):
+    tracemalloc.start()
+    patch = sample_patch(frame, (160.0, 120.0), (1e5, 1e5), (10, 10))
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert peak < 20_000_000  # a padded copy would need 30 GB
+    # The image is a tiny part of the region: the centre sample is an average of the whole image.
+    assert np.abs(patch[5, 5].astype(float) - frame.reshape(-1, 3).mean(axis=0)).max() < 60
+
+
+def test_sub_pixel_region_is_bilinear_value_at_its_centre():
+    image = np.array([[0, 100], [100, 200]], np.uint8)
+    assert sample_patch(image, (1.0, 1.0), (0.1, 0.1), (1, 1))[0, 0] == 100  # between the four pixels
+    assert sample_patch(image, (1.25, 1.0), (0.1, 0.1), (1, 1))[0, 0] == 125
+    patch = sample_patch(image, (1.0, 1.0), (0.1, 0.1), (3, 3))
+    assert patch[1, 1] == 100 and patch[0, 0] < 100 < patch[2, 2]
+
+
+def test_grey_frame_and_4k_frame():
+    frame4k = np.zeros((2160, 3840), np.uint8)
+    frame4k[:, 1920:] = 200
+    patch = sample_patch(frame4k, (1920.0, 1080.0), (1000.0, 1000.0), (200, 200))
+    assert patch.shape == (200, 200)
+    assert np.all(patch[:, :100] == 0) and np.all(patch[:, 100:] == 200)
+
+
+def test_fractional_shift_moves_the_content():
+    ramp = np.tile(np.arange(0, 200, 2, dtype=np.uint8), (10, 1))  # value = 2 * x_index
+    for size, out in ((20.0, 40), (39.0, 13)):  # enlarging; shrinking by a whole factor
+        left = resample_regions(ramp, (50.5, 5.0), [[size, 4.0]], (out, 8))
+        right = resample_regions(ramp, (51.0, 5.0), [[size, 4.0]], (out, 8))
+        assert np.allclose(right - left, 1.0, atol=1e-3)  # half a pixel on a slope of 2 per pixel
+
+
+def test_batch_equals_single_patches(frame):
+    sizes = np.array([[40.0, 20.0], [57.3, 31.1], [13.2, 8.7], [300.0, 9.0]])
+    batch = sample_patches(frame, (100.3, 80.6), sizes, (32, 16))
+    assert batch.shape == (4, 16, 32, 3)
+    for n, size in enumerate(sizes):
+        assert np.array_equal(batch[n], sample_patch(frame, (100.3, 80.6), size, (32, 16)))
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        (np.zeros((0, 5), np.uint8), (1, 1), (2, 2), (4, 4)),
+        (np.zeros((5, 5, 2), np.uint8), (1, 1), (2, 2), (4, 4)),
+        (np.zeros((5, 5), np.uint8), (1, np.nan), (2, 2), (4, 4)),
+        (np.zeros((5, 5), np.uint8), (1, 1), (0, 2), (4, 4)),
+        (np.zeros((5, 5), np.uint8), (1, 1), (2, 2), (0, 4)),
+    ],
+)
+def test_bad_input_raises_value_error(args):
+    with pytest.raises(ValueError):
+        sample_patch(*args)

@@ -1,0 +1,58 @@
+"""Translation-filter features: gray + fHOG + colour attributes per cell, stacked channel-wise.
+
+Channel order (what the filters see), for a patch of H x W pixels and cell c (H // c x W // c cells):
+- 0: gray, pixel / 255 - 0.5 averaged over each cell (colour patches: cv2 BGR2GRAY first);
+- 1..31: fHOG (see `jsar.features.fhog`; colour patches: strongest channel per pixel);
+- 32..41: colour attributes from a (32768, 10) table (see `jsar.features.colour`), averaged over
+  each cell; only when `colour_table` is given (42 channels), else 32 channels.
+Pixels beyond the last whole cell are ignored, like fHOG does.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from jsar.features.colour import colour_attributes
+from jsar.features.fhog import fhog
+
+
+def cell_mean(values: np.ndarray, cell: int) -> np.ndarray:
+    """float32 (H//cell, W//cell, C): mean of `values` (H, W, C) over each cell x cell block."""
+    hc, wc = values.shape[0] // cell, values.shape[1] // cell
+    blocks = values[: hc * cell, : wc * cell].reshape(hc, cell, wc, cell, values.shape[2])
+    return blocks.mean(axis=(1, 3), dtype=np.float32)
+
+
+def _check_patch(patch: object, cell: int, colour_table: np.ndarray | None) -> np.ndarray:
+    if not isinstance(patch, np.ndarray):
+        raise ValueError(f"patch must be a numpy array, got {type(patch).__name__}")
+    if patch.dtype != np.uint8:
+        raise ValueError(f"patch must be uint8 (0..255), got dtype {patch.dtype}")
+    if not (patch.ndim == 2 or (patch.ndim == 3 and patch.shape[2] == 3)):
+        raise ValueError(f"patch must be HxW grey or HxWx3 BGR, got shape {patch.shape}")
+    if not isinstance(cell, (int, np.integer)) or cell < 1:
+        raise ValueError(f"cell must be a positive integer, got {cell!r}")
+    if patch.shape[0] < cell or patch.shape[1] < cell:
+        raise ValueError(f"patch {patch.shape} is smaller than one {cell}x{cell} cell")
+    if colour_table is not None:
+        if patch.ndim == 2:
+            raise ValueError("colour_table given for a grey patch: pass colour_table=None for grey input")
+        if not (isinstance(colour_table, np.ndarray) and colour_table.shape == (32768, 10)
+                and colour_table.dtype == np.float32):
+            raise ValueError("colour_table must be float32 (32768, 10): use jsar.features.colour to build or load it")
+    return patch
+
+
+def extract_features(patch: np.ndarray, cell: int = 4, colour_table: np.ndarray | None = None) -> np.ndarray:
+    """float32 (H//cell, W//cell, 42 or 32): gray, fHOG, colour attributes of a uint8 BGR / grey patch."""
+    _check_patch(patch, cell, colour_table)
+    grey = patch if patch.ndim == 2 else cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
+    hog = fhog(patch, cell)
+    hc, wc = hog.shape[:2]
+    n_channels = 1 + hog.shape[2] + (0 if colour_table is None else colour_table.shape[1])
+    out = np.empty((hc, wc, n_channels), np.float32)
+    out[..., 0] = cell_mean(grey[..., None].astype(np.float32), cell)[..., 0] / 255.0 - 0.5
+    out[..., 1:32] = hog
+    if colour_table is not None:
+        out[..., 32:] = cell_mean(colour_attributes(patch, colour_table), cell)
+    return out

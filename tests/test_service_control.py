@@ -1,0 +1,285 @@
+"""Pure parts: command validation, selection boxes, gimbal PI(D), guidance gating, geolocation, outputs."""
+from __future__ import annotations
+
+import math
+import os
+
+os.environ.setdefault("MAVLINK20", "1")
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from service.config import GimbalConfig, GuidanceConfig, config_from_mapping
+from service.control.geo import GimbalAttitude, VehiclePose, camera_ray_ned, locate_on_ground, quaternion_to_euler
+from service.control.gimbal import AxisState, GimbalState, PidGains, angular_error, gimbal_step, pid_step
+from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
+from service.loop import ControlCommand
+from service.mavlink import commands as c
+from service.mavlink.autopilot import AutopilotView
+from service.mavlink.outputs import MavlinkOutputs
+from service.selection import point_box, rectangle_box, rescale_box
+
+NAN = float("nan")
+OWN = 100
+
+
+# --- commands -------------------------------------------------------------------------------------
+def p7(*values: float) -> tuple[float, ...]:
+    return tuple(values) + (0.0,) * (7 - len(values))
+
+
+def test_valid_track_commands_are_accepted_with_their_intent() -> None:
+    rect = c.decide(c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.1, 0.2, 0.3, 0.5, OWN), OWN)
+    assert rect.result == c.MAV_RESULT_ACCEPTED and rect.intent == c.TrackRectangle(0.1, 0.2, 0.3, 0.5)
+    point = c.decide(c.MAV_CMD_CAMERA_TRACK_POINT, p7(0.5, 0.5, 0.0, 0), OWN)
+    assert point.intent == c.TrackPoint(0.5, 0.5, 0.0)
+    assert c.decide(c.MAV_CMD_CAMERA_STOP_TRACKING, p7(NAN), OWN).intent == c.StopTracking()
+
+
+@pytest.mark.parametrize("command, params, result, words", [
+    (c.MAV_CMD_CAMERA_TRACK_POINT, p7(NAN, 0.5, 0.1), c.MAV_RESULT_DENIED, "x must be a finite number"),
+    (c.MAV_CMD_CAMERA_TRACK_POINT, p7(1.2, 0.5, 0.1), c.MAV_RESULT_DENIED, "x must be in 0..1"),
+    (c.MAV_CMD_CAMERA_TRACK_POINT, p7(0.5, -0.1, 0.1), c.MAV_RESULT_DENIED, "y must be in 0..1"),
+    (c.MAV_CMD_CAMERA_TRACK_POINT, p7(0.5, 0.5, -0.1), c.MAV_RESULT_DENIED, "radius must be in 0..1"),
+    (c.MAV_CMD_CAMERA_TRACK_POINT, p7(0.5, 0.5, 0.1, 7), c.MAV_RESULT_DENIED, "camera id 7 is not this camera"),
+    (c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.1, NAN, 0.3, 0.4), c.MAV_RESULT_DENIED, "top_left_y must be a finite"),
+    (c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.5, 0.2, 0.3, 0.4), c.MAV_RESULT_DENIED, "inverted or has zero size"),
+    (c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.3, 0.2, 0.3, 0.4), c.MAV_RESULT_DENIED, "inverted or has zero size"),
+    (c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.1, 0.2, 1.3, 0.4), c.MAV_RESULT_DENIED, "bottom_right_x must be in 0..1"),
+    (c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.1, 0.2, 0.3, 0.4, 101), c.MAV_RESULT_DENIED, "camera id 101"),
+    (c.MAV_CMD_CAMERA_STOP_TRACKING, p7(3), c.MAV_RESULT_DENIED, "camera id 3"),
+    (c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(275, 500), c.MAV_RESULT_DENIED, "interval must be -1, 0 or >= 10000"),
+    (c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(275, NAN), c.MAV_RESULT_DENIED, "interval must be finite"),
+    (c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(33, 1e5), c.MAV_RESULT_UNSUPPORTED, "does not stream message 33"),
+    (c.MAV_CMD_REQUEST_MESSAGE, p7(275.5), c.MAV_RESULT_DENIED, "whole number"),
+    (c.MAV_CMD_REQUEST_MESSAGE, p7(260), c.MAV_RESULT_UNSUPPORTED, "does not provide message 260"),
+    (400, p7(1), c.MAV_RESULT_UNSUPPORTED, "command 400 is not supported"),
+])
+def test_bad_commands_are_rejected_with_a_reason(command: int, params: tuple, result: int, words: str) -> None:
+    decision = c.decide(command, params, OWN)
+    assert decision.result == result and decision.intent is None
+    assert words in decision.reason
+
+
+def test_message_interval_values() -> None:
+    assert c.decide(c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(275, -1), OWN).intent == c.SetMessageInterval(275, None)
+    assert c.decide(c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(275, 0), OWN).intent == c.SetMessageInterval(275, "default")
+    assert c.decide(c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(275, 500000), OWN).intent == c.SetMessageInterval(275, 0.5)
+
+
+def test_who_answers_a_command() -> None:
+    rect_for_other_camera = p7(0.1, 0.1, 0.2, 0.2, 101)
+    assert c.is_for_us(OWN, c.MAV_CMD_CAMERA_TRACK_RECTANGLE, rect_for_other_camera, OWN)  # addressed: answer (DENIED)
+    assert not c.is_for_us(0, c.MAV_CMD_CAMERA_TRACK_RECTANGLE, rect_for_other_camera, OWN)  # broadcast, other camera
+    assert c.is_for_us(0, c.MAV_CMD_CAMERA_TRACK_RECTANGLE, p7(0.1, 0.1, 0.2, 0.2, 0), OWN)
+    assert not c.is_for_us(0, c.MAV_CMD_SET_MESSAGE_INTERVAL, p7(275, 1e5), OWN)  # broadcast non-camera: autopilot's
+    assert not c.is_for_us(1, c.MAV_CMD_CAMERA_TRACK_POINT, p7(0.5, 0.5), OWN)
+
+
+# --- selection ------------------------------------------------------------------------------------
+def test_selection_boxes_in_pixels() -> None:
+    camera = config_from_mapping({"tracker": {"name": "csrt"}}).camera
+    assert rectangle_box(c.TrackRectangle(0.25, 0.5, 0.75, 1.0), (640, 480)) == (160.0, 240.0, 320.0, 240.0)
+    assert point_box(c.TrackPoint(0.5, 0.5, 0.05), (640, 480), camera) == (288.0, 208.0, 64.0, 64.0)
+    # radius 0 -> the default fraction of the width
+    side = 2 * camera.default_point_radius * 640
+    assert point_box(c.TrackPoint(0.5, 0.5, 0.0), (640, 480), camera)[2] == pytest.approx(side)
+    # a point at the corner gives a box inside the image; a tiny radius gives at least min_box_px
+    x, y, w, h = point_box(c.TrackPoint(1.0, 1.0, 0.0001), (640, 480), camera)
+    assert (w, h) == (camera.min_box_px, camera.min_box_px) and x + w <= 640 and y + h <= 480
+    assert rescale_box((100, 50, 40, 20), (640, 480), (320, 240)) == (50, 25, 20, 10)
+
+
+# --- gimbal ---------------------------------------------------------------------------------------
+GAINS = PidGains.from_config(GimbalConfig(kp=2.0, ki=0.5, kd=0.0, max_rate_deg_s=30.0, max_accel_deg_s2=1e6,
+                                          integrator_limit_deg_s=10.0))
+
+
+def test_angular_error_signs_and_scale() -> None:
+    hfov = math.radians(90)  # focal = width / 2
+    yaw, pitch = angular_error((600, 100, 20, 20), (640, 480), hfov)  # right of and above the centre
+    assert yaw > 0 and pitch > 0
+    assert yaw == pytest.approx(math.atan2(610 - 320, 320))
+    yaw, pitch = angular_error((0, 400, 20, 20), (640, 480), hfov)  # left, below
+    assert yaw < 0 and pitch < 0
+    assert angular_error((310, 230, 20, 20), (640, 480), hfov) == (0.0, 0.0)
+
+
+def test_rates_turn_towards_the_target_and_respect_the_limit() -> None:
+    state, yaw_rate, pitch_rate = gimbal_step(GimbalState(), 0.1, -0.05, 0.033, GAINS)
+    assert yaw_rate > 0 and pitch_rate < 0
+    _, big, _ = gimbal_step(GimbalState(), 1.0, 0.0, 0.033, GAINS)
+    assert big == pytest.approx(math.radians(30.0))
+
+
+def test_slew_limit_bounds_the_change_of_rate() -> None:
+    gains = PidGains.from_config(GimbalConfig(kp=10.0, ki=0.0, max_rate_deg_s=90.0, max_accel_deg_s2=100.0))
+    _, rate = pid_step(AxisState(), 1.0, 0.1, gains)
+    assert rate == pytest.approx(math.radians(100.0) * 0.1)
+
+
+def test_anti_windup_integral_stops_growing_while_saturated() -> None:
+    state = AxisState()
+    for _ in range(200):  # a long, large error: the output is pinned at the limit
+        state, rate = pid_step(state, 1.0, 0.05, GAINS)
+    assert rate == pytest.approx(math.radians(30.0))
+    assert abs(GAINS.ki * state.integral) <= GAINS.integrator_limit + 1e-9
+    # the error flips: without windup the output leaves the limit at once
+    state, rate = pid_step(state, -0.2, 0.05, GAINS)
+    assert rate < 0
+
+
+def test_integral_removes_steady_error_contribution_and_reset_clears_it() -> None:
+    gains = PidGains.from_config(GimbalConfig(kp=0.0, ki=1.0, max_rate_deg_s=90.0, integrator_limit_deg_s=45.0))
+    state = AxisState()
+    for _ in range(10):
+        state, rate = pid_step(state, 0.01, 0.1, gains)
+    assert rate == pytest.approx(0.01, rel=1e-6)  # ki * sum(error * dt) = 1 * 0.01 * 1.0
+    assert GimbalState().yaw == AxisState()  # the reset state has no memory
+
+
+def test_bad_controller_inputs_raise() -> None:
+    with pytest.raises(ValueError, match="dt"):
+        pid_step(AxisState(), 0.1, 0.0, GAINS)
+    with pytest.raises(ValueError, match="error must be finite"):
+        pid_step(AxisState(), NAN, 0.1, GAINS)
+
+
+# --- guidance gating --------------------------------------------------------------------------------
+@pytest.mark.parametrize("autopilot, vehicle_type, custom_mode, allowed", [
+    (3, 2, 4, True),       # ArduCopter GUIDED
+    (3, 2, 5, False),      # ArduCopter LOITER
+    (3, 1, 15, True),      # ArduPlane GUIDED
+    (3, 1, 4, False),      # ArduPlane 4 is not GUIDED
+    (12, 2, 6 << 16, True),          # PX4 OFFBOARD
+    (12, 2, (4 << 16) | (3 << 24), False),  # PX4 AUTO.LOITER
+    (8, 2, 4, False),      # not an autopilot
+])
+def test_guidance_only_in_guided_or_offboard(autopilot: int, vehicle_type: int, custom_mode: int, allowed: bool) -> None:
+    assert guidance_allowed(autopilot, vehicle_type, custom_mode) is allowed
+
+
+def test_velocity_setpoint_turns_towards_target_and_holds_distance() -> None:
+    cfg = GuidanceConfig(yaw_gain=1.0, max_yaw_rate_deg_s=30.0, forward_gain=0.5, max_speed_m_s=3.0, follow_distance_m=10.0)
+    far_right = velocity_setpoint(0.2, 30.0, cfg)
+    assert far_right.yaw_rate == pytest.approx(0.2) and far_right.forward == pytest.approx(3.0)
+    too_close = velocity_setpoint(0.0, 8.0, cfg)
+    assert too_close.forward == pytest.approx(-1.0)
+    assert velocity_setpoint(-3.0, None, cfg).yaw_rate == pytest.approx(-math.radians(30.0))
+    assert velocity_setpoint(-3.0, None, cfg).forward == 0.0
+
+
+class FakeLink:
+    """Records encoded messages; encodes with a real pymavlink MAVLink object."""
+
+    def __init__(self) -> None:
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=100)
+        self.system_id = 1
+        self.sent: list[object] = []
+
+    def send(self, msg: object) -> bool:
+        self.sent.append(msg)
+        return True
+
+    def types(self) -> list[str]:
+        return [m.get_type() for m in self.sent]
+
+
+def _outputs(overrides: dict, view: AutopilotView) -> tuple[MavlinkOutputs, FakeLink]:
+    config = config_from_mapping({"tracker": {"name": "csrt"}, **overrides})
+    link = FakeLink()
+    return MavlinkOutputs(config, link, lambda: view, lambda: 1234), link
+
+
+TRACKING = ControlCommand("tracking", False, (0.1, -0.1), 0.2, None)
+LOST = ControlCommand("lost", False, (0.0, 0.0), None, None)
+
+
+def test_velocity_guidance_gated_on_mode_and_zero_when_lost() -> None:
+    loiter = AutopilotView(system_id=1, autopilot=3, vehicle_type=2, custom_mode=5, last_heartbeat_s=100.0)
+    outputs, link = _outputs({"guidance": {"mode": "velocity"}}, loiter)
+    outputs.apply(100.1, TRACKING)
+    assert "SET_POSITION_TARGET_LOCAL_NED" not in link.types()  # not GUIDED: no setpoint
+    guided = AutopilotView(system_id=1, autopilot=3, vehicle_type=2, custom_mode=4, last_heartbeat_s=100.0)
+    outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 10.0}}, guided)
+    outputs.apply(100.1, TRACKING)
+    outputs.apply(100.2, LOST)
+    setpoints = [m for m in link.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert len(setpoints) == 2
+    assert setpoints[0].yaw_rate > 0 and setpoints[0].type_mask == 0x05C7 and setpoints[0].coordinate_frame == 9
+    assert (setpoints[1].vx, setpoints[1].vy, setpoints[1].vz, setpoints[1].yaw_rate) == (0, 0, 0, 0)
+    # heartbeat timed out: no guidance even in GUIDED
+    outputs.apply(100.0 + 5.0, TRACKING)
+    assert len([m for m in link.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]) == 2
+
+
+def test_guidance_throttled_to_rate() -> None:
+    guided = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
+    outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 10.0}}, guided)
+    for i in range(30):  # 30 frames over 0.29 s
+        outputs.apply(10.0 + i * 0.01, TRACKING)
+    assert link.types().count("SET_POSITION_TARGET_LOCAL_NED") == 3
+
+
+def test_ardupilot_backend_sends_287_rates() -> None:
+    view = AutopilotView(system_id=7)
+    outputs, link = _outputs({}, view)
+    outputs.apply(1.0, TRACKING)
+    (msg,) = link.sent
+    assert msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW" and msg.target_system == 7
+    assert msg.yaw_rate == pytest.approx(0.1) and msg.pitch_rate == pytest.approx(-0.1)
+    assert math.isnan(msg.pitch) and math.isnan(msg.yaw)
+
+
+def test_px4_backend_claims_then_sends_282_only_when_primary() -> None:
+    view = AutopilotView(system_id=1, gimbal_primary=(0, 0))
+    outputs, link = _outputs({"gimbal": {"backend": "px4", "claim_interval_s": 1.0}}, view)
+    outputs.apply(1.0, TRACKING)
+    outputs.apply(1.5, TRACKING)  # within the claim interval: no second claim
+    assert link.types() == ["COMMAND_LONG"]
+    claim = link.sent[0]
+    assert claim.command == 1001 and (claim.param1, claim.param2) == (1, 100)
+    primary = AutopilotView(system_id=1, gimbal_primary=(1, 100))
+    outputs.autopilot = lambda: primary
+    outputs.apply(2.0, TRACKING)
+    msg = link.sent[-1]
+    assert msg.get_type() == "GIMBAL_MANAGER_SET_ATTITUDE"
+    assert msg.angular_velocity_z == pytest.approx(0.1) and msg.angular_velocity_y == pytest.approx(-0.1)
+    assert all(math.isnan(q) for q in msg.q)
+
+
+def test_no_gimbal_commands_before_the_autopilot_is_known_or_with_backend_none() -> None:
+    outputs, link = _outputs({}, AutopilotView())
+    outputs.apply(1.0, TRACKING)
+    outputs, link2 = _outputs({"gimbal": {"backend": "none"}}, AutopilotView(system_id=1))
+    outputs.apply(1.0, TRACKING)
+    assert link.sent == [] and link2.sent == []
+
+
+# --- geolocation ------------------------------------------------------------------------------------
+def test_ground_point_straight_ahead_at_45_degrees_down() -> None:
+    pose = VehiclePose(lat_deg=47.0, lon_deg=8.0, alt_amsl_m=520.0, height_m=20.0, roll=0, pitch=0, yaw=math.pi / 2)
+    gimbal = GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False)
+    target = locate_on_ground(pose, camera_ray_ned(0.0, 0.0, gimbal, pose.yaw))
+    assert target is not None
+    assert target.ground_range_m == pytest.approx(20.0)
+    assert target.bearing_rad == pytest.approx(math.pi / 2)  # vehicle faces east
+    assert target.lat_deg == pytest.approx(47.0, abs=1e-9) and target.lon_deg > 8.0
+    assert target.alt_amsl_m == pytest.approx(500.0)
+    # a target above the centre is further away; above the horizon there is no ground point
+    farther = locate_on_ground(pose, camera_ray_ned(0.0, 0.2, gimbal, pose.yaw))
+    assert farther is not None and farther.ground_range_m > 20.0
+    level = GimbalAttitude(pitch=0.0, yaw=0.0, yaw_in_earth_frame=False)
+    assert locate_on_ground(pose, camera_ray_ned(0.0, 0.1, level, pose.yaw)) is None
+
+
+def test_quaternion_to_euler_round_trip() -> None:
+    half = math.radians(-30) / 2
+    roll, pitch, yaw = quaternion_to_euler((math.cos(half), 0.0, math.sin(half), 0.0))
+    assert pitch == pytest.approx(math.radians(-30)) and roll == pytest.approx(0) and yaw == pytest.approx(0)
+    with pytest.raises(ValueError):
+        quaternion_to_euler((0, 0, 0, 0))
+
+
+def test_zero_velocity_constant() -> None:
+    assert (ZERO_VELOCITY.forward, ZERO_VELOCITY.right, ZERO_VELOCITY.down, ZERO_VELOCITY.yaw_rate) == (0, 0, 0, 0)

@@ -1,0 +1,211 @@
+"""Loopback MAVLink peers and helpers for the service tests (no tests here).
+
+AutopilotPeer: a minimal autopilot/router written for the tests: two UDP ports (one for the service,
+one for the ground station), heartbeats with a configurable flight mode, forwards packets between
+the links except those addressed only to itself, records what the service sends.
+GroundStation: a pymavlink ground-station peer (udpout to the autopilot's ground-station port).
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink import mavutil  # noqa: E402
+
+from service.config import ServiceConfig, config_from_mapping  # noqa: E402
+
+MAV_TYPE_QUADROTOR = 2
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
+
+
+@dataclass
+class Received:
+    """A message and its arrival time (time.monotonic())."""
+
+    msg: object
+    at: float
+
+
+class Recorder:
+    """Thread-safe message log with waiting on a predicate (no sleeps)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self.items: list[Received] = []
+
+    def add(self, msg: object) -> None:
+        with self._cond:
+            self.items.append(Received(msg, time.monotonic()))
+            self._cond.notify_all()
+
+    def of(self, kind: str) -> list[Received]:
+        with self._cond:
+            return [r for r in self.items if r.msg.get_type() == kind]
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        with self._cond:
+            return self._cond.wait_for(predicate, timeout=timeout_s)
+
+
+def _bound_udpin(port: int, system: int, component: int):
+    return mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=system, source_component=component)
+
+
+class AutopilotPeer:
+    """System `system_id`, component 1. Links: 'service' (udpin on service_port), 'gcs' (udpin on gcs_port)."""
+
+    def __init__(self, service_port: int, gcs_port: int, system_id: int = 1,
+                 autopilot: int = MAV_AUTOPILOT_ARDUPILOTMEGA, custom_mode: int = 0,
+                 heartbeat_hz: float = 10.0) -> None:
+        self.system_id = system_id
+        self.autopilot = autopilot
+        self.custom_mode = custom_mode
+        self.heartbeats_on = True
+        self.extra_periodic: list[Callable[[object], object]] = []  # msg builders sent with each heartbeat
+        self.links = {"service": _bound_udpin(service_port, system_id, 1), "gcs": _bound_udpin(gcs_port, system_id, 1)}
+        self.from_service = Recorder()
+        self._stop = threading.Event()
+        self._period = 1.0 / heartbeat_hz
+        self._lock = threading.Lock()
+        self._threads = [threading.Thread(target=self._receive, args=(name,), daemon=True) for name in self.links]
+        self._threads.append(threading.Thread(target=self._beat, daemon=True))
+
+    def start(self) -> "AutopilotPeer":
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(1.0)
+        for conn in self.links.values():
+            conn.close()
+
+    def send(self, link: str, msg: object) -> None:
+        with self._lock:
+            self.links[link].mav.send(msg)  # dropped until the peer has sent to us (udpin)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self._period):
+            if not self.heartbeats_on:
+                continue
+            for name, conn in self.links.items():
+                self.send(name, conn.mav.heartbeat_encode(MAV_TYPE_QUADROTOR, self.autopilot, 1, self.custom_mode, 4))
+                for build in self.extra_periodic:
+                    self.send(name, build(conn.mav))
+
+    def _receive(self, name: str) -> None:
+        conn = self.links[name]
+        other = self.links["gcs" if name == "service" else "service"]
+        while not self._stop.is_set():
+            msg = conn.recv_match(blocking=True, timeout=0.1)
+            if msg is None or msg.get_type() == "BAD_DATA":
+                continue
+            if name == "service":
+                self.from_service.add(msg)
+            target = (getattr(msg, "target_system", 0), getattr(msg, "target_component", 0))
+            if target == (self.system_id, 1):
+                continue  # addressed to the autopilot only
+            with self._lock:
+                other.write(msg.get_msgbuf())  # udpin: sent to the peers heard on that link
+
+
+class GroundStation:
+    """A pymavlink ground station (system 255, component 190) talking to the autopilot's gcs port."""
+
+    def __init__(self, gcs_port: int, key: bytes | None = None) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255, source_component=190)
+        if key is not None:
+            self.conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda mav, msg_id: True,
+                                    initial_timestamp=int((time.time() - 1420070400) * 1e5))
+        self.received = Recorder()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._receive, daemon=True)
+        self._beat = threading.Thread(target=self._heartbeat, daemon=True)
+        self._send_lock = threading.Lock()
+
+    def start(self) -> "GroundStation":
+        self._thread.start()
+        self._beat.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+        self._beat.join(1.0)
+        self.conn.close()
+
+    def send(self, msg: object) -> None:
+        with self._send_lock:
+            self.conn.mav.send(msg)
+
+    def _heartbeat(self) -> None:
+        while True:
+            self.send(self.conn.mav.heartbeat_encode(6, 8, 0, 0, 4))  # GCS, INVALID autopilot
+            if self._stop.wait(0.2):
+                return
+
+    def _receive(self) -> None:
+        while not self._stop.is_set():
+            msg = self.conn.recv_match(blocking=True, timeout=0.1)
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                self.received.add(msg)
+
+    def command_long(self, command: int, params: list[float], target=(1, 100)) -> None:
+        self.send(self.conn.mav.command_long_encode(target[0], target[1], command, 0, *params))
+
+    def command_int(self, command: int, p1: float, p2: float, p3: float, p4: float, x: int, y: int, z: float,
+                    target=(1, 100)) -> None:
+        self.send(self.conn.mav.command_int_encode(target[0], target[1], 0, command, 0, 0, p1, p2, p3, p4, x, y, z))
+
+    def wait_ack(self, command: int, after: int, timeout_s: float = 5.0) -> object | None:
+        """The first COMMAND_ACK for `command` beyond the first `after` acks for it; None on timeout."""
+        def acks() -> list[Received]:
+            return [r for r in self.received.of("COMMAND_ACK") if r.msg.command == command]
+        if not self.received.wait_for(lambda: len(acks()) > after, timeout_s):
+            return None
+        return acks()[after].msg
+
+    def ack_count(self, command: int) -> int:
+        return len([r for r in self.received.of("COMMAND_ACK") if r.msg.command == command])
+
+
+def service_config(service_port: int, overrides: dict | None = None) -> ServiceConfig:
+    """A test config: file source (path from overrides), csrt, zenoh off, mavlink to service_port."""
+    base: dict = {
+        "source": {"kind": "file", "path": "unset", "retry_initial_s": 0.05, "retry_max_s": 0.2},
+        "tracker": {"name": "csrt"},
+        "mavlink": {"url": f"udpout:127.0.0.1:{service_port}", "heartbeat_timeout_s": 1.0},
+        "zenoh": {"enabled": False},
+        "logging": {"level": "DEBUG"},
+    }
+    for section, values in (overrides or {}).items():
+        base.setdefault(section, {}).update(values) if isinstance(values, dict) else base.__setitem__(section, values)
+    return config_from_mapping(base)
+
+
+@dataclass
+class RunningService:
+    """A Service running on a thread; stop() joins it."""
+
+    service: object
+    stop_event: threading.Event = field(default_factory=threading.Event)
+    thread: threading.Thread | None = None
+
+    def start(self) -> "RunningService":
+        self.thread = threading.Thread(target=self.service.run, args=(self.stop_event,), daemon=True)
+        self.thread.start()
+        return self
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        if self.thread is not None:
+            self.thread.join(3.0)
+            assert not self.thread.is_alive(), "service did not stop within 3 s"

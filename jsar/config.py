@@ -50,7 +50,7 @@ class JsarParams:
     size_model_min_side: int = 8  # px: at least 2 fHOG cells per side for tiny targets
     size_sigma_scale: float = math.sqrt(13) * 1.5  # label sigma along the scale axis (grid cells)
     size_sigma_aspect: float = math.sqrt(13) * 1.5  # along the aspect axis (JSAR-Re: *1.7)
-    size_grid_window: bool = True  # Hann window over the 13x13 grid (DSST's scale window)
+    size_grid_window: bool = False  # Hann window over the grid (DSST-style); off: see size_filter
     min_target_side_px: float = 3.0  # lower size clamp: a 6 px target must keep tracking
     aspect_band: float = 4.0  # w/h stays within [r0 / band, r0 * band], r0 = initial w/h
 

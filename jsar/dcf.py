@@ -128,7 +128,7 @@ def admm_solve(
     would not change the returned f. Returns F (the unconstrained split variable), which after
     the last, large-penalty iteration agrees with the constrained g to within the ADMM residual.
     """
-    channels, height, half_w = sample_f.shape
+    height = sample_f.shape[1]
     shape_hw = (height, reg_window.shape[1])
     n = float(height * shape_hw[1])
     if previous_f is None:
@@ -136,33 +136,44 @@ def admm_solve(
     # Work with the system multiplied by N: penalty and mu scaled by N, data term as is.
     mu_n = mu * n
     # Terms that do not change over the iterations.
-    sxx = np.einsum("chw,chw->hw", sample_f.conj(), sample_f).real.astype(np.float32)
+    sample_conj = sample_f.conj()
+    sxx = (sample_conj * sample_f).real.sum(axis=0)
     constant = sample_f * np.conj(label_f)[None]
     if mu > 0.0:
-        constant = constant + np.float32(mu_n) * previous_f
-    reg_sq = (np.float32(lam) * reg_window.astype(np.float32) ** 2)[None]
-    g_f = np.zeros_like(sample_f)
-    h_f = np.zeros_like(sample_f)
+        constant += np.complex64(mu_n) * previous_f
+    reg_sq = np.float32(lam) * reg_window.astype(np.float32) ** 2
+    g_f: np.ndarray | None = None
+    h_f: np.ndarray | None = None
     penalty = penalty_init * n
     penalty_cap = penalty_max * n
-    filter_f = g_f
+    filter_f = constant
     for it in range(iterations):
-        # f-step: (x x^H + (mu + p) I) f = q, q = x conj(y) + mu f_prev + p g - h.
-        q = constant + np.float32(penalty) * g_f - h_f if it else constant.copy()
-        xhq = np.einsum("chw,chw->hw", sample_f.conj(), q)
-        denom = np.float32(mu_n + penalty)
-        coeff = xhq / (denom + sxx)
+        # f-step: (x x^H + (mu + p) I) f = q, q = x conj(y) + mu f_prev + p g - h,
+        # solved per frequency by Sherman-Morrison.
+        if g_f is None or h_f is None:
+            q = constant.copy()
+        else:
+            q = g_f * np.float32(penalty)
+            q += constant
+            q -= h_f
+        coeff = (sample_conj * q).sum(axis=0)
+        coeff /= sxx + np.float32(mu_n + penalty)
         q -= sample_f * coeff[None]
         q *= np.float32(1.0 / (mu_n + penalty))
         filter_f = q
         if it == iterations - 1:
             break
         # g-step: g = (p f + h) / (lam w^2 + p), spatial, element-wise (p already scaled by N).
-        spatial = fourier.irfft2(np.float32(penalty) * filter_f + h_f, shape_hw)
-        spatial /= reg_sq + np.float32(penalty)
-        g_f = fourier.rfft2(spatial.astype(np.float32))
+        numerator = filter_f * np.float32(penalty)
+        if h_f is not None:
+            numerator += h_f
+        spatial = fourier.irfft2(numerator, shape_hw)
+        spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
+        g_f = fourier.rfft2(spatial.astype(np.float32, copy=False))
         # dual ascent on the constraint f = g
-        h_f = h_f + np.float32(penalty) * (filter_f - g_f)
+        step = filter_f - g_f
+        step *= np.float32(penalty)
+        h_f = step if h_f is None else h_f + step
         penalty = min(penalty * penalty_growth, penalty_cap)
     return filter_f.astype(np.complex64, copy=False)
 

@@ -1,0 +1,153 @@
+"""JSAR's joint scale x aspect-ratio size filter: a DSST-style 2-D filter over the size grid.
+
+Grid cell (i, j), i = scale index, j = aspect index, centre c = (S-1)/2 (resp. (A-1)/2), holds
+the patch of size (w * gamma^(i-c) * phi^(j-c), h * gamma^(i-c) / phi^(j-c)) pixels around the
+target centre (paper eq. 5): area changes only along i, the w/h ratio only along j (by phi^2 per
+cell). The estimate takes exactly the size of the winning cell, so sampling and update agree
+(the original updates the ratio by phi^2 per cell on top of that, i.e. twice the sampled step).
+Each patch is resampled to the model size, described by fHOG (31 channels, cell 4) and
+vectorised; the filter is learned over the grid with the label peak at the grid centre.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.fft as sfft
+
+from jsar.config import JsarParams
+from jsar.features import fhog, patches
+
+
+def model_size(target_wh: tuple[float, float], max_area: float, min_side: int, cell: int) -> tuple[int, int]:
+    """(w, h) px of the patch model: target aspect, area <= max_area, sides multiples of `cell` >= min_side."""
+    w, h = target_wh
+    factor = math.sqrt(max_area / (w * h)) if w * h > max_area else 1.0
+    # Round to whole cells so fHOG uses every pixel; tiny targets are enlarged to min_side.
+    mw = max(min_side, int(round(w * factor / cell)) * cell)
+    mh = max(min_side, int(round(h * factor / cell)) * cell)
+    return mw, mh
+
+
+def grid_exponents(count: int) -> np.ndarray:
+    """(count,) signed exponents -c..c of the grid steps along one axis."""
+    return np.arange(count, dtype=np.float64) - (count - 1) / 2.0
+
+
+def grid_sizes(size_wh: tuple[float, float], params: JsarParams) -> np.ndarray:
+    """(S, A, 2) patch sizes (w, h) px: w * g^ns * p^na, h * g^ns / p^na (paper eq. 5)."""
+    scale = params.scale_step ** grid_exponents(params.num_scales)[:, None]
+    aspect = params.aspect_step ** grid_exponents(params.num_aspects)[None, :]
+    w = size_wh[0] * scale * aspect
+    h = size_wh[1] * scale / aspect
+    return np.stack([w, h], axis=-1)
+
+
+def grid_label(params: JsarParams) -> np.ndarray:
+    """(S, A) float32 Gaussian over the grid, peak 1 at the centre cell, sigmas in grid cells."""
+    ns = grid_exponents(params.num_scales)[:, None]
+    na = grid_exponents(params.num_aspects)[None, :]
+    return np.exp(-0.5 * (ns**2 / params.size_sigma_scale**2 + na**2 / params.size_sigma_aspect**2)).astype(np.float32)
+
+
+def grid_window(params: JsarParams) -> np.ndarray:
+    """(S, A) float32 Hann window over the grid (zero-free), DSST's scale window in 2-D."""
+
+    def hann_1d(n: int) -> np.ndarray:
+        k = np.arange(1, n + 1)
+        return 0.5 * (1.0 - np.cos(2.0 * np.pi * k / (n + 1)))
+
+    if not params.size_grid_window:
+        return np.ones((params.num_scales, params.num_aspects), np.float32)
+    return np.outer(hann_1d(params.num_scales), hann_1d(params.num_aspects)).astype(np.float32)
+
+
+class SizeFilter:
+    """The 2-D size filter: `sample` the grid, `estimate` the best cell, `train` DSST-style.
+
+    Spectra are over the (S, A) grid axes with the vectorised patch features as channels:
+    numerator = Y^* X (per channel), denominator = sum_c |X_c|^2, both updated with the size
+    learning rate; response = IFFT(sum_c num_c^* Z_c / (den + lambda)) (MATLAB scaling).
+    """
+
+    def __init__(self, params: JsarParams, init_size_wh: tuple[float, float]):
+        self.params = params
+        self.model_wh = model_size(init_size_wh, params.size_model_max_area,
+                                   params.size_model_min_side, params.cell_size)
+        self.grid_shape = (params.num_scales, params.num_aspects)
+        self.label_f = sfft.rfft2(grid_label(params), workers=1)  # (S, A//2+1)
+        self.window = grid_window(params)
+        self.numerator: np.ndarray | None = None  # (S, A//2+1, D) complex64
+        self.denominator: np.ndarray | None = None  # (S, A//2+1) float32
+
+    def sample(self, frame: np.ndarray, center_xy: tuple[float, float], size_wh: tuple[float, float]) -> np.ndarray:
+        """(S, A, D) float32: windowed, vectorised fHOG of every grid patch around `center_xy`."""
+        sizes = grid_sizes(size_wh, self.params).reshape(-1, 2)
+        crops = patches.sample_patches(frame, center_xy, sizes, self.model_wh)
+        if crops.ndim == 4:  # colour: fHOG on luminance (one gradient image per patch)
+            crops = _to_grey_batch(crops)
+        feats = fhog.fhog_batch(crops, self.params.cell_size)
+        feats = feats.reshape(self.grid_shape[0], self.grid_shape[1], -1)
+        return (feats * self.window[:, :, None]).astype(np.float32, copy=False)
+
+    def spectrum(self, sample: np.ndarray) -> np.ndarray:
+        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample over the grid axes."""
+        return sfft.rfft2(sample, axes=(0, 1), workers=1)
+
+    def train(self, sample_f: np.ndarray) -> None:
+        """DSST update: first call sets the model, later calls interpolate with the learning rate."""
+        num = np.conj(self.label_f)[:, :, None] * sample_f
+        den = np.einsum("sad,sad->sa", sample_f.conj(), sample_f).real.astype(np.float32)
+        if self.numerator is None:
+            self.numerator, self.denominator = num, den
+            return
+        rate = np.float32(self.params.size_learning_rate)
+        self.numerator = (1 - rate) * self.numerator + rate * num
+        self.denominator = (1 - rate) * self.denominator + rate * den
+
+    def response(self, sample_f: np.ndarray) -> np.ndarray:
+        """(S, A) float32 response over the grid; the peak cell is the size estimate."""
+        if self.numerator is None or self.denominator is None:
+            raise RuntimeError("SizeFilter.response called before train")
+        resp_f = np.einsum("sad,sad->sa", self.numerator.conj(), sample_f)
+        resp_f /= self.denominator + np.float32(self.params.size_lambda)
+        return sfft.irfft2(resp_f, s=self.grid_shape, workers=1).astype(np.float32)
+
+    def estimate(self, sample_f: np.ndarray) -> tuple[int, int]:
+        """(i, j) grid cell of the response maximum (centre = no change)."""
+        resp = self.response(sample_f)
+        i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
+        return int(i), int(j)
+
+    def cell_factors(self, i: int, j: int) -> tuple[float, float]:
+        """(width factor, height factor) of grid cell (i, j) relative to the current size."""
+        ns = i - (self.grid_shape[0] - 1) / 2.0
+        na = j - (self.grid_shape[1] - 1) / 2.0
+        scale = self.params.scale_step**ns
+        aspect = self.params.aspect_step**na
+        return scale * aspect, scale / aspect
+
+
+def clamp_size(
+    size_wh: tuple[float, float], min_side: float, image_wh: tuple[int, int], ratio_band: tuple[float, float]
+) -> tuple[float, float]:
+    """(w, h) with w/h inside ratio_band = (lo, hi), sides >= min_side and <= the image size.
+
+    The ratio is clamped first keeping the area, then the sides; a side clamp keeps the other.
+    """
+    w, h = size_wh
+    lo, hi = ratio_band
+    ratio = w / h
+    if ratio < lo or ratio > hi:
+        area = w * h
+        ratio = min(max(ratio, lo), hi)
+        w, h = math.sqrt(area * ratio), math.sqrt(area / ratio)
+    w = min(max(w, min_side), float(image_wh[0]))
+    h = min(max(h, min_side), float(image_wh[1]))
+    return w, h
+
+
+def _to_grey_batch(crops: np.ndarray) -> np.ndarray:
+    """(N, H, W, 3) BGR uint8 -> (N, H, W) uint8 luminance (ITU-R BT.601 weights, as cv2)."""
+    weights = np.array([0.114, 0.587, 0.299], np.float32)
+    return np.clip(crops.astype(np.float32) @ weights + 0.5, 0, 255).astype(np.uint8)

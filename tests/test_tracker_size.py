@@ -1,0 +1,74 @@
+"""The joint scale x aspect-ratio size filter: grid geometry, clamps, and estimates on a synthetic target."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jsar.config import JsarParams
+from jsar.tracking.size_filter import SizeFilter, clamp_size, grid_label, grid_sizes, model_size
+
+
+def test_grid_is_symmetric_and_its_centre_is_the_current_size():
+    params = JsarParams()
+    sizes = grid_sizes((40.0, 20.0), params)
+    assert sizes.shape == (13, 13, 2)
+    np.testing.assert_allclose(sizes[6, 6], (40.0, 20.0))
+    for i, j in [(0, 0), (2, 9), (12, 5)]:
+        mirror = sizes[12 - i, 12 - j]
+        np.testing.assert_allclose(sizes[i, j] * mirror, np.array([40.0, 20.0]) ** 2, rtol=1e-9)
+    # Scale axis keeps the w/h ratio; aspect axis keeps the area and changes w/h by phi^2 per cell.
+    ratio = sizes[..., 0] / sizes[..., 1]
+    np.testing.assert_allclose(ratio[:, 6], 2.0)
+    np.testing.assert_allclose(ratio[6, 7] / ratio[6, 6], 1.02**2)
+    area = sizes[..., 0] * sizes[..., 1]
+    np.testing.assert_allclose(area[6, :], 800.0)
+    np.testing.assert_allclose(area[7, 6] / area[6, 6], 1.03**2)
+
+
+def test_grid_label_peaks_at_the_centre_with_wider_aspect_sigma_for_jsar_re():
+    label = grid_label(JsarParams())
+    assert np.unravel_index(np.argmax(label), label.shape) == (6, 6)
+    re_label = grid_label(JsarParams.jsar_re())
+    assert re_label[6, 0] > label[6, 0] and re_label[0, 6] == pytest.approx(label[0, 6])
+
+
+def test_model_size_keeps_aspect_caps_area_and_keeps_tiny_targets_at_two_cells():
+    assert model_size((100, 50), 512, 8, 4) == (32, 16)
+    assert model_size((20, 10), 512, 8, 4) == (20, 12) or model_size((20, 10), 512, 8, 4) == (20, 8)
+    assert model_size((6, 7), 512, 8, 4) == (8, 8)
+
+
+def test_clamp_size_keeps_small_targets_and_bounds_the_ratio_band_both_ways():
+    assert clamp_size((6.0, 7.0), 3.0, (1280, 720), (0.25, 4.0)) == (6.0, 7.0)
+    w, h = clamp_size((2.0, 2.5), 3.0, (1280, 720), (0.2, 5.0))
+    assert (w, h) == (3.0, 3.0)
+    w, h = clamp_size((100.0, 10.0), 3.0, (1280, 720), (0.5, 2.0))  # ratio 10 -> 2, area kept
+    assert w / h == pytest.approx(2.0) and w * h == pytest.approx(1000.0)
+    w, h = clamp_size((10.0, 100.0), 3.0, (1280, 720), (0.5, 2.0))  # ratio 0.1 -> 0.5
+    assert w / h == pytest.approx(0.5)
+    assert clamp_size((2000.0, 50.0), 3.0, (1280, 720), (0.01, 100.0))[0] == 1280.0
+
+
+def _scene(target_wh: tuple[float, float], center=(160.0, 120.0)) -> np.ndarray:
+    """A 320x240 grey scene: a bright box of size target_wh with a dark inner box, centred at `center`."""
+    ys, xs = np.mgrid[0:240, 0:320].astype(np.float64) + 0.5
+    u = np.abs(xs - center[0]) / (target_wh[0] / 2)  # 1 on the target's border
+    v = np.abs(ys - center[1]) / (target_wh[1] / 2)
+    frame = np.where((u < 1) & (v < 1), 210.0, 40.0)
+    frame = np.where((u < 0.45) & (v < 0.45), 90.0, frame)
+    return frame.astype(np.uint8)
+
+
+@pytest.mark.parametrize("scale, stretch", [(1.09, 1.0), (1 / 1.09, 1.0), (1.0, 1.06), (1.0, 1 / 1.06)])
+def test_size_filter_estimates_scale_and_aspect_change_in_the_right_direction(scale, stretch):
+    params = JsarParams()
+    size = (48.0, 40.0)
+    sf = SizeFilter(params, size)
+    sf.train(sf.spectrum(sf.sample(_scene(size), (160.0, 120.0), size)))
+    new_size = (size[0] * scale * stretch, size[1] * scale / stretch)
+    i, j = sf.estimate(sf.spectrum(sf.sample(_scene(new_size), (160.0, 120.0), size)))
+    # Scale index moves with the area change only, aspect index with the ratio change only.
+    assert np.sign(i - 6) == np.sign(round(np.log(scale), 6))
+    assert np.sign(j - 6) == np.sign(round(np.log(stretch), 6))
+    fw, fh = sf.cell_factors(i, j)
+    assert np.sign(np.log(fw * fh)) == np.sign(round(np.log(scale), 6))

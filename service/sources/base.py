@@ -11,7 +11,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Generic, Literal, Protocol, TypeVar
+from typing import Callable, Generic, Literal, Protocol, TypeVar
 
 import numpy as np
 
@@ -103,15 +103,21 @@ class SourceHealth:
     corrupt: int = 0
     failures: int = 0
     last_frame_size: tuple[int, int] | None = None  # (width, height) pixels
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _lock: threading.Condition = field(default_factory=threading.Condition, repr=False)
 
     def set(self, state: HealthState, reason: str = "") -> None:
         with self._lock:
             changed = (state, reason) != (self.state, self.reason)
             self.state, self.reason = state, reason
+            self._lock.notify_all()
         if changed:
             level = logging.INFO if state == "ok" else logging.WARNING
             log.log(level, "event=source_state state=%s reason=%s", state, _quote(reason))
+
+    def wait_for(self, predicate: "Callable[[SourceHealth], bool]", timeout_s: float) -> bool:
+        """Wait until predicate(self) holds (checked on every state change); False on timeout."""
+        with self._lock:
+            return self._lock.wait_for(lambda: predicate(self), timeout=timeout_s)
 
     def snapshot(self) -> dict[str, object]:
         with self._lock:
@@ -187,6 +193,7 @@ class CaptureWorker:
         """Record a failure, wait delay_s (or until stopped); False when stopping."""
         with self.health._lock:
             self.health.failures += 1
+            self.health._lock.notify_all()
         self.health.set("error", f"{reason}; retry in {delay_s:.1f} s")
         return not self._stop.wait(delay_s)
 
@@ -207,6 +214,7 @@ class CaptureWorker:
             except CorruptFrame as exc:
                 with self.health._lock:
                     self.health.corrupt += 1
+                    self.health._lock.notify_all()
                 log.warning("event=corrupt_frame reader=%s reason=%s", self.reader.name, _quote(str(exc)))
                 continue
             now = time.monotonic()
@@ -221,6 +229,7 @@ class CaptureWorker:
             with self.health._lock:
                 self.health.frames += 1
                 self.health.last_frame_size = (width, height)
+                self.health._lock.notify_all()
             self.health.set("ok")
             got_any = True
             self.mailbox.put(frame)

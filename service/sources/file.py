@@ -35,6 +35,7 @@ class FileReader:
         self._next_id = 0  # frame id, never reset
         self._fps = folder_fps
         self._bad_reads = 0
+        self._frame_count = 0
 
     def open(self) -> None:
         """Open the file or list the folder; SourceError if missing, unreadable or empty."""
@@ -55,6 +56,8 @@ class FileReader:
             raise SourceError(f"cannot open video {self.path}")
         fps = capture.get(cv2.CAP_PROP_FPS)
         self._fps = fps if math.isfinite(fps) and fps > 0 else self.folder_fps
+        count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
+        self._frame_count = int(count) if math.isfinite(count) and count > 0 else 0  # 0 = unknown
         self._capture = capture
 
     def frame_interval_s(self) -> float | None:
@@ -69,7 +72,7 @@ class FileReader:
         ok, image = self._capture.read()
         if not ok or image is None:
             self._bad_reads += 1
-            if self._bad_reads >= MAX_CONSECUTIVE_BAD_READS:
+            if 0 < self._frame_count <= self._index or self._bad_reads >= MAX_CONSECUTIVE_BAD_READS:
                 return self._at_end()
             raise CorruptFrame(f"{self.path.name}: frame {self._index} could not be decoded")
         self._bad_reads = 0

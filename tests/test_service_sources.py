@@ -1,0 +1,297 @@
+"""Frame sources and the tracking loop's fault handling: corrupt frames, end of file, camera absent,
+latest-frame-wins, frame size change, tracker failure, lost / stop behaviour."""
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from jsar.api import TrackResult
+from service.config import config_from_mapping
+from service.loop import ControlCommand, TrackingLoop
+from service.mavlink.autopilot import AutopilotView
+from service.mavlink.commands import StopTracking, TrackRectangle
+from service.sources.base import CaptureWorker, EndOfStream, Frame, LatestSlot, SourceError, backoff_delays
+from service.sources.file import FileReader
+from service.sources.v4l2 import V4L2Reader
+from service.sources.zenoh_wire import encode_frame
+from tests.conftest import free_tcp_port
+
+
+def scene(size: tuple[int, int], centre: tuple[float, float], side: int = 40) -> np.ndarray:
+    """Textured background (fixed seed) with a bright checkered square centred at `centre` (pixels)."""
+    width, height = size
+    rng = np.random.default_rng(7)
+    image = cv2.resize(rng.integers(0, 120, (height // 8 + 1, width // 8 + 1, 3), dtype=np.uint8), (width, height),
+                       interpolation=cv2.INTER_NEAREST)
+    x0, y0 = int(centre[0] - side / 2), int(centre[1] - side / 2)
+    patch = np.full((side, side, 3), 250, np.uint8)
+    patch[::8, :, 1] = 30
+    patch[:, ::8, 2] = 30
+    image[y0:y0 + side, x0:x0 + side] = patch
+    return image
+
+
+def frame(image: np.ndarray, frame_id: int, t: float) -> Frame:
+    return Frame(image, frame_id, t, t)
+
+
+# --- mailbox, backoff ----------------------------------------------------------------------------------
+def test_latest_frame_wins_and_drops_are_counted() -> None:
+    slot: LatestSlot[int] = LatestSlot()
+    for i in range(5):
+        slot.put(i)
+    assert slot.take(0.0) == 4 and slot.dropped == 4
+    assert slot.take(0.0) is None  # nothing queued behind it
+
+
+def test_backoff_doubles_up_to_the_cap() -> None:
+    delays = backoff_delays(0.5, 3.0)
+    assert [next(delays) for _ in range(5)] == [0.5, 1.0, 2.0, 3.0, 3.0]
+
+
+# --- file source -------------------------------------------------------------------------------------
+def test_image_folder_skips_corrupt_frames_and_ends(tmp_path: Path) -> None:
+    for i in range(4):
+        cv2.imwrite(str(tmp_path / f"{i:04d}.png"), scene((64, 48), (32, 24), 16))
+    (tmp_path / "0002.jpg").write_bytes(b"\xff\xd8 this is not a jpeg")  # sorts between 0002.png and 0003.png
+    reader = FileReader(str(tmp_path), realtime=False)
+    mailbox: LatestSlot[Frame] = LatestSlot()
+    worker = CaptureWorker(reader, mailbox, 0.05, 0.1)
+    worker.start()
+    assert worker.health.wait_for(lambda h: h.state == "ended", 10.0)
+    health = worker.health.snapshot()
+    assert (health["frames"], health["corrupt"]) == (4, 1)
+    assert "end of file" in str(health["reason"])
+    worker.stop()
+
+
+def test_video_file_round_trip_loop_and_pacing(tmp_path: Path) -> None:
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 25.0, (64, 48))
+    images = [scene((64, 48), (20 + 3 * i, 24), 16) for i in range(6)]
+    for image in images:
+        writer.write(image)
+    writer.release()
+    reader = FileReader(str(path), realtime=True, loop=True)
+    reader.open()
+    assert reader.frame_interval_s() == pytest.approx(1 / 25.0)  # paced at the file's own rate
+    got = [reader.read(0.1) for _ in range(6)]
+    assert all(np.array_equal(f.image, im) for f, im in zip(got, images))  # FFV1 is lossless
+    assert reader.read(0.1) is None  # end: rewinds (loop)
+    again = reader.read(0.1)
+    assert again is not None and again.frame_id == 6 and np.array_equal(again.image, images[0])
+    reader.close()
+    once = FileReader(str(path), realtime=False, loop=False)
+    once.open()
+    for _ in range(6):
+        once.read(0.1)
+    with pytest.raises(EndOfStream):
+        once.read(0.1)
+    once.close()
+
+
+def test_missing_file_is_a_source_error(tmp_path: Path) -> None:
+    with pytest.raises(SourceError, match="does not exist"):
+        FileReader(str(tmp_path / "none.avi")).open()
+    (tmp_path / "junk.avi").write_bytes(b"not a video")
+    with pytest.raises(SourceError, match="cannot open video"):
+        FileReader(str(tmp_path / "junk.avi")).open()
+
+
+# --- v4l2 ----------------------------------------------------------------------------------------------
+def test_absent_camera_reports_error_and_retries_with_backoff() -> None:
+    reader = V4L2Reader("/dev/video97", 640, 480, 30.0, "MJPG")
+    with pytest.raises(SourceError, match="absent"):
+        reader.open()
+    worker = CaptureWorker(reader, LatestSlot(), 0.01, 0.04)
+    worker.start()
+    assert worker.health.wait_for(lambda h: h.failures >= 4, 10.0)
+    snap = worker.health.snapshot()
+    assert snap["state"] == "error" and "absent" in str(snap["reason"]) and "retry in 0.0" in str(snap["reason"])
+    worker.stop()
+    assert not worker._thread.is_alive()
+
+
+class FailingReader:
+    """Delivers two frames, then fails like an unplugged camera, then works again."""
+
+    name = "flaky"
+
+    def __init__(self) -> None:
+        self.opens = 0
+        self.count = 0
+
+    def open(self) -> None:
+        self.opens += 1
+
+    def frame_interval_s(self) -> None:
+        return None
+
+    def read(self, timeout_s: float) -> Frame | None:
+        self.count += 1
+        if self.count == 3:
+            raise SourceError("device vanished")
+        return frame(np.zeros((8, 8, 3), np.uint8), self.count, 0.0)
+
+    def close(self) -> None:
+        pass
+
+
+def test_source_failure_mid_stream_reopens() -> None:
+    reader = FailingReader()
+    worker = CaptureWorker(reader, LatestSlot(), 0.01, 0.02)
+    worker.start()
+    assert worker.health.wait_for(lambda h: h.frames >= 5, 10.0)
+    worker.stop()
+    assert reader.opens >= 2 and worker.health.failures >= 1
+
+
+# --- the tracking loop ----------------------------------------------------------------------------------
+class RecordingOutputs:
+    def __init__(self) -> None:
+        self.commands: list[ControlCommand] = []
+
+    def apply(self, now_s: float, command: ControlCommand) -> None:
+        self.commands.append(command)
+
+
+def make_loop(make_tracker=None) -> tuple[TrackingLoop, LatestSlot, RecordingOutputs]:
+    import jsar
+    config = config_from_mapping({"tracker": {"name": "csrt"}, "camera": {"hfov_deg": 60.0}})
+    selections: LatestSlot = LatestSlot()
+    outputs = RecordingOutputs()
+    loop = TrackingLoop(config, selections, make_tracker or (lambda: jsar.create("csrt")), outputs,
+                        lambda: AutopilotView(system_id=1))
+    return loop, selections, outputs
+
+
+def test_frame_size_change_mid_stream_rescales_and_keeps_tracking() -> None:
+    loop, selections, outputs = make_loop()
+    selections.put(TrackRectangle(400 / 640, 300 / 480, 440 / 640, 340 / 480))
+    t = 0.0
+    for i in range(5):
+        t += 1 / 30
+        report = loop.step(frame(scene((640, 480), (420 + i, 320)), i, t))
+    assert report.state == "tracking"
+    for i in range(5, 10):
+        t += 1 / 30
+        report = loop.step(frame(scene((320, 240), (212 + i / 2, 160), side=20), i, t))
+    assert loop.counters["resized"] == 1 and report.image_size == (320, 240)
+    assert report.state == "tracking"
+    x, y, w, h = report.box
+    assert abs(x + w / 2 - 214) < 6 and abs(y + h / 2 - 160) < 6
+    yaw_rate, pitch_rate = outputs.commands[-1].rates
+    assert yaw_rate > 0 and pitch_rate < 0  # right of and below the centre
+
+
+class ScriptedTracker:
+    """Returns scripted states; raises on 'boom'."""
+
+    def __init__(self, states: list[str]) -> None:
+        self.states = states
+
+    def init(self, image: np.ndarray, box: tuple) -> None:
+        self.box = box
+
+    def update(self, image: np.ndarray) -> TrackResult:
+        state = self.states.pop(0)
+        if state == "boom":
+            raise RuntimeError("tracker bug")
+        return TrackResult(self.box, 0.5, state)  # type: ignore[arg-type]
+
+
+def test_lost_gives_zero_rates_and_resets_the_integrator_then_stop_ends_commands() -> None:
+    tracker = ScriptedTracker(["tracking", "tracking", "lost", "boom", "recovered", "tracking"])
+    loop, selections, outputs = make_loop(lambda: tracker)
+    image = scene((160, 120), (120, 30), 20)
+    selections.put(TrackRectangle(110 / 160, 20 / 120, 130 / 160, 40 / 120))
+    states = [loop.step(frame(image, i, i / 30)).state for i in range(6)]
+    assert states == ["tracking", "tracking", "lost", "lost", "recovered", "tracking"]
+    rates = [cmd.rates for cmd in outputs.commands]
+    assert rates[2] == (0.0, 0.0) and rates[3] == (0.0, 0.0)
+    assert loop.counters["tracker_errors"] == 1 and loop.counters["recovered"] == 1
+    # after recovery the integrator restarted from zero: the first rate equals the first rate after init
+    assert rates[4] == pytest.approx(rates[0])
+    selections.put(StopTracking())
+    stopped = loop.step(frame(image, 6, 7 / 30))
+    after = loop.step(frame(image, 7, 8 / 30))
+    assert stopped.state == "idle" and outputs.commands[-2].stopped and outputs.commands[-2].rates == (0.0, 0.0)
+    assert after.state == "idle" and outputs.commands[-1].rates is None  # no more gimbal commands
+
+
+def test_bad_selection_box_is_refused_without_crash() -> None:
+    def refuse() -> ScriptedTracker:
+        raise ValueError("box does not overlap")
+    loop, selections, outputs = make_loop(refuse)
+    selections.put(TrackRectangle(0.1, 0.1, 0.2, 0.2))
+    assert loop.step(frame(np.zeros((40, 40, 3), np.uint8), 0, 0.0)).state == "idle"
+
+
+def test_run_stops_promptly_and_stop_applies_without_frames() -> None:
+    loop, selections, outputs = make_loop(lambda: ScriptedTracker(["tracking"] * 10))
+    mailbox: LatestSlot[Frame] = LatestSlot()
+    selections.put(TrackRectangle(0.1, 0.1, 0.5, 0.5))
+    mailbox.put(frame(np.zeros((40, 40, 3), np.uint8), 0, 0.0))
+    stop = threading.Event()
+    runner = threading.Thread(target=loop.run, args=(mailbox, stop.is_set))
+    runner.start()
+    # the camera goes silent; a stop request must still reach the loop
+    selections.put(StopTracking())
+    assert _wait(lambda: loop.state == "idle" and loop.counters["frames"] == 1, 5.0)
+    stop.set()
+    runner.join(2.0)
+    assert not runner.is_alive()
+    assert outputs.commands[-1].stopped
+
+
+def _wait(predicate, timeout_s: float) -> bool:
+    done = threading.Event()
+    deadline = threading.Timer(timeout_s, done.set)
+    deadline.start()
+    try:
+        while not done.is_set():
+            if predicate():
+                return True
+            done.wait(0.01)
+        return predicate()
+    finally:
+        deadline.cancel()
+
+
+# --- zenoh source ------------------------------------------------------------------------------------
+def test_zenoh_source_decodes_frames_and_counts_corrupt_ones() -> None:
+    import zenoh
+    from service.config import ZenohConfig
+    from service.sources.zenoh import ZenohReader, frame_key
+    from service.telemetry import open_session
+
+    port = free_tcp_port()
+    service_side = open_session(ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",)))
+    publisher_side = open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",)))
+    try:
+        reader = ZenohReader(service_side, "test")
+        mailbox: LatestSlot[Frame] = LatestSlot()
+        worker = CaptureWorker(reader, mailbox, 0.05, 0.1)
+        worker.start()
+        pub = publisher_side.declare_publisher(frame_key("test"))
+        image = scene((64, 48), (30, 20), 16)
+        # publish until the subscription is matched and a frame arrives (no fixed sleeps)
+        arrived = None
+        for i in range(200):
+            pub.put(encode_frame(image, i, 123.0 + i))
+            arrived = mailbox.take(0.05)
+            if arrived is not None:
+                break
+        assert arrived is not None and np.array_equal(arrived.image, image)
+        assert arrived.capture_time_s == 123.0 + arrived.frame_id
+        pub.put(b"JFR1garbage")
+        assert worker.health.wait_for(lambda h: h.corrupt >= 1, 5.0)
+        worker.stop()
+    finally:
+        publisher_side.close()
+        service_side.close()

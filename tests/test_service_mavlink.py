@@ -1,0 +1,220 @@
+"""The camera component on a loopback link with independent pymavlink peers (autopilot + ground station)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import pytest
+
+from service.app import Service
+from tests.conftest import free_udp_port
+from tests.test_service_peers import AutopilotPeer, GroundStation, RunningService, service_config
+from tests.test_service_sources import scene
+
+AP_SYSID = 42
+CAM = (AP_SYSID, 100)
+TRACK_RECT, TRACK_POINT, STOP, INTERVAL, REQUEST = 2005, 2004, 2010, 511, 512
+ACCEPTED, DENIED, FAILED = 0, 2, 4
+NAN = float("nan")
+
+
+@pytest.fixture(scope="module")
+def frames_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("frames")
+    for i in range(30):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (110 - i, 40), 20))
+    return folder
+
+
+class Rig:
+    """Autopilot peer + ground station + in-process service."""
+
+    def __init__(self, overrides: dict, autopilot_kwargs: dict | None = None, gcs_key: bytes | None = None) -> None:
+        service_port, gcs_port = free_udp_port(), free_udp_port()
+        self.gcs_port = gcs_port
+        self.autopilot = AutopilotPeer(service_port, gcs_port, system_id=AP_SYSID, **(autopilot_kwargs or {})).start()
+        self.gcs = GroundStation(gcs_port, key=gcs_key).start()
+        self.config = service_config(service_port, overrides)
+        self.running = RunningService(Service(self.config)).start()
+        self.service: Service = self.running.service  # type: ignore[assignment]
+
+    def close(self) -> None:
+        self.running.stop()
+        self.gcs.close()
+        self.autopilot.close()
+
+    def wait_service_heartbeats(self, count: int, timeout_s: float = 5.0) -> bool:
+        def beats() -> int:
+            return len([r for r in self.gcs.received.of("HEARTBEAT") if r.msg.get_srcComponent() == 100])
+        return self.gcs.received.wait_for(lambda: beats() >= count, timeout_s)
+
+    def wait_tracking(self, timeout_s: float = 5.0) -> bool:
+        return self.service.worker.health.wait_for(lambda h: self.service.loop.state == "tracking", timeout_s)
+
+
+@pytest.fixture
+def rig(frames_dir: Path) -> Iterator[Rig]:
+    rig = Rig({"source": {"path": str(frames_dir), "loop": True}})
+    yield rig
+    rig.close()
+
+
+def test_identity_heartbeat_and_camera_information(rig: Rig) -> None:
+    assert rig.wait_service_heartbeats(1)
+    beat = [r.msg for r in rig.gcs.received.of("HEARTBEAT") if r.msg.get_srcComponent() == 100][-1]
+    assert (beat.type, beat.autopilot) == (30, 8)  # MAV_TYPE_CAMERA, MAV_AUTOPILOT_INVALID
+    assert rig.service.worker.health.wait_for(lambda h: h.state == "ok", 5.0)
+    assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)  # learned
+    rig.gcs.command_long(REQUEST, [259, 0, 0, 0, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(REQUEST, 0).result == ACCEPTED
+    assert rig.gcs.received.wait_for(lambda: len(rig.gcs.received.of("CAMERA_INFORMATION")) > 0, 5.0)
+    info = rig.gcs.received.of("CAMERA_INFORMATION")[-1].msg
+    assert info.get_srcSystem() == AP_SYSID and info.get_srcComponent() == 100
+    assert (info.resolution_h, info.resolution_v) == (160, 120)
+    assert info.flags & 512 and info.flags & 1024  # tracking point and rectangle
+
+
+def test_bad_commands_are_denied_and_change_nothing(rig: Rig) -> None:
+    assert rig.service.worker.health.wait_for(lambda h: h.state == "ok", 5.0)
+    assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)
+    # idle: a bad selection leaves it idle
+    rig.gcs.command_long(TRACK_RECT, [0.5, 0.2, 0.3, 0.4, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(TRACK_RECT, 0).result == DENIED
+    assert rig.service.loop.state == "idle" and rig.service.selections.take(0.0) is None
+    rig.gcs.command_long(TRACK_RECT, [0.55, 0.2, 0.8, 0.5, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(TRACK_RECT, 1).result == ACCEPTED
+    assert rig.wait_tracking()
+    tracker, mode = rig.service.loop.tracker, rig.service.loop.mode
+    bad_long = [
+        (TRACK_POINT, [NAN, 0.5, 0.1, 0, 0, 0, 0]),
+        (TRACK_POINT, [1.5, 0.5, 0.1, 0, 0, 0, 0]),
+        (TRACK_POINT, [0.5, 0.5, 0.1, 9, 0, 0, 0]),  # unknown camera id
+        (TRACK_RECT, [0.5, 0.5, 0.2, 0.6, 0, 0, 0]),  # inverted
+        (TRACK_RECT, [0.5, 0.5, 0.5, 0.5, 0, 0, 0]),  # zero size
+        (TRACK_RECT, [0.1, 0.1, 0.2, 0.2, 103, 0, 0]),  # unknown camera id
+        (STOP, [77, 0, 0, 0, 0, 0, 0]),  # stop for another camera
+    ]
+    acks = {TRACK_POINT: 0, TRACK_RECT: 2, STOP: 0}
+    for command, params in bad_long:
+        rig.gcs.command_long(command, params, target=CAM)
+        assert rig.gcs.wait_ack(command, acks[command]).result == DENIED, (command, params)
+        acks[command] += 1
+    rig.gcs.command_int(TRACK_RECT, 0.1, NAN, 0.3, 0.4, 0, 0, 0, target=CAM)  # COMMAND_INT too
+    assert rig.gcs.wait_ack(TRACK_RECT, acks[TRACK_RECT]).result == DENIED
+    assert rig.service.loop.tracker is tracker and rig.service.loop.mode == mode
+    assert rig.service.loop.state in ("tracking", "recovered", "lost")
+    assert rig.service.selections.take(0.0) is None  # nothing was queued for the loop
+    # STOP via COMMAND_INT ends tracking
+    rig.gcs.command_int(STOP, 0, 0, 0, 0, 0, 0, 0, target=CAM)
+    assert rig.gcs.wait_ack(STOP, acks[STOP]).result == ACCEPTED
+    assert rig.service.worker.health.wait_for(lambda h: rig.service.loop.state == "idle", 5.0)
+
+
+def test_status_stream_follows_the_requested_interval_and_turns_off(rig: Rig) -> None:
+    assert rig.service.worker.health.wait_for(lambda h: h.state == "ok", 5.0)
+    assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)
+    rig.gcs.command_long(TRACK_POINT, [0.6, 0.33, 0.0, 0, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(TRACK_POINT, 0).result == ACCEPTED
+    rig.gcs.command_long(INTERVAL, [275, 50000, 0, 0, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(INTERVAL, 0).result == ACCEPTED
+
+    def statuses() -> list:
+        return rig.gcs.received.of("CAMERA_TRACKING_IMAGE_STATUS")
+    assert rig.gcs.received.wait_for(lambda: len([s for s in statuses() if s.msg.tracking_status == 1]) >= 8, 5.0)
+    active = [s for s in statuses() if s.msg.tracking_status == 1]
+    assert active[-1].msg.tracking_mode == 1  # POINT
+    gaps = sorted(b.at - a.at for a, b in zip(active, active[1:]))
+    assert 0.025 < gaps[len(gaps) // 2] < 0.1  # median near the requested 50 ms, not the frame rate
+    x0, y0, x1, y1 = (active[-1].msg.rec_top_x, active[-1].msg.rec_top_y, active[-1].msg.rec_bottom_x,
+                      active[-1].msg.rec_bottom_y)
+    assert 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1
+    rig.gcs.command_long(INTERVAL, [275, -1, 0, 0, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(INTERVAL, 1).result == ACCEPTED
+    off_at = rig.gcs.received.of("COMMAND_ACK")[-1].at
+    beats = len(rig.gcs.received.of("HEARTBEAT"))
+    # two more heartbeats from everyone (>= 1 s of silence from the status stream)
+    assert rig.gcs.received.wait_for(lambda: len([r for r in rig.gcs.received.of("HEARTBEAT")
+                                                  if r.msg.get_srcComponent() == 100]) >= 2 and
+                                     len(rig.gcs.received.of("HEARTBEAT")) > beats + 10, 5.0)
+    assert len([s for s in statuses() if s.at > off_at]) <= 1  # at most one already in flight
+
+
+def test_track_command_fails_without_camera_frames(tmp_path: Path) -> None:
+    rig = Rig({"source": {"path": str(tmp_path / "no_such.avi")}})
+    try:
+        assert rig.service.worker.health.wait_for(lambda h: h.failures >= 1, 5.0)
+        assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)
+        assert rig.wait_service_heartbeats(1)
+        beat = [r.msg for r in rig.gcs.received.of("HEARTBEAT") if r.msg.get_srcComponent() == 100][-1]
+        assert beat.system_status == 5  # MAV_STATE_CRITICAL while the source fails
+        rig.gcs.command_long(TRACK_RECT, [0.1, 0.1, 0.3, 0.3, 0, 0, 0], target=CAM)
+        ack = rig.gcs.wait_ack(TRACK_RECT, 0)
+        assert ack.result == FAILED
+        assert rig.service.loop.state == "idle"
+        assert rig.service.status()["source"]["state"] == "error"
+    finally:
+        rig.close()
+
+
+def test_signing_accepts_signed_peers_and_rejects_unsigned(tmp_path: Path, frames_dir: Path) -> None:
+    key = bytes(range(32))
+    key_file = tmp_path / "mavlink.key"
+    key_file.write_text(key.hex())
+    rig = Rig({"source": {"path": str(frames_dir), "loop": True},
+               "mavlink": {"system_id": AP_SYSID, "signing": {"key_file": str(key_file)}}})
+    unsigned = rig.gcs
+    signed = GroundStation(rig.gcs_port, key=key).start()
+    try:
+        assert rig.service.worker.health.wait_for(lambda h: h.state == "ok", 5.0)
+        unsigned.command_long(INTERVAL, [275, 100000, 0, 0, 0, 0, 0], target=CAM)
+        signed.command_long(INTERVAL, [275, 200000, 0, 0, 0, 0, 0], target=CAM)
+        ack = signed.wait_ack(INTERVAL, 0)
+        assert ack is not None and ack.result == ACCEPTED
+        # the autopilot forwards every ACK to both ground stations: only one was ever sent
+        assert signed.received.wait_for(lambda: unsigned.ack_count(INTERVAL) >= 1, 5.0)
+        assert signed.ack_count(INTERVAL) == 1 and unsigned.ack_count(INTERVAL) == 1
+        assert rig.service.camera.intervals()[275] == pytest.approx(0.2)  # the signed request won
+        assert rig.service.camera.counters["commands"] == 1
+    finally:
+        signed.close()
+        rig.close()
+
+
+def test_autopilot_heartbeat_timeout_and_guidance_only_in_guided(frames_dir: Path) -> None:
+    rig = Rig({"source": {"path": str(frames_dir), "loop": True}, "guidance": {"mode": "velocity", "rate_hz": 20.0}},
+              autopilot_kwargs={"custom_mode": 5})  # ArduCopter LOITER
+    ap = rig.autopilot
+    try:
+        assert rig.service.worker.health.wait_for(lambda h: h.state == "ok", 5.0)
+        assert rig.gcs.received.wait_for(lambda: rig.service.camera.autopilot_alive(), 5.0)
+        rig.gcs.command_long(TRACK_RECT, [0.55, 0.2, 0.8, 0.5, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(TRACK_RECT, 0).result == ACCEPTED
+
+        def count(kind: str) -> int:
+            return len(ap.from_service.of(kind))
+        assert ap.from_service.wait_for(lambda: count("GIMBAL_MANAGER_SET_PITCHYAW") >= 10, 5.0)
+        assert count("SET_POSITION_TARGET_LOCAL_NED") == 0  # LOITER: no guidance
+        ap.custom_mode = 4  # the operator switches to GUIDED
+        assert ap.from_service.wait_for(lambda: count("SET_POSITION_TARGET_LOCAL_NED") >= 3, 5.0)
+        setpoint = ap.from_service.of("SET_POSITION_TARGET_LOCAL_NED")[-1].msg
+        assert setpoint.type_mask == 0x05C7 and setpoint.coordinate_frame == 9 and setpoint.target_system == AP_SYSID
+        ap.heartbeats_on = False  # link to the autopilot goes quiet
+        assert rig.gcs.received.wait_for(lambda: not rig.service.camera.autopilot_alive(), 5.0)
+        before = count("SET_POSITION_TARGET_LOCAL_NED")
+        gimbal = count("GIMBAL_MANAGER_SET_PITCHYAW")
+        assert ap.from_service.wait_for(lambda: count("GIMBAL_MANAGER_SET_PITCHYAW") >= gimbal + 10, 5.0)
+        assert count("SET_POSITION_TARGET_LOCAL_NED") <= before + 1  # one may have been in flight
+        assert not any(r.msg.get_type() in ("SET_MODE", "COMMAND_LONG") and getattr(r.msg, "command", 0) in (176, 400)
+                       for r in ap.from_service.items)  # never changes modes, never arms
+    finally:
+        rig.close()
+
+
+def test_status_query_reports_counters(rig: Rig) -> None:
+    assert rig.service.worker.health.wait_for(lambda h: h.frames >= 3, 5.0)
+    status = rig.service.status()
+    assert status["status"] == "ok" and status["source"]["frames"] >= 3
+    assert status["config"]["mavlink"]["component_id"] == 100
+    assert math.isfinite(status["uptime_s"])

@@ -1,0 +1,121 @@
+"""The daemon as a process: systemd notify + watchdog, Zenoh status / telemetry, SIGTERM / SIGINT
+stop within 2 s; the systemd unit passes `systemd-analyze verify`."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+import yaml
+
+from tests.conftest import free_tcp_port, free_udp_port
+from tests.test_service_sources import scene
+
+REPO = Path(__file__).resolve().parents[1]
+UNIT = REPO / "deploy" / "jsar-service.service"
+
+
+def test_systemd_unit_verifies(tmp_path: Path) -> None:
+    tool = shutil.which("systemd-analyze")
+    if tool is None:
+        pytest.skip("systemd-analyze is not installed: cannot verify the unit here")
+    text = UNIT.read_text()
+    for required in ("Type=notify", "WatchdogSec=", "Restart=on-failure", "DeviceAllow=char-video4linux rw",
+                     "NoNewPrivileges=yes", "ProtectSystem=strict", "User=jsar"):
+        assert required in text, required
+    # verify needs an existing ExecStart binary: point it at this checkout's console script
+    script = Path(sys.executable).with_name("jsar-service")
+    if not script.exists():
+        pytest.skip(f"console script {script} is not installed (pip install -e .)")
+    unit = tmp_path / "jsar-service.service"
+    unit.write_text(text.replace("/opt/jsar/.venv/bin/jsar-service", str(script))
+                        .replace("WorkingDirectory=/opt/jsar", f"WorkingDirectory={tmp_path}"))
+    proc = subprocess.run([tool, "verify", str(unit)], capture_output=True, text=True, timeout=60)
+    problems = [line for line in (proc.stdout + proc.stderr).splitlines() if unit.name in line]
+    assert proc.returncode == 0 and not problems, proc.stdout + proc.stderr
+
+
+@pytest.fixture(scope="module")
+def frames_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("daemon_frames")
+    for i in range(20):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (100 - i, 50), 20))
+    return folder
+
+
+def _recv_until(sock: socket.socket, wanted: str, timeout_s: float) -> list[str]:
+    """Notify datagrams until one contains `wanted` (socket timeout bounds the wait)."""
+    seen: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        sock.settimeout(max(0.01, deadline - time.monotonic()))
+        try:
+            seen.append(sock.recv(4096).decode())
+        except socket.timeout:
+            break
+        if wanted in seen[-1]:
+            return seen
+    raise AssertionError(f"no {wanted!r} notification within {timeout_s} s; got {seen}")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Path, frames_dir: Path, signum: int) -> None:
+    import zenoh
+
+    zenoh_port = free_tcp_port()
+    config = yaml.safe_load((REPO / "config.yaml").read_text())
+    config["tracker"]["name"] = "csrt"
+    config["zenoh"].update({"listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "daemontest"})
+    config["source"].update({"loop": True})
+    config_file = tmp_path / "config.yaml"
+    config_file.write_text(yaml.safe_dump(config))
+    notify_path = tmp_path / "notify.sock"
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(notify_path))
+    env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "400000", "MAVLINK20": "1"}
+    env.pop("WATCHDOG_PID", None)
+    proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", str(frames_dir),
+                             "--mavlink", f"udpout:127.0.0.1:{free_udp_port()}"],
+                            cwd=REPO, env=env, stderr=subprocess.PIPE, text=True)
+    session = None
+    try:
+        _recv_until(notify, "READY=1", 60.0)
+        _recv_until(notify, "WATCHDOG=1", 5.0)
+        zc = zenoh.Config()
+        zc.insert_json5("mode", '"peer"')
+        zc.insert_json5("scouting/multicast/enabled", "false")
+        zc.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{zenoh_port}"]))
+        session = zenoh.open(zc)
+        status = None
+        for _ in range(50):  # until the connection is up and the queryable answers
+            replies = list(session.get("daemontest/status", timeout=1.0))
+            if replies and replies[0].ok is not None:
+                status = json.loads(replies[0].ok.payload.to_string())
+                if status["source"]["frames"] > 0:
+                    break
+        assert status is not None and status["status"] == "ok"
+        assert status["config"]["zenoh"]["prefix"] == "daemontest" and status["config"]["source"]["kind"] == "file"
+        sent = time.monotonic()
+        proc.send_signal(signum)
+        code = proc.wait(timeout=10)
+        elapsed = time.monotonic() - sent
+        assert code == 0
+        assert elapsed < 2.0, f"stopped after {elapsed:.2f} s"
+        assert any("STOPPING=1" in m for m in _recv_until(notify, "STOPPING=1", 1.0))
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        notify.close()
+    stderr = proc.stderr.read() if proc.stderr else ""
+    assert "event=started" in stderr and "event=stopped" in stderr and "Traceback" not in stderr

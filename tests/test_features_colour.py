@@ -6,7 +6,7 @@ import pytest
 
 from jsar.features import colour as col
 from jsar.features.fhog import fhog
-from jsar.features.translation import extract_features
+from jsar.features.translation import colour_cells_reference, extract_features
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +89,13 @@ def test_extract_features_channels(table):
     grey = extract_features(patch[..., 0], 4, None)
     assert grey.shape == (10, 12, 32)
     assert extract_features(patch, 4, None).shape == (10, 12, 32)
+
+
+def test_compiled_colour_cells_match_numpy_reference(table):
+    rng = np.random.default_rng(9)
+    patch = rng.integers(0, 256, (22, 37, 3), dtype=np.uint8)
+    feat = extract_features(patch, 4, table)
+    assert np.allclose(feat[..., 32:], colour_cells_reference(patch, 4, table), atol=1e-6)
 
 
 def test_extract_features_cell_averages():

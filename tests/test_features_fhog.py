@@ -81,9 +81,18 @@ def test_batch_equals_per_image(texture):
         assert np.allclose(batch[n], fh.fhog(images[n]), atol=1e-6)
 
 
+@pytest.mark.parametrize("shape", [(3, 16, 32), (2, 23, 18, 3), (1, 9, 41)])
+def test_compiled_kernel_matches_numpy_reference(shape):
+    rng = np.random.default_rng(sum(shape))
+    images = rng.integers(0, 256, shape, dtype=np.uint8)
+    assert np.allclose(fh.fhog_batch(images), fh.fhog_batch_reference(images), atol=2e-5)
+    smooth = images.astype(np.float32) * 0.37
+    assert np.allclose(fh.fhog_batch(smooth), fh.fhog_batch_reference(smooth), atol=2e-5)
+
+
 @pytest.mark.parametrize(
     "image, cell",
-    [(np.zeros((3, 8)), 4), (np.zeros((8, 8, 2)), 4), (np.zeros((8, 8)), 0), ([[1, 2]], 1), (np.zeros((8, 8), complex), 4)],
+    [(np.zeros((3, 8)), 4), (np.full((8, 8), np.nan), 4), (np.zeros((8, 8, 2)), 4), (np.zeros((8, 8)), 0), ([[1, 2]], 1), (np.zeros((8, 8), complex), 4)],
 )
 def test_bad_input_raises_value_error(image, cell):
     with pytest.raises(ValueError):

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from jsar.features.patches import resample_regions, sample_patch, sample_patches
+from jsar.features.patches import resample_regions, resample_regions_reference, sample_patch, sample_patches
 
 
 @pytest.fixture(scope="module")
@@ -93,6 +93,17 @@ def test_batch_equals_single_patches(frame):
     assert batch.shape == (4, 16, 32, 3)
     for n, size in enumerate(sizes):
         assert np.array_equal(batch[n], sample_patch(frame, (100.3, 80.6), size, (32, 16)))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_compiled_kernel_matches_numpy_reference(frame, channels):
+    image = frame if channels == 3 else frame[..., 1].copy()
+    rng = np.random.default_rng(11)
+    for centre in [(160.3, 120.8), (-5.5, 7.25), (330.0, 250.0), (2.0, 118.0)]:
+        sizes = rng.uniform(0.3, 150.0, (25, 2))  # enlarging, shrinking and mixed axes
+        out = resample_regions(image, centre, sizes, (32, 16))
+        ref = resample_regions_reference(image, centre, sizes, (32, 16))
+        assert np.allclose(out, ref, atol=2e-3)
 
 
 @pytest.mark.parametrize(

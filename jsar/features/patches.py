@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from jsar.features._native import kernels as _kernels
+
 
 @dataclass(frozen=True)
 class AxisWeights:
@@ -57,13 +59,6 @@ def axis_weights(start: np.ndarray, size: np.ndarray, n_out: int, n_src: int) ->
     return AxisWeights(index=index, weight=weight.astype(np.float32))
 
 
-def _region_window(lo: float, hi: float, n_src: int) -> tuple[int, int]:
-    """Integer source window [a, b) (1 <= b - a) that holds every pixel the region [lo, hi) may touch, clamped."""
-    a = int(np.clip(np.floor(lo) - 1, 0, n_src - 1))
-    b = int(np.clip(np.ceil(hi) + 1, a + 1, n_src))
-    return a, b
-
-
 def _check_image(image: np.ndarray) -> None:
     if not isinstance(image, np.ndarray):
         raise ValueError(f"image must be a numpy array, got {type(image).__name__}")
@@ -97,47 +92,53 @@ def _check_regions(center_xy: object, sizes_wh: object) -> tuple[np.ndarray, np.
     return centre, sizes
 
 
-def resample_regions(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
-    """Float32 (N, out_h, out_w[, C]) resampling of N regions sharing one centre; see the module docstring."""
+def _validated(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]):
     _check_image(image)
     out_w, out_h = _check_out(out_wh)
     centre, sizes = _check_regions(center_xy, sizes_wh)
+    return centre, sizes, out_w, out_h
+
+
+def _resample_native(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int],
+                     dtype: type) -> np.ndarray:
+    centre, sizes, out_w, out_h = _validated(image, center_xy, sizes_wh, out_wh)
+    if image.dtype != np.uint8:
+        raise ValueError(f"image must be uint8, got dtype {image.dtype}")
+    src = np.ascontiguousarray(image)
+    height, width = src.shape[:2]
+    channels = 1 if src.ndim == 2 else src.shape[2]
+    out = np.empty((sizes.shape[0], out_h, out_w) + image.shape[2:], dtype)
+    _kernels.resample(src, height, width, channels, float(centre[0]), float(centre[1]),
+                      np.ascontiguousarray(sizes), sizes.shape[0], out_w, out_h, out, dtype == np.uint8)
+    return out
+
+
+def resample_regions(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+    """Float32 (N, out_h, out_w[, C]) resampling of N regions sharing one centre (uint8 image); see module docstring."""
+    return _resample_native(image, center_xy, sizes_wh, out_wh, np.float32)
+
+
+def resample_regions_reference(image: np.ndarray, center_xy: object, sizes_wh: object,
+                               out_wh: tuple[int, int]) -> np.ndarray:
+    """numpy reference of `resample_regions` (slow, any real dtype): the specification the tests check against."""
+    centre, sizes, out_w, out_h = _validated(image, center_xy, sizes_wh, out_wh)
     height, width = image.shape[:2]
-    left = centre[0] - 0.5 * sizes[:, 0]
-    top = centre[1] - 0.5 * sizes[:, 1]
-    # Read only the part of the image the largest region can touch (a view, no copy).
-    x0, x1 = _region_window(float(left.min()), float((left + sizes[:, 0]).max()), width)
-    y0, y1 = _region_window(float(top.min()), float((top + sizes[:, 1]).max()), height)
-    window = image[y0:y1, x0:x1]
-    wx = axis_weights(left - x0, sizes[:, 0], out_w, x1 - x0)
-    wy = axis_weights(top - y0, sizes[:, 1], out_h, y1 - y0)
-    return _apply_separable(window, wy, wx)
-
-
-def _apply_separable(window: np.ndarray, wy: AxisWeights, wx: AxisWeights) -> np.ndarray:
-    """(N, out_h, out_w[, C]) float32 = Wy_n @ window @ Wx_n^T for every region n."""
-    src = window.astype(np.float32, copy=False)
+    wx = axis_weights(centre[0] - 0.5 * sizes[:, 0], sizes[:, 0], out_w, width)
+    wy = axis_weights(centre[1] - 0.5 * sizes[:, 1], sizes[:, 1], out_h, height)
+    src = image.astype(np.float32, copy=False)
     n = wy.index.shape[0]
-    # Rows first: gathering whole rows is a contiguous copy.
-    rows = src[wy.index]  # (N, out_h, ty, Wc[, C])
-    wgt = wy.weight.reshape(wy.weight.shape + (1,) * (src.ndim - 1))
-    rows = (rows * wgt).sum(axis=2)  # (N, out_h, Wc[, C])
-    idx = wx.index  # (N, out_w, tx)
+    extra = (1,) * (src.ndim - 1)
+    rows = (src[wy.index] * wy.weight.reshape(wy.weight.shape + extra)).sum(axis=2)  # (N, out_h, W[, C])
     batch = np.arange(n)[:, None, None, None]
     line = np.arange(rows.shape[1])[None, :, None, None]
-    cols = rows[batch, line, idx[:, None, :, :]]  # (N, out_h, out_w, tx[, C])
-    wgt = wx.weight[:, None, :, :].reshape((n, 1) + wx.weight.shape[1:] + (1,) * (src.ndim - 2))
-    return (cols * wgt).sum(axis=3)
-
-
-def _to_uint8(values: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+    cols = rows[batch, line, wx.index[:, None, :, :]]  # (N, out_h, out_w, tx[, C])
+    weight = wx.weight[:, None, :, :].reshape((n, 1) + wx.weight.shape[1:] + extra[1:])
+    return (cols * weight).sum(axis=3)
 
 
 def sample_patches(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
     """uint8 (N, out_h, out_w[, 3]): N regions of sizes sizes_wh (N, 2) pixels centred at center_xy, resampled."""
-    values = resample_regions(image, center_xy, sizes_wh, out_wh)
-    return _to_uint8(values)
+    return _resample_native(image, center_xy, sizes_wh, out_wh, np.uint8)
 
 
 def sample_patch(image: np.ndarray, center_xy: object, size_wh: object, out_wh: tuple[int, int]) -> np.ndarray:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from jsar.features._native import kernels as _kernels
 from jsar.features.colour import colour_attributes
 from jsar.features.fhog import fhog
 
@@ -38,8 +39,8 @@ def _check_patch(patch: object, cell: int, colour_table: np.ndarray | None) -> n
         if patch.ndim == 2:
             raise ValueError("colour_table given for a grey patch: pass colour_table=None for grey input")
         if not (isinstance(colour_table, np.ndarray) and colour_table.shape == (32768, 10)
-                and colour_table.dtype == np.float32):
-            raise ValueError("colour_table must be float32 (32768, 10): use jsar.features.colour to build or load it")
+                and colour_table.dtype == np.float32 and colour_table.flags.c_contiguous):
+            raise ValueError("colour_table must be C-contiguous float32 (32768, 10): build or load it with jsar.features.colour")
     return patch
 
 
@@ -54,5 +55,13 @@ def extract_features(patch: np.ndarray, cell: int = 4, colour_table: np.ndarray 
     out[..., 0] = cell_mean(grey[..., None].astype(np.float32), cell)[..., 0] / 255.0 - 0.5
     out[..., 1:32] = hog
     if colour_table is not None:
-        out[..., 32:] = cell_mean(colour_attributes(patch, colour_table), cell)
+        colour = np.empty((hc, wc, colour_table.shape[1]), np.float32)
+        _kernels.colour_cells(np.ascontiguousarray(patch), patch.shape[0], patch.shape[1], colour_table,
+                              colour_table.shape[1], int(cell), colour)
+        out[..., 32:] = colour
     return out
+
+
+def colour_cells_reference(patch: np.ndarray, cell: int, colour_table: np.ndarray) -> np.ndarray:
+    """numpy reference of the colour channels: per-pixel table rows averaged over each cell."""
+    return cell_mean(colour_attributes(patch, colour_table), cell)

@@ -1,0 +1,457 @@
+/* Hot loops of jsar.features, compiled because numpy cannot reach the per-frame budget (see
+ * jsar/features/bench.py). Each function mirrors a documented numpy reference in the Python
+ * modules (patches.resample_regions_reference, fhog.fhog_batch_reference, colour attributes) and
+ * the tests check that they agree. Arguments are C-contiguous buffers (numpy arrays) plus their
+ * sizes; the Python wrappers validate dtypes and shapes, this file re-checks buffer sizes and
+ * index ranges so that a wrong call raises instead of reading out of bounds.
+ * Plain C99 on the CPython buffer protocol: no numpy headers are needed to build it.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0)
+        return -1;
+    if (view->len < need) {
+        PyErr_Format(PyExc_ValueError, "%s: buffer holds %zd bytes, %zd needed", name, view->len, need);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------------------------------------
+ * Resampling weights along one axis (the specification is patches.axis_weights): sample j of the
+ * region [start, start + size) has footprint centred at start + (j + 0.5) * step, width
+ * max(step, 1), step = size / n_out; pixel q covers [q, q + 1), pixel 0 also everything left of
+ * the image and pixel n_src - 1 everything right of it (border replication).
+ * Output: first[j], count[j] and weight[j * max_taps + t] for pixels first[j] + t.
+ */
+typedef struct {
+    Py_ssize_t n_out, max_taps;
+    Py_ssize_t *first, *count;
+    float *weight;
+} AxisTaps;
+
+static void axis_taps_free(AxisTaps *a)
+{
+    free(a->first);
+    free(a->count);
+    free(a->weight);
+    a->first = a->count = NULL;
+    a->weight = NULL;
+}
+
+static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_src, AxisTaps *a)
+{
+    const double step = size / (double)n_out;
+    const double width = step > 1.0 ? step : 1.0;
+    a->n_out = n_out;
+    a->first = (Py_ssize_t *)malloc(sizeof(Py_ssize_t) * (size_t)n_out);
+    a->count = (Py_ssize_t *)malloc(sizeof(Py_ssize_t) * (size_t)n_out);
+    a->weight = NULL;
+    if (!a->first || !a->count) {
+        axis_taps_free(a);
+        return -1;
+    }
+    a->max_taps = 1;
+    for (Py_ssize_t j = 0; j < n_out; j++) {
+        const double lo = start + ((double)j + 0.5) * step - 0.5 * width;
+        const double hi = lo + width;
+        double f = floor(lo), l = ceil(hi) - 1.0;
+        f = f < 0.0 ? 0.0 : (f > (double)(n_src - 1) ? (double)(n_src - 1) : f);
+        l = l < 0.0 ? 0.0 : (l > (double)(n_src - 1) ? (double)(n_src - 1) : l);
+        a->first[j] = (Py_ssize_t)f;
+        a->count[j] = (Py_ssize_t)l - (Py_ssize_t)f + 1;
+        if (a->count[j] > a->max_taps)
+            a->max_taps = a->count[j];
+    }
+    a->weight = (float *)malloc(sizeof(float) * (size_t)(n_out * a->max_taps));
+    if (!a->weight) {
+        axis_taps_free(a);
+        return -1;
+    }
+    for (Py_ssize_t j = 0; j < n_out; j++) {
+        const double lo = start + ((double)j + 0.5) * step - 0.5 * width;
+        const double hi = lo + width;
+        for (Py_ssize_t t = 0; t < a->count[j]; t++) {
+            const Py_ssize_t q = a->first[j] + t;
+            const double cell_lo = q <= 0 ? -INFINITY : (double)q;
+            const double cell_hi = q >= n_src - 1 ? INFINITY : (double)q + 1.0;
+            const double overlap = (hi < cell_hi ? hi : cell_hi) - (lo > cell_lo ? lo : cell_lo);
+            a->weight[j * a->max_taps + t] = (float)((overlap > 0.0 ? overlap : 0.0) / width);
+        }
+    }
+    return 0;
+}
+
+/* One region: out (OH, OW, C) float32 or uint8 (rounded half to even, clamped to 0..255) from
+ * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
+ * columns the region reads, then each output pixel a weighted sum of entries of that row. */
+static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
+                         float *row, void *out, int out_u8)
+{
+    const Py_ssize_t xmin = tx->first[0];
+    const Py_ssize_t xmax = tx->first[tx->n_out - 1] + tx->count[tx->n_out - 1] - 1;
+    const Py_ssize_t span = (xmax - xmin + 1) * C;
+    const Py_ssize_t OW = tx->n_out;
+    for (Py_ssize_t i = 0; i < ty->n_out; i++) {
+        memset(row, 0, sizeof(float) * (size_t)span);
+        for (Py_ssize_t k = 0; k < ty->count[i]; k++) {
+            const float w = ty->weight[i * ty->max_taps + k];
+            if (w == 0.0f)
+                continue;
+            const uint8_t *line = src + ((ty->first[i] + k) * W + xmin) * C;
+            for (Py_ssize_t t = 0; t < span; t++)
+                row[t] += w * (float)line[t];
+        }
+        for (Py_ssize_t j = 0; j < OW; j++) {
+            const float *wj = tx->weight + j * tx->max_taps;
+            const float *rj = row + (tx->first[j] - xmin) * C;
+            const Py_ssize_t taps = tx->count[j];
+            for (Py_ssize_t c = 0; c < C; c++) {
+                float acc = 0.0f;
+                for (Py_ssize_t k = 0; k < taps; k++)
+                    acc += wj[k] * rj[k * C + c];
+                const Py_ssize_t o = (i * OW + j) * C + c;
+                if (out_u8) {
+                    const float r = nearbyintf(acc);
+                    ((uint8_t *)out)[o] = (uint8_t)(r < 0.0f ? 0.0f : (r > 255.0f ? 255.0f : r));
+                } else {
+                    ((float *)out)[o] = acc;
+                }
+            }
+        }
+    }
+}
+
+/* resample(src, H, W, C, cx, cy, sizes, N, OW, OH, out, out_u8): N regions of sizes (N, 2) float64
+ * (w, h) pixels centred at (cx, cy) -> out (N, OH, OW, C). Taps stay in [first, first + count),
+ * always inside the image, so no index can leave the source buffer. */
+static PyObject *resample(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *o_src, *o_sizes, *o_out;
+    Py_ssize_t H, W, C, N, OW, OH;
+    double cx, cy;
+    int out_u8;
+    if (!PyArg_ParseTuple(args, "OnnnddOnnnOp", &o_src, &H, &W, &C, &cx, &cy, &o_sizes, &N, &OW, &OH, &o_out, &out_u8))
+        return NULL;
+    if (H < 1 || W < 1 || C < 1 || N < 1 || OH < 1 || OW < 1) {
+        PyErr_SetString(PyExc_ValueError, "resample: sizes must be positive");
+        return NULL;
+    }
+    Py_buffer src, sizes, out;
+    if (get_buffer(o_src, &src, 0, H * W * C, "src") < 0)
+        return NULL;
+    if (get_buffer(o_sizes, &sizes, 0, N * 2 * (Py_ssize_t)sizeof(double), "sizes") < 0) {
+        PyBuffer_Release(&src);
+        return NULL;
+    }
+    if (get_buffer(o_out, &out, 1, N * OH * OW * C * (out_u8 ? 1 : 4), "out") < 0) {
+        PyBuffer_Release(&sizes);
+        PyBuffer_Release(&src);
+        return NULL;
+    }
+    const double *sz = (const double *)sizes.buf;
+    float *row = (float *)malloc(sizeof(float) * (size_t)(W * C));
+    int failed = row == NULL;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t n = 0; n < N && !failed; n++) {
+        AxisTaps ty, tx;
+        if (axis_taps(cx - 0.5 * sz[2 * n], sz[2 * n], OW, W, &tx) < 0) {
+            failed = 1;
+            break;
+        }
+        if (axis_taps(cy - 0.5 * sz[2 * n + 1], sz[2 * n + 1], OH, H, &ty) < 0) {
+            axis_taps_free(&tx);
+            failed = 1;
+            break;
+        }
+        void *dst = out_u8 ? (void *)((uint8_t *)out.buf + n * OH * OW * C) : (void *)((float *)out.buf + n * OH * OW * C);
+        resample_one((const uint8_t *)src.buf, W, C, &ty, &tx, row, dst, out_u8);
+        axis_taps_free(&tx);
+        axis_taps_free(&ty);
+    }
+    Py_END_ALLOW_THREADS
+    free(row);
+    PyBuffer_Release(&out);
+    PyBuffer_Release(&sizes);
+    PyBuffer_Release(&src);
+    if (failed)
+        return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
+/* ---------------------------------------------------------------------------------------------
+ * fHOG, as documented in jsar/features/fhog.py.
+ */
+#define N_SIGNED 18
+#define N_UNSIGNED 9
+#define N_FHOG 31
+#define TWO_PI 6.28318530717958647692f
+#define HALF_PI 1.57079632679489661923f
+#define PI_F 3.14159265358979323846f
+
+/* atan(z) for z in [0, 1]: odd polynomial fitted on Chebyshev nodes, max error 4e-8 rad. */
+static inline float atan_unit(float z)
+{
+    const float t = z * z;
+    float p = -4.0733094646e-03f;
+    p = p * t + 2.1946611033e-02f;
+    p = p * t - 5.6063176730e-02f;
+    p = p * t + 9.6562564705e-02f;
+    p = p * t - 1.3915802261e-01f;
+    p = p * t + 1.9948508986e-01f;
+    p = p * t - 3.3330106678e-01f;
+    p = p * t + 9.9999943684e-01f;
+    return z * p;
+}
+
+/* Angle of (gx, gy) in [0, 2pi); 0 for the zero vector, like atan2. */
+static inline float angle_0_2pi(float gx, float gy)
+{
+    const float ax = fabsf(gx), ay = fabsf(gy);
+    if (ax == 0.0f && ay == 0.0f)
+        return 0.0f;
+    float a = ax >= ay ? atan_unit(ay / ax) : HALF_PI - atan_unit(ax / ay);
+    if (gx < 0.0f)
+        a = PI_F - a;
+    if (gy < 0.0f)
+        a = TWO_PI - a;
+    return a >= TWO_PI ? 0.0f : a;
+}
+
+static inline float load_pixel(const void *base, Py_ssize_t i, int u8)
+{
+    return u8 ? (float)((const uint8_t *)base)[i] : ((const float *)base)[i];
+}
+
+static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
+                     float *hist, float *energy, float *out)
+{
+    const Py_ssize_t hc = H / cell, wc = W / cell;
+    const Py_ssize_t hv = hc * cell, wv = wc * cell;
+    const float inv_cell = 1.0f / (float)cell;
+    const float bins_per_rad = (float)N_SIGNED / TWO_PI;
+    memset(hist, 0, sizeof(float) * (size_t)(hc * wc * N_SIGNED));
+
+    for (Py_ssize_t y = 0; y < hv; y++) {
+        const Py_ssize_t yu = y > 0 ? y - 1 : 0, yd = y + 1 < H ? y + 1 : H - 1;
+        const float uy = ((float)y + 0.5f) * inv_cell - 0.5f;
+        const float fy0 = floorf(uy);
+        const Py_ssize_t cy0 = (Py_ssize_t)fy0;
+        const float fy = uy - fy0;
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            const Py_ssize_t xl = x > 0 ? x - 1 : 0, xr = x + 1 < W ? x + 1 : W - 1;
+            float best_gx = 0.0f, best_gy = 0.0f, best_m2 = -1.0f;
+            for (Py_ssize_t c = 0; c < C; c++) {
+                const float gx = load_pixel(img, (y * W + xr) * C + c, u8) - load_pixel(img, (y * W + xl) * C + c, u8);
+                const float gy = load_pixel(img, (yd * W + x) * C + c, u8) - load_pixel(img, (yu * W + x) * C + c, u8);
+                const float m2 = gx * gx + gy * gy;
+                if (m2 > best_m2) {
+                    best_m2 = m2;
+                    best_gx = gx;
+                    best_gy = gy;
+                }
+            }
+            if (best_m2 <= 0.0f)
+                continue;
+            const float mag = sqrtf(best_m2);
+            const float pos = angle_0_2pi(best_gx, best_gy) * bins_per_rad;
+            const float fpos = floorf(pos);
+            int b0 = (int)fpos % N_SIGNED;
+            const float fo = pos - fpos;
+            const int b1 = (b0 + 1) % N_SIGNED;
+            const float m0 = mag * (1.0f - fo), m1 = mag * fo;
+
+            const float ux = ((float)x + 0.5f) * inv_cell - 0.5f;
+            const float fx0 = floorf(ux);
+            const Py_ssize_t cx0 = (Py_ssize_t)fx0;
+            const float fx = ux - fx0;
+            for (int dy = 0; dy < 2; dy++) {
+                const Py_ssize_t cy = cy0 + dy;
+                if (cy < 0 || cy >= hc)
+                    continue;
+                const float wy = dy ? fy : 1.0f - fy;
+                for (int dx = 0; dx < 2; dx++) {
+                    const Py_ssize_t cx = cx0 + dx;
+                    if (cx < 0 || cx >= wc)
+                        continue;
+                    const float w = wy * (dx ? fx : 1.0f - fx);
+                    float *h = hist + (cy * wc + cx) * N_SIGNED;
+                    h[b0] += w * m0;
+                    h[b1] += w * m1;
+                }
+            }
+        }
+    }
+
+    for (Py_ssize_t t = 0; t < hc * wc; t++) {
+        const float *h = hist + t * N_SIGNED;
+        float e = 0.0f;
+        for (int o = 0; o < N_UNSIGNED; o++) {
+            const float u = h[o] + h[o + N_UNSIGNED];
+            e += u * u;
+        }
+        energy[t] = e;
+    }
+#define ENERGY(i, j) energy[((i) < 0 ? 0 : ((i) >= hc ? hc - 1 : (i))) * wc + ((j) < 0 ? 0 : ((j) >= wc ? wc - 1 : (j)))]
+    for (Py_ssize_t i = 0; i < hc; i++) {
+        for (Py_ssize_t j = 0; j < wc; j++) {
+            float norm[4];
+            int k = 0;
+            for (int dy = 0; dy < 2; dy++)
+                for (int dx = 0; dx < 2; dx++) {
+                    const Py_ssize_t a = i + dy - 1, b = j + dx - 1; /* block covers cells a..a+1, b..b+1 */
+                    const float block = ENERGY(a, b) + ENERGY(a + 1, b) + ENERGY(a, b + 1) + ENERGY(a + 1, b + 1);
+                    norm[k++] = 1.0f / sqrtf(block + 1e-4f);
+                }
+            const float *h = hist + (i * wc + j) * N_SIGNED;
+            float *f = out + (i * wc + j) * N_FHOG;
+            float texture[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+            for (int o = 0; o < N_SIGNED; o++) {
+                float sum = 0.0f;
+                for (k = 0; k < 4; k++) {
+                    const float v = fminf(h[o] * norm[k], 0.2f);
+                    sum += v;
+                    texture[k] += v;
+                }
+                f[o] = 0.5f * sum;
+            }
+            for (int o = 0; o < N_UNSIGNED; o++) {
+                const float u = h[o] + h[o + N_UNSIGNED];
+                float sum = 0.0f;
+                for (k = 0; k < 4; k++)
+                    sum += fminf(u * norm[k], 0.2f);
+                f[N_SIGNED + o] = 0.5f * sum;
+            }
+            for (k = 0; k < 4; k++)
+                f[N_SIGNED + N_UNSIGNED + k] = 0.2357f * texture[k];
+        }
+    }
+#undef ENERGY
+}
+
+/* fhog(src, n, h, w, c, is_uint8, cell, out): src (N, H, W, C) uint8 or float32 -> out float32 (N, H//cell, W//cell, 31). */
+static PyObject *fhog(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *o_src, *o_out;
+    Py_ssize_t N, H, W, C, cell;
+    int u8;
+    if (!PyArg_ParseTuple(args, "OnnnnpnO", &o_src, &N, &H, &W, &C, &u8, &cell, &o_out))
+        return NULL;
+    if (N < 1 || C < 1 || cell < 1 || H < cell || W < cell) {
+        PyErr_SetString(PyExc_ValueError, "fhog: invalid sizes");
+        return NULL;
+    }
+    const Py_ssize_t hc = H / cell, wc = W / cell;
+    Py_buffer src, out;
+    if (get_buffer(o_src, &src, 0, N * H * W * C * (u8 ? 1 : 4), "src") < 0)
+        return NULL;
+    if (get_buffer(o_out, &out, 1, N * hc * wc * N_FHOG * 4, "out") < 0) {
+        PyBuffer_Release(&src);
+        return NULL;
+    }
+    float *hist = (float *)malloc(sizeof(float) * (size_t)(hc * wc * (N_SIGNED + 1)));
+    if (!hist) {
+        PyBuffer_Release(&out);
+        PyBuffer_Release(&src);
+        return PyErr_NoMemory();
+    }
+    float *energy = hist + hc * wc * N_SIGNED;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t n = 0; n < N; n++) {
+        const void *img = u8 ? (const void *)((const uint8_t *)src.buf + n * H * W * C)
+                             : (const void *)((const float *)src.buf + n * H * W * C);
+        fhog_one(img, u8, H, W, C, cell, hist, energy, (float *)out.buf + n * hc * wc * N_FHOG);
+    }
+    Py_END_ALLOW_THREADS
+    free(hist);
+    PyBuffer_Release(&out);
+    PyBuffer_Release(&src);
+    Py_RETURN_NONE;
+}
+
+/* ---------------------------------------------------------------------------------------------
+ * colour_cells(src, h, w, table, channels, cell, out): mean over each cell of table[row(pixel)],
+ * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels).
+ */
+static PyObject *colour_cells(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *o_src, *o_table, *o_out;
+    Py_ssize_t H, W, K, cell;
+    if (!PyArg_ParseTuple(args, "OnnOnnO", &o_src, &H, &W, &o_table, &K, &cell, &o_out))
+        return NULL;
+    if (K < 1 || cell < 1 || H < cell || W < cell) {
+        PyErr_SetString(PyExc_ValueError, "colour_cells: invalid sizes");
+        return NULL;
+    }
+    const Py_ssize_t hc = H / cell, wc = W / cell;
+    Py_buffer src, table, out;
+    if (get_buffer(o_src, &src, 0, H * W * 3, "src") < 0)
+        return NULL;
+    if (get_buffer(o_table, &table, 0, 32768 * K * 4, "table") < 0) {
+        PyBuffer_Release(&src);
+        return NULL;
+    }
+    if (get_buffer(o_out, &out, 1, hc * wc * K * 4, "out") < 0) {
+        PyBuffer_Release(&table);
+        PyBuffer_Release(&src);
+        return NULL;
+    }
+    const uint8_t *s = (const uint8_t *)src.buf;
+    const float *tab = (const float *)table.buf;
+    float *o = (float *)out.buf;
+    Py_BEGIN_ALLOW_THREADS
+    memset(o, 0, sizeof(float) * (size_t)(hc * wc * K));
+    for (Py_ssize_t y = 0; y < hc * cell; y++) {
+        float *cells = o + (y / cell) * wc * K;
+        for (Py_ssize_t x = 0; x < wc * cell; x++) {
+            const uint8_t *p = s + (y * W + x) * 3;
+            const float *entry = tab + (Py_ssize_t)((p[2] >> 3) + 32 * (p[1] >> 3) + 1024 * (p[0] >> 3)) * K;
+            float *acc = cells + (x / cell) * K;
+            for (Py_ssize_t k = 0; k < K; k++)
+                acc[k] += entry[k];
+        }
+    }
+    const float inv = 1.0f / (float)(cell * cell);
+    for (Py_ssize_t t = 0; t < hc * wc * K; t++)
+        o[t] *= inv;
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&out);
+    PyBuffer_Release(&table);
+    PyBuffer_Release(&src);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
+    {"fhog", fhog, METH_VARARGS, "fHOG, 31 channels per cell (see fhog.py)."},
+    {"colour_cells", colour_cells, METH_VARARGS, "Cell means of colour-table rows of BGR pixels (see colour.py)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled hot loops of jsar.features.", -1, methods,
+                                    NULL, NULL, NULL, NULL};
+
+/* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
+#define KERNELS_ABI 1
+
+PyMODINIT_FUNC PyInit__kernels(void)
+{
+    PyObject *m = PyModule_Create(&module);
+    if (m && PyModule_AddIntConstant(m, "abi", KERNELS_ABI) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

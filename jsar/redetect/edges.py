@@ -32,7 +32,7 @@ def _as_float_channels(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32, copy=False)
 
 
-def gradient_edges(image: np.ndarray, sigma: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+def gradient_edges(image: np.ndarray, sigma: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Image HxW[x3] -> (magnitude float32 HxW in 0..1, orientation float32 HxW radians in [0, pi)).
 
     Gaussian (sigma in pixels) then 3x3 Sobel per channel; per pixel the channel with the largest
@@ -99,7 +99,7 @@ def non_maximum_suppression(magnitude: np.ndarray, orientation: np.ndarray, radi
     return np.where(keep, magnitude, np.float32(0.0)).astype(np.float32, copy=False)
 
 
-def edge_maps(image: np.ndarray, sigma: float = 1.5, nms_radius: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def edge_maps(image: np.ndarray, sigma: float = 2.0, nms_radius: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Image HxW[x3] -> (thinned magnitude 0..1, orientation radians [0, pi)), float32 HxW, for EdgeBoxes."""
     magnitude, orientation = gradient_edges(image, sigma)
     return non_maximum_suppression(magnitude, orientation, nms_radius), orientation

@@ -23,9 +23,15 @@ class EdgeBoxesSettings:
 
     min_area_fraction: EdgeBoxes' minimum box area = this * target area (pixels^2), at least
     min_area_floor_px2, so targets down to the failure monitor's 100 px^2 stay findable (the original
-    kept EdgeBoxes' fixed 1000 px^2). working_target_side_px: the region is resampled so that the
-    target's sqrt(w*h) spans about this many pixels (scale clamped to [min_working_scale,
+    kept EdgeBoxes' fixed 1000 px^2). max_area_ratio: boxes larger than this * target area are
+    dropped (EdgeBoxes has no maximum; on cluttered frames boxes spanning the whole region otherwise
+    take most of the max_boxes slots); EdgeBoxes is asked for candidate_factor * max_boxes boxes so
+    that max_boxes remain after that filter. working_target_side_px: the region is resampled so that
+    the target's sqrt(w*h) spans about this many pixels (scale clamped to [min_working_scale,
     max_working_scale]); this bounds the cost on big targets and gives tiny ones enough edge pixels.
+    edge_min_mag: EdgeBoxes' edgeMinMag (default 0.1): gradient edges are denser than the
+    structured-edge output the default was tuned on; 0.15 halves the cost on cluttered frames at the
+    same recall (measured on the shared sequences, see the report).
     """
 
     alpha: float = 0.625
@@ -35,7 +41,10 @@ class EdgeBoxesSettings:
     max_aspect_ratio: float = 3.0
     min_area_fraction: float = 0.3
     min_area_floor_px2: float = 16.0
-    working_target_side_px: float = 40.0
+    max_area_ratio: float = 3.0
+    candidate_factor: int = 4
+    working_target_side_px: float = 32.0
+    edge_min_mag: float = 0.15
     min_working_scale: float = 0.125
     max_working_scale: float = 4.0
 
@@ -48,6 +57,10 @@ class EdgeBoxesSettings:
             raise ValueError(f"EdgeBoxes max_aspect_ratio must be >= 1, got {self.max_aspect_ratio}")
         if self.min_area_fraction <= 0 or self.min_area_floor_px2 <= 0:
             raise ValueError("EdgeBoxes min_area_fraction and min_area_floor_px2 must be > 0")
+        if self.max_area_ratio <= self.min_area_fraction or self.candidate_factor < 1:
+            raise ValueError("EdgeBoxes max_area_ratio must exceed min_area_fraction; candidate_factor >= 1")
+        if not 0 <= self.edge_min_mag < 1:
+            raise ValueError(f"EdgeBoxes edge_min_mag must be in [0, 1), got {self.edge_min_mag}")
         if not 0 < self.min_working_scale <= self.max_working_scale or self.working_target_side_px <= 0:
             raise ValueError("EdgeBoxes working scale bounds must satisfy 0 < min <= max, side > 0")
 
@@ -114,7 +127,8 @@ def generate_proposals(frame: np.ndarray, center_xy: tuple[float, float], target
     scale_x, scale_y = out_w / rw, out_h / rh
     magnitude, orientation = edges(region)
     box_finder = cv2.ximgproc.createEdgeBoxes(
-        alpha=settings.alpha, beta=settings.beta, minScore=settings.min_score, maxBoxes=settings.max_boxes,
+        alpha=settings.alpha, beta=settings.beta, minScore=settings.min_score,
+        maxBoxes=settings.max_boxes * settings.candidate_factor, edgeMinMag=settings.edge_min_mag,
         maxAspectRatio=settings.max_aspect_ratio,
         minBoxArea=float(min_box_area(target_wh, settings) * scale_x * scale_y),
     )
@@ -128,5 +142,7 @@ def generate_proposals(frame: np.ndarray, center_xy: tuple[float, float], target
     full[:, 1] = ry + boxes[:, 1] / scale_y
     full[:, 2] = boxes[:, 2] / scale_x
     full[:, 3] = boxes[:, 3] / scale_y
-    order = np.argsort(-scores, kind="stable")
+    small_enough = full[:, 2] * full[:, 3] <= settings.max_area_ratio * target_wh[0] * target_wh[1]
+    full, scores = full[small_enough], scores[small_enough]
+    order = np.argsort(-scores, kind="stable")[: settings.max_boxes]
     return Proposals(full[order], scores[order], (rx, ry, rw, rh))

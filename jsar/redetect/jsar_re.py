@@ -1,0 +1,272 @@
+"""JSAR-Re: JSAR with failure monitoring, EdgeBoxes re-detection and re-initialisation (Algorithm 1).
+
+Per frame: the core tracker locates the target (no state change). The failure monitor looks at the
+raw translation peak (MATLAB FFT convention, see jsar.config):
+- confident (peak > zeta_e), or re-detection not eligible: commit as plain JSAR; if also reliable
+  (peak > zeta_s) the decision filter is trained on the tracker's own training sample (no second
+  feature extraction). Nothing else runs, so re-detection costs nothing on these frames.
+- otherwise the frame is NOT committed (no drift onto the occluder, no training on it): EdgeBoxes
+  proposals are generated in a square of side omega*sqrt(w*h) around the last confident position,
+  each is scored by the decision filter on a 5x-context patch at its centre (score = raw response
+  peak) and the best is accepted if its score > eta_d: the core is re-initialised there and the
+  frame reports "recovered". Otherwise it reports "lost" with the last confident box and the current
+  translation peak as score; omega grows and eta_d decays for the next frame.
+
+Choices beyond the paper (stated, measured in the report): the accepted box is centred where the
+decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
+a blend of the proposal's and the last confident size (`size_blend`); the decision filter is NOT
+re-initialised on recovery (it is the long-term memory of reliable appearances; retraining it from
+the re-detected sample would let one false acceptance overwrite it).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from jsar import dcf, fourier
+from jsar.api import Box, TrackResult, validate_box, validate_frame
+from jsar.config import JsarParams
+from jsar.features import patches
+from jsar.features import translation as translation_features
+from jsar.redetect.edges import StructuredEdges, edge_maps
+from jsar.redetect.monitor import FailureMonitor, InsideRule, MonitorParams
+from jsar.redetect.proposals import EdgeBoxesSettings, EdgeFunction, generate_proposals
+from jsar.tracking.jsar_tracker import JsarTracker
+from jsar.tracking.translation import TranslationFilter
+
+
+@dataclass(frozen=True)
+class RedetectOptions:
+    """JSAR-Re implementation choices not in the paper's table (the paper's values live in JsarParams).
+
+    size_blend: re-initialised size = proposal^size_blend * last_confident^(1 - size_blend)
+    (geometric, per side; 1 = the proposal's size as the original). inside_rule: see monitor.py.
+    edge_sigma_px / edge_nms_radius: the gradient edge map (edges.py).
+    """
+
+    size_blend: float = 0.5
+    inside_rule: InsideRule = "full"
+    edge_sigma_px: float = 2.0
+    edge_nms_radius: int = 1
+    edgeboxes: EdgeBoxesSettings = EdgeBoxesSettings()
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.size_blend <= 1.0:
+            raise ValueError(f"size_blend must be in [0, 1], got {self.size_blend}")
+
+
+@dataclass(frozen=True)
+class Redetection:
+    """Outcome of one re-detection frame: the best proposal (full-frame px), its score, the threshold."""
+
+    accepted: bool
+    box: Box | None  # the box the tracker would re-initialise at (None: no proposal)
+    score: float  # best decision-filter peak over the proposals (-inf if none)
+    eta_d: float
+    omega: float
+    n_proposals: int
+
+
+def monitor_params(params: JsarParams, inside_rule: InsideRule = "full") -> MonitorParams:
+    """The failure monitor's thresholds from the one tracker config (redetect_* fields)."""
+    return MonitorParams(
+        enable_peak=params.redetect_enable_peak,
+        reliable_peak=params.redetect_reliable_peak,
+        accept_peak=params.redetect_accept_score,
+        omega=params.redetect_area_factor,
+        omega_growth=params.redetect_area_growth,
+        accept_decay=params.redetect_accept_decay,
+        warmup_frames=params.redetect_min_frame,
+        min_area_px2=params.redetect_min_area,
+        max_area_px2=params.redetect_max_area,
+        inside_rule=inside_rule,
+    )
+
+
+def blend_size(proposal_wh: tuple[float, float], last_wh: tuple[float, float], weight: float) -> tuple[float, float]:
+    """Per-side geometric blend (pixels): proposal^weight * last^(1 - weight)."""
+    return (proposal_wh[0] ** weight * last_wh[0] ** (1.0 - weight),
+            proposal_wh[1] ** weight * last_wh[1] ** (1.0 - weight))
+
+
+class JsarReTracker:
+    """Long-term JSAR: `init(frame, box)`, `update(frame) -> TrackResult` with state tracking/lost/recovered."""
+
+    def __init__(self, params: JsarParams | None = None, options: RedetectOptions = RedetectOptions()) -> None:
+        self.params = params if params is not None else JsarParams.jsar_re()
+        self.params.validate()
+        self.options = options
+        self.core = JsarTracker(self.params, use_size_filter=True)
+        self._edges: EdgeFunction
+        if self.params.redetect_edge_model_path:
+            self._edges = StructuredEdges(self.params.redetect_edge_model_path, nms_radius=2)
+        else:
+            sigma, radius = options.edge_sigma_px, options.edge_nms_radius
+            self._edges = lambda image: edge_maps(image, sigma, radius)
+        self._edgeboxes = EdgeBoxesSettings(**{
+            **options.edgeboxes.__dict__, "max_boxes": self.params.redetect_num_proposals})
+        self.monitor = FailureMonitor(monitor_params(self.params, options.inside_rule))
+        self.decision: TranslationFilter | None = None
+        # True while the decision filter has seen exactly the translation filter's training history:
+        # then both are the same STRCF solution and the decision filter is shared instead of solved.
+        self._decision_in_sync = False
+        self.frame_index = -1
+        self.last_redetection: Redetection | None = None
+        self.reinitialisations = 0
+
+    # ----------------------------------------------------------------- public API
+    def init(self, frame: np.ndarray, box: Box) -> None:
+        """Start tracking `box` (x, y, w, h px) in `frame`; trains the core and the decision filter."""
+        frame = validate_frame(frame)
+        box = validate_box(box, frame.shape)
+        self.core.init(frame, box)
+        translation = self.core.translation
+        self.decision = TranslationFilter(self.params, translation.shape_hw, self.core._target_cells())
+        self.decision.filter_f = translation.filter_f  # trained on the same first sample (mu = 0)
+        self._decision_in_sync = True
+        self.monitor = FailureMonitor(self.monitor.params)
+        self.frame_index = 0
+        self.last_redetection = None
+        self.reinitialisations = 0
+
+    def update(self, frame: np.ndarray) -> TrackResult:
+        """Track one frame (Algorithm 1); see the module docstring for the three outcomes."""
+        if self.decision is None:
+            raise RuntimeError("tracker used before init(frame, box)")
+        frame = validate_frame(frame)
+        self.frame_index += 1
+        loc = self.core.locate(frame)
+        last_box = self.core.box
+        image_wh = (frame.shape[1], frame.shape[0])
+        verdict = self.monitor.assess(loc.peak, last_box, image_wh, self.frame_index)
+        if not verdict.redetect:
+            self.core.commit(frame, loc)
+            self._train_decision(reliable=verdict.reliable)
+            return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
+        outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d)
+        self.monitor.redetection_result(outcome.accepted)
+        self.last_redetection = outcome
+        if not outcome.accepted or outcome.box is None:
+            return TrackResult(box=last_box, score=loc.peak, state="lost")
+        self.core.reinitialise(frame, outcome.box)
+        self.reinitialisations += 1
+        # The core's filters restarted from one sample; the decision filter kept its memory.
+        self._decision_in_sync = False
+        return TrackResult(box=self.core.box, score=outcome.score, state="recovered")
+
+    # ----------------------------------------------------------------- steps
+    def redetect(self, frame: np.ndarray, last_box: Box, omega: float, eta_d: float) -> Redetection:
+        """Proposals around `last_box` (px) scored by the decision filter; accepted if best > eta_d."""
+        x, y, w, h = last_box
+        proposals = generate_proposals(frame, (x + w / 2, y + h / 2), (w, h), omega, self._edgeboxes, self._edges)
+        if len(proposals.boxes) == 0:
+            return Redetection(False, None, -math.inf, eta_d, omega, 0)
+        scores, boxes = self.score_proposals(frame, proposals.boxes, (w, h))
+        best = int(np.argmax(scores))
+        score = float(scores[best])
+        box = _clip_box(boxes[best], frame.shape)
+        return Redetection(score > eta_d and box is not None, box, score, eta_d, omega, len(scores))
+
+    def score_proposals(self, frame: np.ndarray, boxes: np.ndarray, last_wh: tuple[float, float]) -> tuple[np.ndarray, list[Box]]:
+        """Decision-filter peak for each proposal (N, 4) px, and the box each would re-initialise at.
+
+        Each proposal is scored on the decision filter's own sample geometry: a square of side
+        search_area_factor*sqrt(w*h) of the LAST CONFIDENT size centred on the proposal, i.e. the
+        200x200-px / 50x50-cell window the filter was trained on (the target reappears at about the
+        size it vanished with; proposals' own sizes would rescale it away from the filter). The
+        windows are cut from one feature map of the region covering all of them (features extracted
+        once, proposal centres rounded to whole cells; the response peak absorbs that offset), or
+        from one patch per window when they are so spread out that this is cheaper. Scores are raw
+        response maxima (MATLAB FFT scaling, the unit of eta_d).
+        """
+        assert self.decision is not None
+        p = self.params
+        cells = self.decision.shape_hw[0]
+        px_per_cell = p.search_area_factor * math.sqrt(last_wh[0] * last_wh[1]) / cells
+        image = self.core._prepare(frame)  # the core's grey/colour mode, so features match its samples
+        table = None if self.core._grey else self.core._colour_table
+        centres = boxes[:, :2] + boxes[:, 2:] / 2.0
+        windows, window_centres, owner = window_features(image, table, centres, px_per_cell, cells, p.cell_size)
+        stack = np.moveaxis(windows, -1, 1) * self.decision.cos_window[None, None]
+        spectra = fourier.rfft2(stack.astype(np.float32, copy=False))  # (M, C, H, W//2+1)
+        response_f = np.einsum("chw,mchw->mhw", self.decision.filter_f.conj(), spectra)
+        responses = fourier.irfft2(response_f, self.decision.shape_hw)
+        peaks = responses.reshape(len(responses), -1).max(axis=1)
+        scores = np.empty(len(boxes), np.float64)
+        refined: list[Box] = []
+        for k, (bw, bh) in enumerate(boxes[:, 2:]):
+            m = int(owner[k])
+            scores[k] = peaks[m]
+            # Sub-cell refinement only where it can matter: the best window.
+            dy, dx, _ = dcf.subpixel_peak(responses[m], response_f[m], p.newton_iterations) if peaks[m] == peaks.max() else (0.0, 0.0, 0.0)
+            cx = window_centres[m, 0] + dx * px_per_cell
+            cy = window_centres[m, 1] + dy * px_per_cell
+            new_w, new_h = blend_size((float(bw), float(bh)), last_wh, self.options.size_blend)
+            refined.append((cx - new_w / 2, cy - new_h / 2, new_w, new_h))
+        return scores, refined
+
+    def _train_decision(self, reliable: bool) -> None:
+        """After a commit: train the decision filter on the core's training sample if reliable."""
+        assert self.decision is not None
+        if not reliable:
+            # The translation filter trained on this sample; the decision filter must not.
+            self._decision_in_sync = False
+            return
+        if self._decision_in_sync:
+            # Same previous filter, same sample, same label and windows -> same STRCF solution.
+            self.decision.filter_f = self.core.translation.filter_f
+            self.decision.reg_window = self.core.translation.reg_window
+            return
+        sample_f = self.core.last_training_sample_f
+        assert sample_f is not None
+        self.decision.set_target_cells(self.core._target_cells())
+        self.decision.train(sample_f)
+
+
+def window_features(image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray, px_per_cell: float,
+                    cells: int, cell_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Translation features of cells x cells windows centred (to the nearest cell) on centres_xy (N, 2) px.
+
+    Returns (features (M, cells, cells, C) float32, window centres (M, 2) px, owner (N,) int: the
+    window of each centre); centres falling on the same cell share a window. One feature map of the
+    region covering every window when that is smaller than M separate windows, else one patch each.
+    """
+    half = cells // 2
+    origin = centres_xy.min(axis=0) - (half + 1) * px_per_cell
+    grid = np.rint((centres_xy - origin) / px_per_cell).astype(np.int64)  # (N, 2) window centres in cells
+    unique, owner = np.unique(grid, axis=0, return_inverse=True)
+    owner = owner.reshape(-1)
+    window_centres = origin + unique * px_per_cell
+    span = unique.max(axis=0) + half + 1  # (nx, ny) cells of the shared map
+    patch_px = cells * cell_size
+    if int(span[0]) * int(span[1]) <= len(unique) * cells * cells:
+        size_px = span * px_per_cell
+        centre = origin + size_px / 2.0
+        patch = patches.sample_patch(image, tuple(centre), tuple(size_px),
+                                     (int(span[0]) * cell_size, int(span[1]) * cell_size))
+        feature_map = translation_features.extract_features(patch, cell_size, colour_table)
+        windows = np.stack([feature_map[cy - half:cy - half + cells, cx - half:cx - half + cells]
+                            for cx, cy in unique])
+    else:
+        side = cells * px_per_cell
+        windows = np.stack([
+            translation_features.extract_features(
+                patches.sample_patch(image, tuple(c), (side, side), (patch_px, patch_px)), cell_size, colour_table)
+            for c in window_centres])
+    return windows, window_centres, owner
+
+
+def _clip_box(box: Box, frame_shape: tuple[int, ...]) -> Box | None:
+    """`box` if it overlaps the frame (validate_box), else None."""
+    try:
+        return validate_box(box, frame_shape)
+    except ValueError:
+        return None
+
+
+def make_jsar_re(**overrides: Any) -> JsarReTracker:
+    """Registry factory for "jsar-re": JsarParams.jsar_re() defaults with `overrides` (ValueError on unknown keys)."""
+    return JsarReTracker(JsarParams.jsar_re(**overrides))

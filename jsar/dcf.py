@@ -88,16 +88,21 @@ def subpixel_peak(
     row, col = divmod(flat, width)
     peak = float(resp[row, col])
     y, x = float(row), float(col)
+    interpolant = fourier.Interpolant(resp_f, (height, width))
     for _ in range(iterations):
-        _, grad, hess = fourier.interpolated_value_and_derivatives(resp_f, (height, width), y, x)
-        det = hess[0, 0] * hess[1, 1] - hess[0, 1] ** 2
-        if not (hess[0, 0] < 0 and det > 0):
+        dy, dx, dyy, dxx, dxy = interpolant.derivatives(y, x)
+        det = dyy * dxx - dxy * dxy
+        if not (dyy < 0 and det > 0):
             break  # not at a concave point: Newton would walk to a saddle or a minimum
-        step = np.linalg.solve(hess, grad)
-        y_new, x_new = y - float(step[0]), x - float(step[1])
+        # Newton step: -H^{-1} grad, with the 2x2 inverse written out.
+        step_y = (dxx * dy - dxy * dx) / det
+        step_x = (dyy * dx - dxy * dy) / det
+        y_new, x_new = y - step_y, x - step_x
         if abs(y_new - row) > 1.0 or abs(x_new - col) > 1.0:
             break
         y, x = y_new, x_new
+        if abs(step_y) < 1e-3 and abs(step_x) < 1e-3:
+            break
     return wrap_displacement(y, height), wrap_displacement(x, width), peak
 
 

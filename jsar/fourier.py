@@ -53,30 +53,34 @@ def shift_phase(shape_hw: tuple[int, int], dy: float, dx: float) -> np.ndarray:
     return np.exp(1j * phase).astype(np.complex64)
 
 
-def interpolated_value_and_derivatives(
-    spectrum: np.ndarray, shape_hw: tuple[int, int], y: float, x: float
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """Fourier-interpolated value, gradient (d/dy, d/dx) and 2x2 Hessian at (y, x) cells.
+class Interpolant:
+    """Fourier interpolant of a real (H, W) signal given by its half spectrum (MATLAB scaling).
 
-    `spectrum` is the (H, W//2+1) half spectrum of a real (H, W) signal in the MATLAB
-    convention; the interpolant is the trigonometric polynomial through its samples
-    (Nyquist terms taken as cosines, so it stays real).
+    `derivatives(y, x)` -> (d/dy, d/dx, d2/dy2, d2/dx2, d2/dydx) at (y, x) cells of the
+    trigonometric polynomial through the samples (Nyquist terms taken as cosines, so it stays
+    real); the per-signal work is done once in the constructor.
     """
-    height, width = shape_hw
-    ky, kx = frequencies(shape_hw)
-    wy = 2.0 * np.pi * ky / height
-    wx = 2.0 * np.pi * kx / width
-    ey = np.exp(1j * wy * y)
-    ex = np.exp(1j * wx * x) * half_spectrum_weights(shape_hw)
-    a = spectrum.astype(np.complex128) / (height * width)
-    # Each term Re(ey_i * a_ij * ex_j); derivatives bring down i*w factors.
-    ax = a @ ex
-    ax_dx = a @ (1j * wx * ex)
-    ax_dxx = a @ (-(wx**2) * ex)
-    value = float(np.real(ey @ ax))
-    dy = float(np.real((1j * wy * ey) @ ax))
-    dx = float(np.real(ey @ ax_dx))
-    dyy = float(np.real((-(wy**2) * ey) @ ax))
-    dxx = float(np.real(ey @ ax_dxx))
-    dxy = float(np.real((1j * wy * ey) @ ax_dx))
-    return value, np.array([dy, dx]), np.array([[dyy, dxy], [dxy, dxx]])
+
+    def __init__(self, spectrum: np.ndarray, shape_hw: tuple[int, int]):
+        height, width = shape_hw
+        ky, kx = frequencies(shape_hw)
+        self.wy = 2.0 * np.pi * ky / height
+        self.wx = 2.0 * np.pi * kx / width
+        self.weights = half_spectrum_weights(shape_hw)
+        self.a = spectrum.astype(np.complex128) / (height * width)
+
+    def value(self, y: float, x: float) -> float:
+        """Interpolated value at (y, x) cells."""
+        ey = np.exp(1j * self.wy * y)
+        ex = np.exp(1j * self.wx * x) * self.weights
+        return float(np.real(ey @ (self.a @ ex)))
+
+    def derivatives(self, y: float, x: float) -> tuple[float, float, float, float, float]:
+        """(dy, dx, dyy, dxx, dxy) of the interpolant at (y, x) cells."""
+        ey = np.exp(1j * self.wy * y)
+        ex = np.exp(1j * self.wx * x) * self.weights
+        basis_x = np.stack([ex, 1j * self.wx * ex, -(self.wx**2) * ex], axis=1)  # (W', 3)
+        ax = self.a @ basis_x  # (H, 3): a.ex, a.ex', a.ex''
+        basis_y = np.stack([ey, 1j * self.wy * ey, -(self.wy**2) * ey], axis=0)  # (3, H)
+        m = np.real(basis_y @ ax)  # m[i, j] = d^i/dy^i d^j/dx^j
+        return float(m[1, 0]), float(m[0, 1]), float(m[2, 0]), float(m[0, 2]), float(m[1, 1])

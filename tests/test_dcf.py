@@ -156,3 +156,20 @@ def test_params_defaults_and_overrides():
         params.with_overrides(num_scales=12)
     with pytest.raises(ValueError, match="scale_step"):
         params.with_overrides(scale_step="big")
+
+
+def test_interpolant_matches_samples_and_numeric_derivatives():
+    rng = np.random.default_rng(8)
+    signal = _smooth_random_features(rng, 1, (12, 10))[0]
+    spec = fourier.rfft2(signal)
+    interp = fourier.Interpolant(spec, (12, 10))
+    assert interp.value(3.0, 4.0) == pytest.approx(float(signal[3, 4]), abs=1e-5)
+    y, x, eps = 2.3, 6.7, 1e-4
+    dy, dx, dyy, dxx, dxy = interp.derivatives(y, x)
+    assert dy == pytest.approx((interp.value(y + eps, x) - interp.value(y - eps, x)) / (2 * eps), rel=1e-3, abs=1e-5)
+    assert dx == pytest.approx((interp.value(y, x + eps) - interp.value(y, x - eps)) / (2 * eps), rel=1e-3, abs=1e-5)
+    num_dxy = (interp.value(y + eps, x + eps) - interp.value(y + eps, x - eps)
+               - interp.value(y - eps, x + eps) + interp.value(y - eps, x - eps)) / (4 * eps**2)
+    assert dxy == pytest.approx(num_dxy, rel=1e-2, abs=1e-3)
+    num_dyy = (interp.value(y + eps, x) - 2 * interp.value(y, x) + interp.value(y - eps, x)) / eps**2
+    assert dyy == pytest.approx(num_dyy, rel=1e-2, abs=1e-3)

@@ -72,3 +72,19 @@ def test_size_filter_estimates_scale_and_aspect_change_in_the_right_direction(sc
     assert np.sign(j - 6) == np.sign(round(np.log(stretch), 6))
     fw, fh = sf.cell_factors(i, j)
     assert np.sign(np.log(fw * fh)) == np.sign(round(np.log(scale), 6))
+
+
+@pytest.mark.parametrize("center", [(200.3, 150.7), (3.0, 4.0), (398.0, 297.0), (-30.0, 150.0), (-500.0, -500.0)])
+def test_grey_region_samples_exactly_like_the_full_grey_frame(center):
+    import cv2
+
+    from jsar.features import patches
+    from jsar.tracking.size_filter import grey_region
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (300, 400, 3)).astype(np.uint8)
+    sizes = grid_sizes((50.0, 40.0), JsarParams()).reshape(-1, 2)
+    crop, local_center = grey_region(image, center, sizes.max(axis=0))
+    via_crop = patches.sample_patches(crop, local_center, sizes, (24, 20))
+    full = patches.sample_patches(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), center, sizes, (24, 20))
+    np.testing.assert_array_equal(via_crop, full)

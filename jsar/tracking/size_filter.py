@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import scipy.fft as sfft
 
@@ -83,9 +84,10 @@ class SizeFilter:
     def sample(self, frame: np.ndarray, center_xy: tuple[float, float], size_wh: tuple[float, float]) -> np.ndarray:
         """(S, A, D) float32: windowed, vectorised fHOG of every grid patch around `center_xy`."""
         sizes = grid_sizes(size_wh, self.params).reshape(-1, 2)
+        if frame.ndim == 3:
+            # fHOG of the size filter runs on luminance: convert only the region the grid covers.
+            frame, center_xy = grey_region(frame, center_xy, sizes.max(axis=0))
         crops = patches.sample_patches(frame, center_xy, sizes, self.model_wh)
-        if crops.ndim == 4:  # colour: fHOG on luminance (one gradient image per patch)
-            crops = _to_grey_batch(crops)
         feats = fhog.fhog_batch(crops, self.params.cell_size)
         feats = feats.reshape(self.grid_shape[0], self.grid_shape[1], -1)
         return (feats * self.window[:, :, None]).astype(np.float32, copy=False)
@@ -147,7 +149,22 @@ def clamp_size(
     return w, h
 
 
-def _to_grey_batch(crops: np.ndarray) -> np.ndarray:
-    """(N, H, W, 3) BGR uint8 -> (N, H, W) uint8 luminance (ITU-R BT.601 weights, as cv2)."""
-    weights = np.array([0.114, 0.587, 0.299], np.float32)
-    return np.clip(crops.astype(np.float32) @ weights + 0.5, 0, 255).astype(np.uint8)
+def grey_region(
+    frame: np.ndarray, center_xy: tuple[float, float], extent_wh: np.ndarray
+) -> tuple[np.ndarray, tuple[float, float]]:
+    """(grey crop, centre in crop coordinates) of the BGR frame region of size extent_wh around centre.
+
+    The crop is clipped to the image and carries a 2 px margin, so resampling any region inside
+    `extent_wh` reads the same pixels (and the same replicated border) as on the full frame.
+    """
+    height, width = frame.shape[:2]
+    half_w, half_h = extent_wh[0] / 2.0 + 2.0, extent_wh[1] / 2.0 + 2.0
+    x0 = max(0, int(math.floor(center_xy[0] - half_w)))
+    x1 = min(width, int(math.ceil(center_xy[0] + half_w)) + 1)
+    y0 = max(0, int(math.floor(center_xy[1] - half_h)))
+    y1 = min(height, int(math.ceil(center_xy[1] + half_h)) + 1)
+    if x1 <= x0 or y1 <= y0:  # region entirely off the image: its nearest border pixels
+        x0, x1 = (0, 1) if x1 <= 0 else (width - 1, width) if x0 >= width else (x0, x1)
+        y0, y1 = (0, 1) if y1 <= 0 else (height - 1, height) if y0 >= height else (y0, y1)
+    grey = cv2.cvtColor(frame[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY)
+    return grey, (center_xy[0] - x0, center_xy[1] - y0)

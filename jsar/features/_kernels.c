@@ -91,7 +91,7 @@ static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_s
     return 0;
 }
 
-/* One region: out (OH, OW, C) float32 or uint8 (rounded half to even, clamped to 0..255) from
+/* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
  * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
  * columns the region reads, then each output pixel a weighted sum of entries of that row. */
 static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
@@ -121,8 +121,9 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
                     acc += wj[k] * rj[k * C + c];
                 const Py_ssize_t o = (i * OW + j) * C + c;
                 if (out_u8) {
-                    const float r = nearbyintf(acc);
-                    ((uint8_t *)out)[o] = (uint8_t)(r < 0.0f ? 0.0f : (r > 255.0f ? 255.0f : r));
+                    /* acc >= 0 (non-negative weights and pixels): adding 0.5 and truncating rounds half up. */
+                    const float r = acc + 0.5f;
+                    ((uint8_t *)out)[o] = (uint8_t)(r >= 255.0f ? 255.0f : r);
                 } else {
                     ((float *)out)[o] = acc;
                 }
@@ -214,82 +215,132 @@ static inline float atan_unit(float z)
     return z * p;
 }
 
-/* Angle of (gx, gy) in [0, 2pi); 0 for the zero vector, like atan2. */
-static inline float angle_0_2pi(float gx, float gy)
+static void load_row(const void *img, int u8, Py_ssize_t offset, Py_ssize_t n, float *dst)
 {
-    const float ax = fabsf(gx), ay = fabsf(gy);
-    if (ax == 0.0f && ay == 0.0f)
-        return 0.0f;
-    float a = ax >= ay ? atan_unit(ay / ax) : HALF_PI - atan_unit(ax / ay);
-    if (gx < 0.0f)
-        a = PI_F - a;
-    if (gy < 0.0f)
-        a = TWO_PI - a;
-    return a >= TWO_PI ? 0.0f : a;
+    if (u8) {
+        const uint8_t *s = (const uint8_t *)img + offset;
+        for (Py_ssize_t i = 0; i < n; i++)
+            dst[i] = (float)s[i];
+    } else {
+        memcpy(dst, (const float *)img + offset, sizeof(float) * (size_t)n);
+    }
 }
 
-static inline float load_pixel(const void *base, Py_ssize_t i, int u8)
+/* Bilinear weights of pixels 0..n-1 on cells 0..cells-1 along one axis: pixel p (centre p + 0.5)
+ * gives weight w0[p] to cell c0[p] and 1 - w0[p] to cell c0[p] + 1 (c0 may be -1 or cells - 1;
+ * out-of-range cells are skipped by the caller through zero weights: w_lo / w_hi). */
+static void axis_cells(Py_ssize_t n, Py_ssize_t cell, Py_ssize_t cells, Py_ssize_t *c0, float *w_lo, float *w_hi)
 {
-    return u8 ? (float)((const uint8_t *)base)[i] : ((const float *)base)[i];
+    for (Py_ssize_t p = 0; p < n; p++) {
+        const double u = ((double)p + 0.5) / (double)cell - 0.5;
+        const double f = floor(u);
+        const Py_ssize_t c = (Py_ssize_t)f;
+        const float frac = (float)(u - f);
+        c0[p] = c;
+        w_lo[p] = (c >= 0 && c < cells) ? 1.0f - frac : 0.0f;
+        w_hi[p] = (c + 1 >= 0 && c + 1 < cells) ? frac : 0.0f;
+    }
 }
 
+typedef struct {
+    float *gx, *gy, *mag, *pos;      /* one row of pixels */
+    float *up, *mid, *dn;            /* source rows y-1, y (padded), y+1, all channels */
+    float *row_hist;                 /* (wc + 2) x 18: the row binned along x, cells -1..wc */
+    Py_ssize_t *cx0;
+    float *wx_lo, *wx_hi;
+    Py_ssize_t *cy0;
+    float *wy_lo, *wy_hi;
+} FhogScratch;
+
+/* One image: hist (hc, wc, 18) -> out (hc, wc, 31). The per-pixel work is split into loops the
+ * compiler vectorises (gradient, magnitude, angle) and one scalar scatter into a row histogram,
+ * which is then spread over the two cell rows it belongs to. */
 static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
-                     float *hist, float *energy, float *out)
+                     FhogScratch *sc, float *hist, float *energy, float *out)
 {
     const Py_ssize_t hc = H / cell, wc = W / cell;
     const Py_ssize_t hv = hc * cell, wv = wc * cell;
-    const float inv_cell = 1.0f / (float)cell;
     const float bins_per_rad = (float)N_SIGNED / TWO_PI;
     memset(hist, 0, sizeof(float) * (size_t)(hc * wc * N_SIGNED));
 
     for (Py_ssize_t y = 0; y < hv; y++) {
         const Py_ssize_t yu = y > 0 ? y - 1 : 0, yd = y + 1 < H ? y + 1 : H - 1;
-        const float uy = ((float)y + 0.5f) * inv_cell - 0.5f;
-        const float fy0 = floorf(uy);
-        const Py_ssize_t cy0 = (Py_ssize_t)fy0;
-        const float fy = uy - fy0;
+        float *gxr = sc->gx, *gyr = sc->gy, *mag = sc->mag, *pos = sc->pos;
+        /* Rows as float; the middle row padded by one replicated pixel on each side. */
+        float *up = sc->up, *dn = sc->dn, *mid = sc->mid;
+        load_row(img, u8, y * W * C, W * C, mid + C);
+        load_row(img, u8, yu * W * C, W * C, up);
+        load_row(img, u8, yd * W * C, W * C, dn);
+        for (Py_ssize_t c = 0; c < C; c++) {
+            mid[c] = mid[C + c];
+            mid[(W + 1) * C + c] = mid[W * C + c];
+        }
+        if (C == 1) {
+            for (Py_ssize_t x = 0; x < wv; x++) {
+                gxr[x] = mid[x + 2] - mid[x];
+                gyr[x] = dn[x] - up[x];
+            }
+        } else {
+            for (Py_ssize_t x = 0; x < wv; x++) {
+                float bx = mid[(x + 2) * C] - mid[x * C], by = dn[x * C] - up[x * C];
+                float bm = bx * bx + by * by;
+                for (Py_ssize_t c = 1; c < C; c++) {
+                    const float gx = mid[(x + 2) * C + c] - mid[x * C + c];
+                    const float gy = dn[x * C + c] - up[x * C + c];
+                    const float m2 = gx * gx + gy * gy;
+                    const int better = m2 > bm; /* ties keep the first channel, like numpy's argmax */
+                    bx = better ? gx : bx;
+                    by = better ? gy : by;
+                    bm = better ? m2 : bm;
+                }
+                gxr[x] = bx;
+                gyr[x] = by;
+            }
+        }
         for (Py_ssize_t x = 0; x < wv; x++) {
-            const Py_ssize_t xl = x > 0 ? x - 1 : 0, xr = x + 1 < W ? x + 1 : W - 1;
-            float best_gx = 0.0f, best_gy = 0.0f, best_m2 = -1.0f;
-            for (Py_ssize_t c = 0; c < C; c++) {
-                const float gx = load_pixel(img, (y * W + xr) * C + c, u8) - load_pixel(img, (y * W + xl) * C + c, u8);
-                const float gy = load_pixel(img, (yd * W + x) * C + c, u8) - load_pixel(img, (yu * W + x) * C + c, u8);
-                const float m2 = gx * gx + gy * gy;
-                if (m2 > best_m2) {
-                    best_m2 = m2;
-                    best_gx = gx;
-                    best_gy = gy;
-                }
-            }
-            if (best_m2 <= 0.0f)
+            const float gx = gxr[x], gy = gyr[x];
+            const float ax = gx < 0.0f ? -gx : gx, ay = gy < 0.0f ? -gy : gy;
+            const float lo = ax < ay ? ax : ay, hi = ax < ay ? ay : ax;
+            /* Branch-free so the loop vectorises: the zero vector divides 0 by 1. */
+            const float z = lo / (hi + (float)(hi == 0.0f));
+            float a = atan_unit(z);
+            a = ay > ax ? HALF_PI - a : a;
+            a = gx < 0.0f ? PI_F - a : a;
+            a = gy < 0.0f ? TWO_PI - a : a;
+            float p = a * bins_per_rad;
+            p = p >= (float)N_SIGNED ? 0.0f : p;
+            pos[x] = p;
+            mag[x] = sqrtf(gx * gx + gy * gy);
+        }
+        float *rh = sc->row_hist;
+        memset(rh, 0, sizeof(float) * (size_t)((wc + 2) * N_SIGNED));
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            const float m = mag[x];
+            if (m == 0.0f)
                 continue;
-            const float mag = sqrtf(best_m2);
-            const float pos = angle_0_2pi(best_gx, best_gy) * bins_per_rad;
-            const float fpos = floorf(pos);
-            int b0 = (int)fpos % N_SIGNED;
-            const float fo = pos - fpos;
-            const int b1 = (b0 + 1) % N_SIGNED;
-            const float m0 = mag * (1.0f - fo), m1 = mag * fo;
-
-            const float ux = ((float)x + 0.5f) * inv_cell - 0.5f;
-            const float fx0 = floorf(ux);
-            const Py_ssize_t cx0 = (Py_ssize_t)fx0;
-            const float fx = ux - fx0;
-            for (int dy = 0; dy < 2; dy++) {
-                const Py_ssize_t cy = cy0 + dy;
-                if (cy < 0 || cy >= hc)
-                    continue;
-                const float wy = dy ? fy : 1.0f - fy;
-                for (int dx = 0; dx < 2; dx++) {
-                    const Py_ssize_t cx = cx0 + dx;
-                    if (cx < 0 || cx >= wc)
-                        continue;
-                    const float w = wy * (dx ? fx : 1.0f - fx);
-                    float *h = hist + (cy * wc + cx) * N_SIGNED;
-                    h[b0] += w * m0;
-                    h[b1] += w * m1;
-                }
-            }
+            const int b0 = (int)pos[x];
+            const float fo = pos[x] - (float)b0;
+            const int b1 = b0 + 1 == N_SIGNED ? 0 : b0 + 1;
+            const float m1 = m * fo, m0 = m - m1;
+            float *h0 = rh + (sc->cx0[x] + 1) * N_SIGNED, *h1 = h0 + N_SIGNED;
+            const float wl = sc->wx_lo[x], wh = sc->wx_hi[x];
+            h0[b0] += wl * m0;
+            h0[b1] += wl * m1;
+            h1[b0] += wh * m0;
+            h1[b1] += wh * m1;
+        }
+        const Py_ssize_t cy = sc->cy0[y];
+        const float wl = sc->wy_lo[y], wh = sc->wy_hi[y];
+        const float *src_row = rh + N_SIGNED; /* cell 0 */
+        if (wl != 0.0f) {
+            float *dst = hist + cy * wc * N_SIGNED;
+            for (Py_ssize_t t = 0; t < wc * N_SIGNED; t++)
+                dst[t] += wl * src_row[t];
+        }
+        if (wh != 0.0f) {
+            float *dst = hist + (cy + 1) * wc * N_SIGNED;
+            for (Py_ssize_t t = 0; t < wc * N_SIGNED; t++)
+                dst[t] += wh * src_row[t];
         }
     }
 
@@ -319,7 +370,8 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
             for (int o = 0; o < N_SIGNED; o++) {
                 float sum = 0.0f;
                 for (k = 0; k < 4; k++) {
-                    const float v = fminf(h[o] * norm[k], 0.2f);
+                    const float hv = h[o] * norm[k];
+                    const float v = hv < 0.2f ? hv : 0.2f;
                     sum += v;
                     texture[k] += v;
                 }
@@ -329,7 +381,10 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
                 const float u = h[o] + h[o + N_UNSIGNED];
                 float sum = 0.0f;
                 for (k = 0; k < 4; k++)
-                    sum += fminf(u * norm[k], 0.2f);
+                {
+                    const float uv = u * norm[k];
+                    sum += uv < 0.2f ? uv : 0.2f;
+                }
                 f[N_SIGNED + o] = 0.5f * sum;
             }
             for (k = 0; k < 4; k++)
@@ -360,21 +415,47 @@ static PyObject *fhog(PyObject *self, PyObject *args)
         PyBuffer_Release(&src);
         return NULL;
     }
-    float *hist = (float *)malloc(sizeof(float) * (size_t)(hc * wc * (N_SIGNED + 1)));
-    if (!hist) {
+    /* One block of scratch memory: floats first, then the index arrays. */
+    const size_t n_float = (size_t)(hc * wc * (N_SIGNED + 1) + 4 * W + (wc + 2) * N_SIGNED + 2 * W + 2 * H
+                                    + (3 * W + 2) * C);
+    const size_t n_index = (size_t)(W + H);
+    char *block = (char *)malloc(sizeof(float) * n_float + sizeof(Py_ssize_t) * n_index);
+    if (!block) {
         PyBuffer_Release(&out);
         PyBuffer_Release(&src);
         return PyErr_NoMemory();
     }
-    float *energy = hist + hc * wc * N_SIGNED;
+    float *f = (float *)block;
+    float *hist = f;
+    f += hc * wc * N_SIGNED;
+    float *energy = f;
+    f += hc * wc;
+    FhogScratch sc;
+    sc.gx = f; f += W;
+    sc.gy = f; f += W;
+    sc.mag = f; f += W;
+    sc.pos = f; f += W;
+    sc.row_hist = f; f += (wc + 2) * N_SIGNED;
+    sc.wx_lo = f; f += W;
+    sc.wx_hi = f; f += W;
+    sc.wy_lo = f; f += H;
+    sc.wy_hi = f; f += H;
+    sc.up = f; f += W * C;
+    sc.dn = f; f += W * C;
+    sc.mid = f; f += (W + 2) * C;
+    Py_ssize_t *idx = (Py_ssize_t *)(block + sizeof(float) * n_float);
+    sc.cx0 = idx;
+    sc.cy0 = idx + W;
+    axis_cells(W, cell, wc, sc.cx0, sc.wx_lo, sc.wx_hi);
+    axis_cells(H, cell, hc, sc.cy0, sc.wy_lo, sc.wy_hi);
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t n = 0; n < N; n++) {
         const void *img = u8 ? (const void *)((const uint8_t *)src.buf + n * H * W * C)
                              : (const void *)((const float *)src.buf + n * H * W * C);
-        fhog_one(img, u8, H, W, C, cell, hist, energy, (float *)out.buf + n * hc * wc * N_FHOG);
+        fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, (float *)out.buf + n * hc * wc * N_FHOG);
     }
     Py_END_ALLOW_THREADS
-    free(hist);
+    free(block);
     PyBuffer_Release(&out);
     PyBuffer_Release(&src);
     Py_RETURN_NONE;
@@ -444,7 +525,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 1
+#define KERNELS_ABI 2
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

@@ -12,7 +12,7 @@ Resampling is separable and chosen per axis from that axis' scale s = region siz
 Outside the image the border pixels are replicated. This is folded into the resampling weights by
 clamping source indices, so only the in-image part of the region is read and no padded copy is
 allocated, however far outside the image or however large the region is.
-The result is rounded to the nearest integer and returned as uint8, like cv2.resize on uint8 input.
+The result is rounded to the nearest integer (half up) and returned as uint8, like cv2.resize on uint8 input.
 """
 from __future__ import annotations
 

@@ -162,7 +162,7 @@ def _load_boxes(path: Path) -> np.ndarray:
 @pytest.mark.data
 @pytest.mark.slow
 def test_real_sequence_precision_above_floor(data_root):
-    """OTB_Crossing (120 frames, 360x240): measured precision 1.00 / AUC ~0.73; floor 0.85."""
+    """OTB_Crossing (120 frames, 360x240): measured precision 1.00 / AUC 0.79; floor 0.85."""
     sequence = data_root / "OTB_Crossing"
     if not sequence.is_dir():
         pytest.skip(f"{sequence} not present in JSAR_DATA_ROOT")
@@ -171,11 +171,15 @@ def test_real_sequence_precision_above_floor(data_root):
     files = sorted((sequence / "img").glob("*.jpg"))
     tracker = jsar.create("jsar")
     tracker.init(cv2.imread(str(files[0])), tuple(truth[0]))
-    hits = []
+    hits, scores = [], []
     for path, gt in zip(files[1:], truth[1:]):
         result = tracker.update(cv2.imread(str(path)))
+        scores.append(result.score)
         if np.isnan(gt).any():
             continue
         x, y, w, h = result.box
         hits.append(np.hypot(x + w / 2 - gt[0] - gt[2] / 2, y + h / 2 - gt[1] - gt[3] / 2) <= 20.0)
     assert np.mean(hits) >= 0.85
+    # FFT scaling convention: confident peaks sit just above the paper's JSAR-Re thresholds
+    # (enable re-detection below 0.0105, reliable above 0.013); measured median 0.021.
+    assert 0.013 < float(np.median(scores)) < 0.05

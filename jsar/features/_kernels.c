@@ -72,7 +72,7 @@ static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_s
         if (a->count[j] > a->max_taps)
             a->max_taps = a->count[j];
     }
-    a->weight = (float *)malloc(sizeof(float) * (size_t)(n_out * a->max_taps));
+    a->weight = (float *)calloc((size_t)(n_out * a->max_taps), sizeof(float)); /* unused taps: weight 0 */
     if (!a->weight) {
         axis_taps_free(a);
         return -1;
@@ -101,6 +101,7 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
     const Py_ssize_t xmax = tx->first[tx->n_out - 1] + tx->count[tx->n_out - 1] - 1;
     const Py_ssize_t span = (xmax - xmin + 1) * C;
     const Py_ssize_t OW = tx->n_out;
+    memset(row + span, 0, sizeof(float) * (size_t)(tx->max_taps * C));
     for (Py_ssize_t i = 0; i < ty->n_out; i++) {
         memset(row, 0, sizeof(float) * (size_t)span);
         for (Py_ssize_t k = 0; k < ty->count[i]; k++) {
@@ -111,23 +112,52 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
             for (Py_ssize_t t = 0; t < span; t++)
                 row[t] += w * (float)line[t];
         }
-        for (Py_ssize_t j = 0; j < OW; j++) {
-            const float *wj = tx->weight + j * tx->max_taps;
-            const float *rj = row + (tx->first[j] - xmin) * C;
-            const Py_ssize_t taps = tx->count[j];
-            for (Py_ssize_t c = 0; c < C; c++) {
-                float acc = 0.0f;
-                for (Py_ssize_t k = 0; k < taps; k++)
-                    acc += wj[k] * rj[k * C + c];
-                const Py_ssize_t o = (i * OW + j) * C + c;
-                if (out_u8) {
-                    /* acc >= 0 (non-negative weights and pixels): adding 0.5 and truncating rounds half up. */
-                    const float r = acc + 0.5f;
-                    ((uint8_t *)out)[o] = (uint8_t)(r >= 255.0f ? 255.0f : r);
-                } else {
-                    ((float *)out)[o] = acc;
+        /* Every output uses T taps (unused ones have zero weight and read zeros past the span),
+         * so the inner loops have one trip count and the channel loop is unrolled for C = 1, 3. */
+        const Py_ssize_t T = tx->max_taps;
+        float *acc = row + span + T * C; /* OW * C accumulators after the zero tail */
+        if (C == 1) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin);
+                float a = 0.0f;
+                for (Py_ssize_t k = 0; k < T; k++)
+                    a += wj[k] * rj[k];
+                acc[j] = a;
+            }
+        } else if (C == 3) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * 3;
+                float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f;
+                for (Py_ssize_t k = 0; k < T; k++) {
+                    a0 += wj[k] * rj[3 * k];
+                    a1 += wj[k] * rj[3 * k + 1];
+                    a2 += wj[k] * rj[3 * k + 2];
+                }
+                acc[3 * j] = a0;
+                acc[3 * j + 1] = a1;
+                acc[3 * j + 2] = a2;
+            }
+        } else {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * C;
+                for (Py_ssize_t c = 0; c < C; c++) {
+                    float a = 0.0f;
+                    for (Py_ssize_t k = 0; k < T; k++)
+                        a += wj[k] * rj[k * C + c];
+                    acc[j * C + c] = a;
                 }
             }
+        }
+        const Py_ssize_t base = i * OW * C;
+        if (out_u8) {
+            uint8_t *o = (uint8_t *)out + base;
+            /* acc >= 0 (non-negative weights and pixels): adding 0.5 and truncating rounds half up. */
+            for (Py_ssize_t t = 0; t < OW * C; t++) {
+                const float r = acc[t] + 0.5f;
+                o[t] = (uint8_t)(r >= 255.0f ? 255.0f : r);
+            }
+        } else {
+            memcpy((float *)out + base, acc, sizeof(float) * (size_t)(OW * C));
         }
     }
 }
@@ -161,7 +191,8 @@ static PyObject *resample(PyObject *self, PyObject *args)
         return NULL;
     }
     const double *sz = (const double *)sizes.buf;
-    float *row = (float *)malloc(sizeof(float) * (size_t)(W * C));
+    /* Row buffer: the span (<= W pixels), a zero tail of up to W taps, then OW accumulators. */
+    float *row = (float *)malloc(sizeof(float) * (size_t)((2 * W + OW) * C));
     int failed = row == NULL;
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t n = 0; n < N && !failed; n++) {
@@ -279,6 +310,20 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
             for (Py_ssize_t x = 0; x < wv; x++) {
                 gxr[x] = mid[x + 2] - mid[x];
                 gyr[x] = dn[x] - up[x];
+            }
+        } else if (C == 3) {
+            /* Channels unrolled (no inner loop) so the x loop vectorises; ties keep the first channel. */
+            for (Py_ssize_t x = 0; x < wv; x++) {
+                const float gx0 = mid[3 * x + 6] - mid[3 * x], gy0 = dn[3 * x] - up[3 * x];
+                const float gx1 = mid[3 * x + 7] - mid[3 * x + 1], gy1 = dn[3 * x + 1] - up[3 * x + 1];
+                const float gx2 = mid[3 * x + 8] - mid[3 * x + 2], gy2 = dn[3 * x + 2] - up[3 * x + 2];
+                const float m0 = gx0 * gx0 + gy0 * gy0, m1 = gx1 * gx1 + gy1 * gy1, m2 = gx2 * gx2 + gy2 * gy2;
+                const int one = m1 > m0;
+                float bx = one ? gx1 : gx0, by = one ? gy1 : gy0;
+                const float bm = one ? m1 : m0;
+                const int two = m2 > bm;
+                gxr[x] = two ? gx2 : bx;
+                gyr[x] = two ? gy2 : by;
             }
         } else {
             for (Py_ssize_t x = 0; x < wv; x++) {
@@ -500,8 +545,13 @@ static PyObject *colour_cells(PyObject *self, PyObject *args)
             const uint8_t *p = s + (y * W + x) * 3;
             const float *entry = tab + (Py_ssize_t)((p[2] >> 3) + 32 * (p[1] >> 3) + 1024 * (p[0] >> 3)) * K;
             float *acc = cells + (x / cell) * K;
-            for (Py_ssize_t k = 0; k < K; k++)
-                acc[k] += entry[k];
+            if (K == 10) { /* the derived and the original tables: a fixed count the compiler unrolls */
+                for (int k = 0; k < 10; k++)
+                    acc[k] += entry[k];
+            } else {
+                for (Py_ssize_t k = 0; k < K; k++)
+                    acc[k] += entry[k];
+            }
         }
     }
     const float inv = 1.0f / (float)(cell * cell);

@@ -130,7 +130,7 @@ def _check_images(images: np.ndarray, batched: bool, cell: int) -> np.ndarray:
         raise ValueError(f"image {images.shape} is smaller than one {cell}x{cell} cell")
     if not np.issubdtype(images.dtype, np.number) or np.issubdtype(images.dtype, np.complexfloating):
         raise ValueError(f"image must be real-valued, got dtype {images.dtype}")
-    if images.size and not np.all(np.isfinite(images)):
+    if np.issubdtype(images.dtype, np.floating) and not np.all(np.isfinite(images)):
         raise ValueError("image holds NaN or infinite values")
     if batched and images.shape[0] < 1:
         raise ValueError("images must hold at least one image")

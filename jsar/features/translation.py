@@ -52,7 +52,9 @@ def extract_features(patch: np.ndarray, cell: int = 4, colour_table: np.ndarray 
     hc, wc = hog.shape[:2]
     n_channels = 1 + hog.shape[2] + (0 if colour_table is None else colour_table.shape[1])
     out = np.empty((hc, wc, n_channels), np.float32)
-    out[..., 0] = cell_mean(grey[..., None].astype(np.float32), cell)[..., 0] / 255.0 - 0.5
+    # cv2's area resize by the whole factor 1/cell is the exact cell mean (and ~8x faster than numpy).
+    visible = grey[: hc * cell, : wc * cell].astype(np.float32)
+    out[..., 0] = cv2.resize(visible, (wc, hc), interpolation=cv2.INTER_AREA) * np.float32(1.0 / 255.0) - np.float32(0.5)
     out[..., 1:32] = hog
     if colour_table is not None:
         colour = np.empty((hc, wc, colour_table.shape[1]), np.float32)

@@ -1,0 +1,394 @@
+"""Closed loop: synthetic scene + mock autopilot + the real daemon (subprocess) over Zenoh and MAVLink.
+
+Each frame: render the scene from the mock's vehicle + gimbal pose, publish it over Zenoh, (lockstep)
+wait for the daemon's telemetry of that frame and for its gimbal command, then step the mock's
+dynamics by one frame period of simulated time. The target is selected through the mavsdk ground
+station (sim.gcs) on the ground-station link, routed by the mock autopilot to the daemon.
+
+Centring (the tests' definition): the ground-truth centre of the car is within the central 20 % of
+the image, |dx| <= 0.1 W and |dy| <= 0.1 H, measured on frames where >= 50 % of the car is visible.
+"""
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+
+from sim.autopilot import MockAutopilot
+from sim.daemon import Daemon
+from sim.scene import CameraConfig, GroundTruth, Scene, SceneConfig, pose_from_vehicle
+from sim.vehicle_model import VehicleConfig
+from sim.zenoh_link import SimCamera, ZenohEndpoints
+
+Pace = Literal["lockstep", "realtime"]
+GIMBAL_TYPES = ("GIMBAL_MANAGER_SET_PITCHYAW", "GIMBAL_MANAGER_SET_ATTITUDE")
+
+
+def free_port(kind: int) -> int:
+    """A loopback port of socket type `kind` that was free a moment ago."""
+    import socket
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@dataclass(frozen=True)
+class ClosedLoopConfig:
+    """One run. Times are simulated seconds from the first frame."""
+
+    flavour: str = "ardupilot"
+    duration_s: float = 20.0
+    fps: float = 30.0
+    pace: Pace = "lockstep"
+    scene: SceneConfig = SceneConfig()
+    camera: CameraConfig = CameraConfig()
+    guidance: str = "off"  # daemon guidance.mode: off | velocity | follow_target
+    tracker: str | None = None  # None: config.yaml's tracker
+    link_drops: tuple[tuple[float, float], ...] = ()  # (start_s, duration_s) on the service link
+    operator_modes: tuple[tuple[float, str], ...] = ()  # (time_s, mode): the pilot switches mode
+    start_mode: str = ""  # "" = GUIDED / OFFBOARD
+    daemon_overrides: dict = field(default_factory=dict)
+    telemetry_timeout_s: float = 15.0
+    startup_timeout_s: float = 60.0
+    video_path: Path | None = None  # annotated video (MJPG .avi)
+    rss_every_s: float = 5.0  # sample the daemon's RSS this often (simulated seconds)
+
+    def __post_init__(self) -> None:
+        if self.flavour not in ("ardupilot", "px4"):
+            raise ValueError(f"flavour must be ardupilot or px4, got {self.flavour!r}")
+        if self.pace not in ("lockstep", "realtime"):
+            raise ValueError(f"pace must be lockstep or realtime, got {self.pace!r}")
+        if self.guidance not in ("off", "velocity", "follow_target"):
+            raise ValueError(f"guidance must be off, velocity or follow_target, got {self.guidance!r}")
+        if not (self.duration_s > 0 and self.fps > 0):
+            raise ValueError("duration_s and fps must be > 0")
+
+
+@dataclass
+class FrameRecord:
+    """One frame of a run: simulated time, ground truth, the daemon's telemetry, vehicle state."""
+
+    frame_id: int
+    time_s: float
+    truth: GroundTruth
+    state: str | None  # daemon's state for this frame (None: no telemetry)
+    box: tuple[float, float, float, float] | None
+    latency_ms: float | None
+    vehicle_ne: tuple[float, float]
+    vehicle_speed: float
+    mode: str
+    link_down: bool
+
+    def centred(self, width: int, height: int, fraction: float = 0.1) -> bool:
+        """Ground-truth centre within +-fraction of the image size from the image centre."""
+        cx, cy = self.truth.centre
+        return abs(cx - width / 2) <= fraction * width and abs(cy - height / 2) <= fraction * height
+
+    @property
+    def target_distance_m(self) -> float:
+        """Horizontal vehicle-to-car distance in metres."""
+        return math.hypot(self.truth.target.north - self.vehicle_ne[0], self.truth.target.east - self.vehicle_ne[1])
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced, for assertions and the demo summary."""
+
+    records: list[FrameRecord]
+    width: int
+    height: int
+    rss_kib: list[tuple[float, int]]  # (time_s, RSS)
+    wall_s: float
+    dropped_frames: int
+    counters: dict[str, Any]
+    daemon_alive: bool
+    daemon_exit: int | None
+    selection_result: str
+
+    def centring_ratio(self, exclude: tuple[tuple[float, float], ...] = ()) -> float:
+        """Fraction of visible frames with the car in the central 20 %, outside the `exclude` windows."""
+        frames = [r for r in self.records if r.truth.visible and not any(a <= r.time_s < b for a, b in exclude)]
+        if not frames:
+            return 0.0
+        return sum(r.centred(self.width, self.height) for r in frames) / len(frames)
+
+    def lost_recovered(self) -> tuple[int, int]:
+        """Number of tracking->lost transitions and of lost->recovered/tracking transitions."""
+        lost = recovered = 0
+        previous = None
+        for r in self.records:
+            if r.state == "lost" and previous not in ("lost", None):
+                lost += 1
+            if previous == "lost" and r.state in ("recovered", "tracking"):
+                recovered += 1
+            previous = r.state if r.state is not None else previous
+        return lost, recovered
+
+    def summary(self) -> dict[str, Any]:
+        """Frames, fps, drops, lost / recovered counts, centring error (pixels, visible frames)."""
+        errors = [math.hypot(r.truth.centre[0] - self.width / 2, r.truth.centre[1] - self.height / 2)
+                  for r in self.records if r.truth.visible]
+        latencies = [r.latency_ms for r in self.records if r.latency_ms is not None]
+        lost, recovered = self.lost_recovered()
+        return {"frames": len(self.records), "answered": sum(r.state is not None for r in self.records),
+                "wall_s": round(self.wall_s, 2), "fps": round(len(self.records) / max(self.wall_s, 1e-9), 1),
+                "dropped_frames": self.dropped_frames, "lost": lost, "recovered": recovered,
+                "centred_ratio": round(self.centring_ratio(), 3),
+                "centring_error_px_median": round(float(np.median(errors)), 1) if errors else None,
+                "centring_error_px_p90": round(float(np.percentile(errors, 90)), 1) if errors else None,
+                "latency_ms_p50": round(float(np.percentile(latencies, 50)), 1) if latencies else None,
+                "latency_ms_p99": round(float(np.percentile(latencies, 99)), 1) if latencies else None}
+
+
+def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
+    """config.yaml overrides that point the daemon at this sim."""
+    overrides: dict[str, Any] = {
+        "source": {"kind": "zenoh"},
+        "camera": {"hfov_deg": cfg.camera.hfov_deg},
+        "gimbal": {"backend": cfg.flavour},
+        "guidance": {"mode": cfg.guidance},
+        "zenoh": {"enabled": True, "mode": "peer", "listen": [], "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
+                  "multicast_scouting": False, "prefix": "jsar"},
+    }
+    if cfg.tracker is not None:
+        overrides["tracker"] = {"name": cfg.tracker, "params": {}}
+    from sim.daemon import deep_merge
+    return deep_merge(overrides, cfg.daemon_overrides)
+
+
+def annotate(frame: np.ndarray, record: FrameRecord) -> np.ndarray:
+    """Copy of the frame with the ground truth (green), the daemon's box (yellow / red when lost), the
+    central 20 % window and a status line."""
+    out = frame.copy()
+    h, w = out.shape[:2]
+    cv2.rectangle(out, (int(0.4 * w), int(0.4 * h)), (int(0.6 * w), int(0.6 * h)), (255, 255, 255), 1)
+    if record.truth.visible:
+        x, y, bw, bh = record.truth.box
+        cv2.rectangle(out, (int(x), int(y)), (int(x + bw), int(y + bh)), (0, 255, 0), 1)
+    if record.box is not None:
+        x, y, bw, bh = record.box
+        colour = (0, 0, 255) if record.state == "lost" else (0, 255, 255)
+        cv2.rectangle(out, (int(x), int(y)), (int(x + bw), int(y + bh)), colour, 2)
+    text = (f"t={record.time_s:5.1f}s  {record.state or '-':9s} mode {record.mode}"
+            f"{'  LINK DOWN' if record.link_down else ''}  dist {record.target_distance_m:5.1f} m")
+    cv2.putText(out, text, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(out, text, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return out
+
+
+class ClosedLoop:
+    """Owns the mock autopilot, the Zenoh camera, the daemon and the scene for one run."""
+
+    def __init__(self, cfg: ClosedLoopConfig, workdir: Path | None = None) -> None:
+        self.cfg = cfg
+        self._tmp = tempfile.TemporaryDirectory(prefix="jsar-sim-") if workdir is None else None
+        self.workdir = Path(self._tmp.name) if self._tmp is not None else workdir
+        self.service_port, self.gcs_port = free_port(2), free_port(2)  # SOCK_DGRAM
+        self.zenoh_port = free_port(1)  # SOCK_STREAM
+        self.scene = Scene(cfg.scene, cfg.camera)
+        self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode),
+                                       self.service_port, self.gcs_port)
+        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",)))
+        self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
+                             f"udpout:127.0.0.1:{self.service_port}")
+        self.gcs = None
+        self.frame_id = 0
+        self.status_line = ""
+
+    # ----- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> "ClosedLoop":
+        """Start the mock and the daemon; wait for the daemon's heartbeat and its first telemetry."""
+        self.autopilot.start()
+        self.daemon.start()
+        if not self.autopilot.wait_for_heartbeat(100, self.cfg.startup_timeout_s):
+            raise RuntimeError(f"no heartbeat from the daemon (component 100) within {self.cfg.startup_timeout_s} s;"
+                               f" log:\n{self.daemon.log_tail()}")
+        deadline = time.monotonic() + self.cfg.startup_timeout_s
+        frame, _ = self.render(0.0)
+        while self.camera.telemetry.last is None:  # the daemon's subscriber may not be declared yet
+            if time.monotonic() > deadline or not self.daemon.alive():
+                raise RuntimeError(f"no telemetry from the daemon; log:\n{self.daemon.log_tail()}")
+            self.publish(frame)
+            self.camera.telemetry.wait_frame(self.frame_id, 0.5)
+        return self
+
+    def close(self) -> int | None:
+        """Stop everything; returns the daemon's exit code."""
+        if self.gcs is not None:
+            self.gcs.close()
+            self.gcs = None
+        code = self.daemon.stop()
+        self.camera.close()
+        self.autopilot.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+        return code
+
+    def __enter__(self) -> "ClosedLoop":
+        try:
+            return self.start()
+        except BaseException:
+            self.close()
+            raise
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ----- pieces -------------------------------------------------------------------------------
+    def camera_pose(self):
+        st = self.autopilot.model.state
+        return pose_from_vehicle(st.north, st.east, st.down, st.yaw, st.gimbal_pitch, st.gimbal_yaw)
+
+    def render(self, t: float) -> tuple[np.ndarray, GroundTruth]:
+        with self.autopilot.lock:
+            pose = self.camera_pose()
+        return self.scene.render(pose, t)
+
+    def publish(self, frame: np.ndarray) -> int:
+        self.frame_id += 1
+        self.camera.publish(frame, self.frame_id)
+        return self.frame_id
+
+    def select_target(self, timeout_s: float = 30.0) -> str:
+        """Select the car through the mavsdk ground station (TRACK_RECTANGLE on its ground-truth box),
+        re-sending the t = 0 frame until the daemon reports tracking. Returns the command result."""
+        from sim.gcs import GroundStation
+        self.gcs = GroundStation(f"udpout://127.0.0.1:{self.gcs_port}", discovery_timeout_s=timeout_s)
+        frame, truth = self.render(0.0)
+        # Keep frames flowing while mavsdk discovers the camera (CAMERA_INFORMATION needs a frame size).
+        info = None
+        deadline = time.monotonic() + timeout_s
+        while info is None:
+            self.publish(frame)
+            self.camera.telemetry.wait_frame(self.frame_id, 0.5)
+            try:
+                info = self.gcs.wait_for_camera(0.2)
+            except TimeoutError:
+                if time.monotonic() > deadline:
+                    raise
+        self.gcs.set_status_interval(info.component_id, 0.1)
+        x, y, w, h = truth.box
+        W, H = self.cfg.camera.width, self.cfg.camera.height
+        result = self.gcs.track_rectangle(info.component_id, x / W, y / H, (x + w) / W, (y + h) / H)
+        while True:
+            self.publish(frame)
+            sample = self.camera.telemetry.wait_frame(self.frame_id, 2.0)
+            if sample is not None and sample.get("state") == "tracking":
+                return result.name
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"daemon did not start tracking; log:\n{self.daemon.log_tail()}")
+
+    def _wait_gimbal_command(self, before: int, timeout_s: float) -> None:
+        """Wait until the mock has received a gimbal command newer than count `before` (or timeout)."""
+        stats = self.autopilot.stats.received_by_type
+        self.autopilot.wait_for(lambda: sum(stats[t] for t in GIMBAL_TYPES) > before, timeout_s)
+
+    # ----- the run ------------------------------------------------------------------------------
+    def run(self, live: bool = False) -> RunResult:
+        """Run cfg.duration_s of simulated time after the selection; returns the per-frame record."""
+        cfg = self.cfg
+        selection = self.select_target()
+        dt = 1.0 / cfg.fps
+        frames = int(round(cfg.duration_s * cfg.fps))
+        writer = None
+        if cfg.video_path is not None:
+            cfg.video_path.parent.mkdir(parents=True, exist_ok=True)
+            writer = cv2.VideoWriter(str(cfg.video_path), cv2.VideoWriter_fourcc(*"MJPG"), cfg.fps,
+                                     (cfg.camera.width, cfg.camera.height))
+        records: list[FrameRecord] = []
+        pending: list[tuple[int, FrameRecord, np.ndarray | None]] = []  # realtime: matched later
+        rss: list[tuple[float, int]] = []
+        drops = sorted(cfg.link_drops)
+        modes = sorted(cfg.operator_modes)
+        next_rss = 0.0
+        start_wall = time.monotonic()
+        stats = self.autopilot.stats.received_by_type
+        for k in range(frames):
+            t = k * dt
+            while drops and drops[0][0] <= t:
+                self.autopilot.drop_link(drops.pop(0)[1])
+            while modes and modes[0][0] <= t:
+                mode = modes.pop(0)[1]
+                with self.autopilot.lock:
+                    try:
+                        self.autopilot.model.operator_set_mode(mode)
+                    except ValueError as exc:
+                        self.autopilot.model.events.append((t, f"operator switch to {mode} refused: {exc}"))
+            if t >= next_rss and self.daemon.alive():
+                rss.append((t, self.daemon.rss_kib()))
+                next_rss += cfg.rss_every_s
+            frame, truth = self.render(t)
+            gimbal_before = sum(stats[name] for name in GIMBAL_TYPES)
+            frame_id = self.publish(frame)
+            with self.autopilot.lock:
+                st, model = self.autopilot.model.state, self.autopilot.model
+                record = FrameRecord(frame_id, t, truth, None, None, None, (st.north, st.east),
+                                     math.hypot(st.v_north, st.v_east), model.mode,
+                                     self.autopilot.link_is_down("service"))
+            if cfg.pace == "lockstep":
+                sample = self.camera.telemetry.wait_frame(frame_id, cfg.telemetry_timeout_s)
+                if sample is not None and int(sample["frame_id"]) == frame_id:
+                    self._fill(record, sample)
+                    if sample.get("state") != "idle" and not record.link_down:
+                        self._wait_gimbal_command(gimbal_before, 0.05)
+                if writer is not None:
+                    writer.write(annotate(frame, record))
+                records.append(record)
+                self.autopilot.step(dt)
+                self.autopilot.send_state_now()
+            else:
+                pending.append((frame_id, record, frame if writer is not None else None))
+                delay = start_wall + (k + 1) * dt - time.monotonic()
+                if delay > 0:
+                    self.camera.telemetry.wait_frame(frame_id, delay)  # pacing; returns early on telemetry
+                    remaining = start_wall + (k + 1) * dt - time.monotonic()
+                    if remaining > 0:
+                        time.sleep(remaining)  # pacing a real-time camera, not synchronisation
+                self.autopilot.step(dt)
+            if live and (k % 10 == 0 or k == frames - 1):
+                self._print_status(k, frames, start_wall, records or [p[1] for p in pending[-1:]])
+            if not self.daemon.alive():
+                break
+        if cfg.pace == "realtime":
+            self.camera.telemetry.wait_frame(self.frame_id, 2.0)
+            for frame_id, record, frame in pending:
+                sample = self.camera.telemetry.by_frame.get(frame_id)
+                if sample is not None:
+                    self._fill(record, sample)
+                if writer is not None and frame is not None:
+                    writer.write(annotate(frame, record))
+                records.append(record)
+        if writer is not None:
+            writer.release()
+        if live:
+            print(flush=True)
+        wall = time.monotonic() - start_wall
+        status = self.camera.status(2.0) if self.daemon.alive() else None
+        last = self.camera.telemetry.last or {}
+        return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
+                         int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
+                         self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
+                         selection)
+
+    @staticmethod
+    def _fill(record: FrameRecord, sample: dict[str, Any]) -> None:
+        record.state = sample.get("state")
+        box = sample.get("box_px")
+        record.box = tuple(box) if box else None
+        latency = (sample.get("latency_ms") or {}).get("total")
+        record.latency_ms = float(latency) if latency is not None else None
+
+    def _print_status(self, k: int, frames: int, start_wall: float, records: list[FrameRecord]) -> None:
+        r = records[-1]
+        elapsed = time.monotonic() - start_wall
+        cx, cy = r.truth.centre
+        err = math.hypot(cx - self.cfg.camera.width / 2, cy - self.cfg.camera.height / 2) if r.truth.visible else math.nan
+        print(f"\rframe {k + 1:5d}/{frames}  sim {r.time_s:6.1f} s  {(k + 1) / max(elapsed, 1e-9):5.1f} fps  "
+              f"state {r.state or '-':9s}  centring error {err:6.1f} px  mode {r.mode:8s}  "
+              f"dist {r.target_distance_m:5.1f} m ", end="", flush=True)

@@ -1,0 +1,112 @@
+"""Run the onboard service as a subprocess, configured from the top-level config.yaml plus overrides.
+
+`python -m service --config FILE --source zenoh --mavlink URL` (service <-> sim contract). The sim
+writes FILE; the daemon's log goes to a file next to it, so a failing test can show it.
+"""
+from __future__ import annotations
+
+import copy
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_CONFIG = REPO_ROOT / "config.yaml"
+
+
+def deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """A copy of `base` with `overrides` applied key by key (nested dicts merged, the rest replaced)."""
+    merged = copy.deepcopy(base)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = deep_merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def write_config(path: Path, overrides: dict[str, Any], base_file: Path = DEFAULT_CONFIG) -> dict[str, Any]:
+    """Write base_file + overrides as YAML to `path`; returns the merged mapping."""
+    with open(base_file, encoding="utf-8") as handle:
+        base = yaml.safe_load(handle)
+    merged = deep_merge(base, overrides)
+    path.write_text(yaml.safe_dump(merged, sort_keys=False), encoding="utf-8")
+    return merged
+
+
+def rss_kib(pid: int) -> int:
+    """Resident set size of process `pid` in KiB (Linux /proc), ValueError if it is gone."""
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1])
+    except FileNotFoundError as exc:
+        raise ValueError(f"process {pid} is gone") from exc
+    raise ValueError(f"no VmRSS for process {pid}")
+
+
+class Daemon:
+    """The service subprocess: start(), alive(), rss_kib(), stop() (SIGTERM, then kill after a grace)."""
+
+    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str) -> None:
+        self.workdir = workdir
+        self.config_path = workdir / "service-config.yaml"
+        self.log_path = workdir / "service.log"
+        self.config = write_config(self.config_path, overrides)
+        self.mavlink_url = mavlink_url
+        self.process: subprocess.Popen | None = None
+        self._log_handle = None
+
+    def start(self) -> "Daemon":
+        env = dict(os.environ, MAVLINK20="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+                   MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
+        self._log_handle = open(self.log_path, "w", encoding="utf-8")
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "service", "--config", str(self.config_path), "--source", "zenoh",
+             "--mavlink", self.mavlink_url],
+            cwd=REPO_ROOT, env=env, stdout=self._log_handle, stderr=subprocess.STDOUT)
+        return self
+
+    @property
+    def pid(self) -> int:
+        if self.process is None:
+            raise ValueError("daemon not started")
+        return self.process.pid
+
+    def alive(self) -> bool:
+        """True while the subprocess runs."""
+        return self.process is not None and self.process.poll() is None
+
+    def rss_kib(self) -> int:
+        """Current RSS of the daemon in KiB."""
+        return rss_kib(self.pid)
+
+    def log_tail(self, lines: int = 40) -> str:
+        """The last lines of the daemon's log (for failure messages)."""
+        try:
+            return "\n".join(self.log_path.read_text(encoding="utf-8", errors="replace").splitlines()[-lines:])
+        except FileNotFoundError:
+            return "(no log)"
+
+    def stop(self, grace_s: float = 5.0) -> int | None:
+        """SIGTERM and wait; SIGKILL if it does not stop in grace_s. Returns the exit code."""
+        code = None
+        if self.process is not None:
+            if self.process.poll() is None:
+                self.process.send_signal(signal.SIGTERM)
+                try:
+                    self.process.wait(timeout=grace_s)
+                except subprocess.TimeoutExpired:
+                    self.process.kill()
+                    self.process.wait(timeout=grace_s)
+            code = self.process.returncode
+        if self._log_handle is not None:
+            self._log_handle.close()
+            self._log_handle = None
+        return code

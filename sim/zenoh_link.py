@@ -1,0 +1,127 @@
+"""The sim's Zenoh side: publish camera frames, collect the daemon's per-frame telemetry, query status.
+
+Keys (service <-> sim contract): frames on `<prefix>/camera/frame` (service/sources/zenoh_wire.py
+format), telemetry JSON on `<prefix>/track`, status JSON from the queryable `<prefix>/status`.
+"""
+from __future__ import annotations
+
+import collections
+import json
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from service.sources.zenoh_wire import encode_frame
+
+
+@dataclass(frozen=True)
+class ZenohEndpoints:
+    """Zenoh session settings; tests use mode peer, explicit tcp/127.0.0.1 endpoints, no multicast."""
+
+    mode: str = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    prefix: str = "jsar"
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("peer", "client"):
+            raise ValueError(f"zenoh mode must be peer or client, got {self.mode!r}")
+        if not self.prefix or self.prefix.startswith("/") or self.prefix.endswith("/"):
+            raise ValueError(f"zenoh prefix must be a non-empty key without leading/trailing '/', got {self.prefix!r}")
+
+    def to_zenoh(self) -> zenoh.Config:
+        """The zenoh.Config these settings describe."""
+        config = zenoh.Config()
+        config.insert_json5("mode", json.dumps(self.mode))
+        config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        return config
+
+
+@dataclass
+class TelemetryLog:
+    """Telemetry samples by frame id (bounded), with a condition to wait on."""
+
+    limit: int = 5000
+    by_frame: "collections.OrderedDict[int, dict[str, Any]]" = field(default_factory=collections.OrderedDict)
+    received: int = 0
+    malformed: int = 0
+    last: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        self.cond = threading.Condition()
+
+    def add(self, payload: bytes) -> None:
+        """Store one JSON sample (malformed ones are counted, not raised: they come from another process)."""
+        try:
+            sample = json.loads(payload)
+            frame_id = int(sample["frame_id"])
+        except (ValueError, KeyError, TypeError):
+            with self.cond:
+                self.malformed += 1
+            return
+        with self.cond:
+            self.by_frame[frame_id] = sample
+            while len(self.by_frame) > self.limit:
+                self.by_frame.popitem(last=False)
+            self.received += 1
+            self.last = sample
+            self.cond.notify_all()
+
+    def wait_frame(self, frame_id: int, timeout_s: float) -> dict[str, Any] | None:
+        """The sample for frame_id (or a later frame: that one was skipped), None on timeout."""
+        with self.cond:
+            ok = self.cond.wait_for(lambda: self.last is not None and int(self.last["frame_id"]) >= frame_id,
+                                    timeout=timeout_s)
+            if not ok:
+                return None
+            return self.by_frame.get(frame_id, self.last)
+
+
+class SimCamera:
+    """Zenoh session of the sim: `publish(image, frame_id, timestamp)`, telemetry in `telemetry`."""
+
+    def __init__(self, endpoints: ZenohEndpoints, pixel_format: bytes = b"BGR3") -> None:
+        self.endpoints = endpoints
+        self.pixel_format = pixel_format
+        self.session = zenoh.open(endpoints.to_zenoh())
+        self.telemetry = TelemetryLog()
+        self.frame_key = f"{endpoints.prefix}/camera/frame"
+        self.track_key = f"{endpoints.prefix}/track"
+        self.status_key = f"{endpoints.prefix}/status"
+        self._publisher = self.session.declare_publisher(self.frame_key)
+        self._subscriber = self.session.declare_subscriber(
+            self.track_key, lambda sample: self.telemetry.add(sample.payload.to_bytes()))
+
+    def publish(self, image: np.ndarray, frame_id: int, timestamp: float | None = None) -> None:
+        """Send one frame (capture time = now on the wall clock unless given)."""
+        stamp = time.time() if timestamp is None else timestamp
+        self._publisher.put(encode_frame(image, frame_id, stamp, self.pixel_format))
+
+    def status(self, timeout_s: float = 2.0) -> dict[str, Any] | None:
+        """The daemon's status JSON from the queryable, None if nobody answered in time."""
+        for reply in self.session.get(self.status_key, timeout=timeout_s):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def close(self) -> None:
+        """Undeclare and close the session."""
+        for entity in (self._subscriber, self._publisher):
+            try:
+                entity.undeclare()
+            except Exception:  # noqa: BLE001 - best effort at shutdown; the session close follows
+                pass
+        self.session.close()
+
+    def __enter__(self) -> "SimCamera":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -71,7 +71,9 @@ def colour_term_probabilities(sigma: float = DEFAULT_SIGMA) -> np.ndarray:
         raise ValueError(f"sigma must be positive, got {sigma}")
     lab = rgb_to_lab(bin_centres_rgb()).astype(np.float64)
     prototypes = rgb_to_lab(np.array(PROTOTYPES_RGB, np.float32)).astype(np.float64)
-    dist2 = ((lab[:, None, :] - prototypes[None, :, :]) ** 2).sum(axis=2)
+    dist2 = np.zeros((lab.shape[0], N_TERMS))
+    for axis in range(3):  # per Lab axis: avoids a slow reduction over a length-3 inner axis
+        dist2 += (lab[:, axis, None] - prototypes[None, :, axis]) ** 2
     logits = -dist2 / (2.0 * sigma * sigma)
     logits -= logits.max(axis=1, keepdims=True)  # stable softmax
     prob = np.exp(logits)

@@ -13,6 +13,12 @@ Outside the image the border pixels are replicated. This is folded into the resa
 clamping source indices, so only the in-image part of the region is read and no padded copy is
 allocated, however far outside the image or however large the region is.
 The result is rounded to the nearest integer (half up) and returned as uint8, like cv2.resize on uint8 input.
+On whole-pixel regions inside the image this equals cv2.resize (INTER_AREA / INTER_LINEAR) up to
+rounding and OpenCV's 1/32-pixel fixed-point interpolation weights.
+
+Implementation: the compiled kernel (jsar/features/_kernels.c) does the work for `sample_patch`,
+`sample_patches` and `resample_regions`; `axis_weights` + `resample_regions_reference` are the
+numpy specification it is tested against.
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ P = MonitorParams()  # zeta_e 0.01, zeta_s 0.013, eta_d 0.02, omega 5
 
 
 def test_threshold_crossings_decide_commit_reliable_and_redetect():
-    monitor = FailureMonitor(P)
+    monitor = FailureMonitor(MonitorParams(relative_drop=0.0))  # the paper's absolute rule alone
     high = monitor.assess(0.02, BOX, IMAGE, 40)
     assert not high.redetect and high.reliable
     middle = monitor.assess(0.012, BOX, IMAGE, 41)  # confident but not reliable
@@ -19,6 +19,21 @@ def test_threshold_crossings_decide_commit_reliable_and_redetect():
     at_threshold = monitor.assess(P.enable_peak, BOX, IMAGE, 42)  # not strictly above zeta_e
     assert at_threshold.redetect and not at_threshold.reliable
     assert (at_threshold.omega, at_threshold.eta_d) == (P.omega, P.accept_peak)
+
+
+def test_relative_drop_against_the_running_reference_of_reliable_peaks():
+    monitor = FailureMonitor(P)  # relative_drop 0.6, reference_rate 0.1
+    first = monitor.assess(0.02, BOX, IMAGE, 31)
+    assert first.reference is None and first.reliable
+    unreliable = monitor.assess(0.0125, BOX, IMAGE, 32)  # > zeta_e and > 0.6 * 0.02, < zeta_s
+    assert not unreliable.redetect and not unreliable.reliable and unreliable.reference == pytest.approx(0.02)
+    assert monitor.assess(0.03, BOX, IMAGE, 33).reference == pytest.approx(0.02)  # unreliable: no update
+    # 0.0125 is above zeta_e but now below 0.6 * 0.021: the target was replaced by something else
+    dropped = monitor.assess(0.0125, BOX, IMAGE, 34)
+    assert dropped.redetect and dropped.reference == pytest.approx(0.021)
+    monitor.redetection_result(accepted=True)
+    # after a re-initialisation the reference restarts from the new filter's peaks
+    assert monitor.assess(0.015, BOX, IMAGE, 35).reference is None
 
 
 def test_omega_grows_and_eta_decays_per_failed_frame_then_reset_after_recovery():

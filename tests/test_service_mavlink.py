@@ -39,6 +39,9 @@ class Rig:
         self.config = service_config(service_port, overrides)
         self.running = RunningService(Service(self.config)).start()
         self.service: Service = self.running.service  # type: ignore[assignment]
+        # like a real ground station: command the camera only after its heartbeat came through the autopilot
+        # (until the service has sent something, the autopilot does not know where to forward to)
+        assert self.wait_service_heartbeats(1, 10.0), "no heartbeat from the camera component"
 
     def close(self) -> None:
         self.running.stop()
@@ -69,8 +72,9 @@ def test_identity_heartbeat_and_camera_information(rig: Rig) -> None:
     assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)  # learned
     rig.gcs.command_long(REQUEST, [259, 0, 0, 0, 0, 0, 0], target=CAM)
     assert rig.gcs.wait_ack(REQUEST, 0).result == ACCEPTED
-    assert rig.gcs.received.wait_for(lambda: len(rig.gcs.received.of("CAMERA_INFORMATION")) > 0, 5.0)
-    info = rig.gcs.received.of("CAMERA_INFORMATION")[-1].msg
+    assert rig.gcs.received.wait_for(lambda: any(r.msg.get_srcSystem() == AP_SYSID
+                                                 for r in rig.gcs.received.of("CAMERA_INFORMATION")), 5.0)
+    info = [r.msg for r in rig.gcs.received.of("CAMERA_INFORMATION") if r.msg.get_srcSystem() == AP_SYSID][-1]
     assert info.get_srcSystem() == AP_SYSID and info.get_srcComponent() == 100
     assert (info.resolution_h, info.resolution_v) == (160, 120)
     assert info.flags & 512 and info.flags & 1024  # tracking point and rectangle

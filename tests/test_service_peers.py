@@ -8,6 +8,7 @@ GroundStation: a pymavlink ground-station peer (udpout to the autopilot's ground
 from __future__ import annotations
 
 import os
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -53,8 +54,42 @@ class Recorder:
             return self._cond.wait_for(predicate, timeout=timeout_s)
 
 
-def _bound_udpin(port: int, system: int, component: int):
-    return mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=system, source_component=component)
+class UdpLink:
+    """A UDP port bound on loopback that answers every address it has heard from (like udpin)."""
+
+    def __init__(self, port: int, system: int, component: int) -> None:
+        from pymavlink.dialects.v20 import common as dialect
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.1)
+        self.mav = dialect.MAVLink(self, srcSystem=system, srcComponent=component)
+        self.parser = dialect.MAVLink(None)
+        self.parser.robust_parsing = True
+        self._clients: set[tuple[str, int]] = set()
+        self._lock = threading.Lock()
+
+    def write(self, data: bytes) -> None:
+        with self._lock:
+            clients = list(self._clients)
+        for address in clients:
+            self.sock.sendto(data, address)
+
+    def receive(self) -> list[object]:
+        """Messages in the next datagram (empty on timeout or garbage)."""
+        try:
+            data, address = self.sock.recvfrom(65536)
+        except socket.timeout:
+            return []
+        with self._lock:
+            self._clients.add(address)
+        try:
+            return [m for m in (self.parser.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
+        except Exception:  # noqa: BLE001 - garbage on the wire is not the peer's problem
+            return []
+
+    def close(self) -> None:
+        self.sock.close()
 
 
 class AutopilotPeer:
@@ -68,7 +103,7 @@ class AutopilotPeer:
         self.custom_mode = custom_mode
         self.heartbeats_on = True
         self.extra_periodic: list[Callable[[object], object]] = []  # msg builders sent with each heartbeat
-        self.links = {"service": _bound_udpin(service_port, system_id, 1), "gcs": _bound_udpin(gcs_port, system_id, 1)}
+        self.links = {"service": UdpLink(service_port, system_id, 1), "gcs": UdpLink(gcs_port, system_id, 1)}
         self.from_service = Recorder()
         self._stop = threading.Event()
         self._period = 1.0 / heartbeat_hz
@@ -105,16 +140,13 @@ class AutopilotPeer:
         conn = self.links[name]
         other = self.links["gcs" if name == "service" else "service"]
         while not self._stop.is_set():
-            msg = conn.recv_match(blocking=True, timeout=0.1)
-            if msg is None or msg.get_type() == "BAD_DATA":
-                continue
-            if name == "service":
-                self.from_service.add(msg)
-            target = (getattr(msg, "target_system", 0), getattr(msg, "target_component", 0))
-            if target == (self.system_id, 1):
-                continue  # addressed to the autopilot only
-            with self._lock:
-                other.write(msg.get_msgbuf())  # udpin: sent to the peers heard on that link
+            for msg in conn.receive():
+                if name == "service":
+                    self.from_service.add(msg)
+                target = (getattr(msg, "target_system", 0), getattr(msg, "target_component", 0))
+                if target == (self.system_id, 1):
+                    continue  # addressed to the autopilot only
+                other.write(msg.get_msgbuf())  # as received, signature included
 
 
 class GroundStation:

@@ -43,6 +43,7 @@ class MavlinkLink:
         self._lock = threading.Lock()
         self.send_errors = 0
         self.sent = 0
+        self.bad_packets = 0  # undecodable, or rejected by signing
         try:
             self._conn = mavutil.mavlink_connection(
                 config.url, baud=config.baud, source_system=source_system,
@@ -86,7 +87,11 @@ class MavlinkLink:
             log.warning("event=recv_failed error=%s", exc)
             time.sleep(min(timeout_s, 0.1))  # an OS error repeats at once; do not spin the CPU
             return None
-        if msg is None or msg.get_type() == "BAD_DATA":
+        if msg is None:
+            return None
+        if msg.get_type() == "BAD_DATA":
+            self.bad_packets += 1
+            log.debug("event=bad_packet reason=%s", str(getattr(msg, "reason", "")).replace(" ", "_"))
             return None
         return msg
 

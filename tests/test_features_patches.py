@@ -119,3 +119,19 @@ def test_compiled_kernel_matches_numpy_reference(frame, channels):
 def test_bad_input_raises_value_error(args):
     with pytest.raises(ValueError):
         sample_patch(*args)
+
+
+def test_compiled_kernels_reject_undersized_buffers_instead_of_reading_past_them():
+    from jsar.features._native import kernels
+
+    image = np.zeros((10, 10), np.uint8)
+    sizes = np.array([[4.0, 4.0]])
+    with pytest.raises(ValueError):  # image buffer smaller than the H x W x C it is said to be
+        kernels.resample(image, 20, 10, 1, 5.0, 5.0, sizes, 1, 4, 4, np.empty((1, 4, 4), np.uint8), True)
+    with pytest.raises(ValueError):  # output too small
+        kernels.resample(image, 10, 10, 1, 5.0, 5.0, sizes, 1, 4, 4, np.empty((1, 4, 3), np.uint8), True)
+    with pytest.raises(ValueError):
+        kernels.fhog(image, 1, 10, 10, 1, True, 4, np.empty((1, 2, 2, 30), np.float32))
+    with pytest.raises(ValueError):
+        kernels.colour_cells(image, 10, 10, np.zeros((32768, 10), np.float32), 10, 4,
+                             np.empty((2, 2, 10), np.float32))  # a grey image is not H x W x 3

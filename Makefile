@@ -11,7 +11,8 @@ export MAVLINK20 := 1
 
 .PHONY: run test bench clean
 
-$(STAMP): pyproject.toml
+# The compiled feature kernels are rebuilt when their source changes.
+$(STAMP): pyproject.toml jsar/features/_kernels.c
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'

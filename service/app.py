@@ -6,6 +6,8 @@ import threading
 import time
 from typing import Any
 
+import cv2
+
 import jsar
 from service.config import ServiceConfig, as_plain
 from service.loop import FrameReport, TrackingLoop
@@ -27,6 +29,7 @@ class Service:
         self.config = config
         self.started_s = time.monotonic()
         tracker_cfg = config.tracker
+        cv2.setNumThreads(tracker_cfg.threads)
         jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
         self._session = open_session(config.zenoh) if config.zenoh.enabled else None
         try:

@@ -1,0 +1,229 @@
+"""End-to-end benchmark of the daemon: latency from frame read to gimbal command, and CPU use.
+
+    python -m service.bench [--sequence UAVDT_S1301] [--trackers jsar-re,csrt] [--seconds 15]
+
+A real shared sequence (JSAR_DATA_ROOT) is resized to 640x480 and written as an MJPG video at 30 fps
+(under out/bench/, git-ignored). For each tracker the daemon runs as a subprocess on that file
+(paced at 30 fps like a camera, one OpenCV / BLAS thread), talking MAVLink to a benchmark peer that
+plays the autopilot (heartbeats, records GIMBAL_MANAGER_SET_PITCHYAW) and selects the target with
+TRACK_RECTANGLE at the ground-truth box. Latency comes from the daemon's per-frame telemetry on
+Zenoh (`latency_ms.total`: frame read by the capture thread -> gimbal command handed to the
+socket). CPU use is the daemon's user+system CPU time over the tracking window divided by its wall
+time (1.0 = one core busy). OpenCV's CSRT runs in the same session as the reference.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink.dialects.v20 import common as dialect  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+WIDTH, HEIGHT, FPS = 640, 480, 30.0
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MAVLINK20": "1"}
+
+
+def free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def prepare_video(sequence: Path, out: Path, max_frames: int) -> tuple[Path, np.ndarray]:
+    """Write the sequence at 640x480 as MJPG at 30 fps; returns (video path, ground truth scaled, 0-based)."""
+    images = sorted((sequence / "img").glob("*.jpg"))[:max_frames]
+    if not images:
+        raise SystemExit(f"no frames in {sequence / 'img'}")
+    rows = [[float(v) for v in line.replace("\t", ",").split(",")]
+            for line in (sequence / "groundtruth_rect.txt").read_text().splitlines() if line.strip()]
+    gt = np.array(rows[:len(images)], dtype=float)
+    first = cv2.imread(str(images[0]))
+    sx, sy = WIDTH / first.shape[1], HEIGHT / first.shape[0]
+    gt[:, 0] = (gt[:, 0] - 1) * sx
+    gt[:, 1] = (gt[:, 1] - 1) * sy
+    gt[:, 2] *= sx
+    gt[:, 3] *= sy
+    out.mkdir(parents=True, exist_ok=True)
+    video = out / f"{sequence.name}_640x480.avi"
+    if not video.exists():
+        writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), FPS, (WIDTH, HEIGHT))
+        for path in images:
+            writer.write(cv2.resize(cv2.imread(str(path)), (WIDTH, HEIGHT), interpolation=cv2.INTER_AREA))
+        writer.release()
+    return video, gt
+
+
+class AutopilotStub:
+    """UDP peer at the service's mavlink port: heartbeats as ArduCopter system 1, records gimbal rates."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.1)
+        self.mav = dialect.MAVLink(self, srcSystem=1, srcComponent=1)
+        self.gcs = dialect.MAVLink(self, srcSystem=255, srcComponent=190)  # the operator's commands
+        self.parser = dialect.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.peer: tuple[str, int] | None = None
+        self.gimbal_commands = 0
+        self.acks: list[int] = []
+        self.heard = threading.Event()
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._rx, daemon=True), threading.Thread(target=self._beat, daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def write(self, data: bytes) -> None:
+        if self.peer is not None:
+            self.sock.sendto(data, self.peer)
+
+    def _rx(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data, self.peer = self.sock.recvfrom(65536)
+            except socket.timeout:
+                continue
+            for msg in self.parser.parse_buffer(data) or []:
+                kind = msg.get_type()
+                if kind == "HEARTBEAT" and msg.get_srcComponent() == 100:
+                    self.heard.set()
+                elif kind == "GIMBAL_MANAGER_SET_PITCHYAW":
+                    self.gimbal_commands += 1
+                elif kind == "COMMAND_ACK":
+                    self.acks.append(msg.result)
+
+    def _beat(self) -> None:
+        while not self._stop.wait(0.5):
+            self.mav.send(self.mav.heartbeat_encode(2, 3, 1, 4, 4))
+
+    def track(self, box: np.ndarray) -> None:
+        x, y, w, h = box
+        self.gcs.send(self.gcs.command_long_encode(1, 100, 2005, 0, x / WIDTH, y / HEIGHT, (x + w) / WIDTH,
+                                                   (y + h) / HEIGHT, 0, 0, 0))
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(1.0)
+        self.sock.close()
+
+
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of a process from /proc (seconds)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path) -> dict:
+    """Run the daemon with `tracker` on the video; returns the measured numbers."""
+    import zenoh
+
+    mav_port, zenoh_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
+    config = yaml.safe_load((REPO / "config.yaml").read_text())
+    config["tracker"].update({"name": tracker, "threads": 1})
+    config["source"].update({"kind": "file", "path": str(video), "realtime": True, "loop": False})
+    config["mavlink"]["url"] = f"udpout:127.0.0.1:{mav_port}"
+    config["zenoh"].update({"enabled": True, "listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "bench"})
+    config["logging"]["level"] = "WARNING"
+    config_file = out / f"config_{tracker}.yaml"
+    config_file.write_text(yaml.safe_dump(config))
+    autopilot = AutopilotStub(mav_port)
+    proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file)], cwd=REPO,
+                            env={**os.environ, **ONE_THREAD_ENV}, stderr=subprocess.PIPE, text=True)
+    zc = zenoh.Config()
+    zc.insert_json5("mode", '"peer"')
+    zc.insert_json5("scouting/multicast/enabled", "false")
+    zc.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{zenoh_port}"]))
+    reports: list[dict] = []
+    lock = threading.Condition()
+
+    def on_sample(sample: object) -> None:
+        with lock:
+            reports.append(json.loads(sample.payload.to_string()))  # type: ignore[attr-defined]
+            lock.notify_all()
+
+    session = None
+    try:
+        if not autopilot.heard.wait(60.0):
+            raise SystemExit(f"{tracker}: no heartbeat from the daemon: {proc.stderr.read() if proc.poll() else ''}")
+        session = zenoh.open(zc)
+        subscriber = session.declare_subscriber("bench/track", on_sample)
+        with lock:
+            if not lock.wait_for(lambda: len(reports) > 0, 30.0):
+                raise SystemExit(f"{tracker}: no telemetry from the daemon")
+            current = reports[-1]["frame_id"]
+        autopilot.track(gt[min(current + 1, len(gt) - 1)])
+        with lock:
+            lock.wait_for(lambda: any(r["state"] != "idle" for r in reports), 30.0)
+        start_wall, start_cpu = time.monotonic(), cpu_seconds(proc.pid)
+        start_index = len(reports)
+        with lock:
+            lock.wait_for(lambda: proc.poll() is not None or (reports and reports[-1]["frame_id"] >= len(gt) - 2)
+                          or time.monotonic() - start_wall > seconds, seconds + 5)
+        wall, cpu = time.monotonic() - start_wall, cpu_seconds(proc.pid) - start_cpu
+        subscriber.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(10)
+        autopilot.close()
+    window = [r for r in reports[start_index:] if r["state"] != "idle"]
+    if not window:
+        raise SystemExit(f"{tracker}: nothing tracked")
+    total = np.array([r["latency_ms"]["total"] for r in window])
+    track = np.array([r["latency_ms"]["track"] for r in window])
+    frames_seen = window[-1]["frame_id"] - window[0]["frame_id"] + 1
+    centre_err = [np.hypot(r["box_px"][0] + r["box_px"][2] / 2 - g[0] - g[2] / 2,
+                           r["box_px"][1] + r["box_px"][3] / 2 - g[1] - g[3] / 2)
+                  for r in window for g in [gt[r["frame_id"]]] if np.all(np.isfinite(g))]
+    return {"tracker": tracker, "frames_processed": len(window), "frames_offered": frames_seen,
+            "processed_fps": len(window) / wall, "latency_p50_ms": float(np.percentile(total, 50)),
+            "latency_p99_ms": float(np.percentile(total, 99)), "track_p50_ms": float(np.percentile(track, 50)),
+            "cpu_cores": cpu / wall, "dropped_frames": window[-1]["dropped_frames"] - window[0]["dropped_frames"],
+            "gimbal_commands": autopilot.gimbal_commands,
+            "centre_error_median_px": float(np.median(centre_err)) if centre_err else float("nan")}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m service.bench", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sequence", default="UAVDT_S1301", help="folder under JSAR_DATA_ROOT")
+    parser.add_argument("--trackers", default="jsar-re,csrt", help="comma-separated tracker names")
+    parser.add_argument("--seconds", type=float, default=15.0, help="tracking window per tracker")
+    parser.add_argument("--out", default=str(REPO / "out" / "bench"))
+    args = parser.parse_args(argv)
+    root = os.environ.get("JSAR_DATA_ROOT")
+    if not root:
+        print("JSAR_DATA_ROOT is not set: the benchmark plays a real shared sequence", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    video, gt = prepare_video(Path(root) / args.sequence, out, max_frames=int(FPS * (args.seconds + 5)))
+    results = [run_one(name, video, gt, args.seconds, out) for name in args.trackers.split(",")]
+    print(f"640x480 @ {FPS:.0f} fps, {args.sequence}, one thread; latency = frame read -> gimbal command")
+    print(f"{'tracker':<9} {'frames':>7} {'fps':>6} {'p50 ms':>8} {'p99 ms':>8} {'track p50':>9} "
+          f"{'CPU':>6} {'dropped':>8} {'centre err px':>13}")
+    for r in results:
+        print(f"{r['tracker']:<9} {r['frames_processed']:>7} {r['processed_fps']:>6.1f} {r['latency_p50_ms']:>8.1f} "
+              f"{r['latency_p99_ms']:>8.1f} {r['track_p50_ms']:>9.1f} {r['cpu_cores']:>6.2f} {r['dropped_frames']:>8} "
+              f"{r['centre_error_median_px']:>13.1f}")
+    (out / "results.json").write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

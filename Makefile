@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml jsar/features/_kernels.c
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(PY) -m jsar.demo
+	$(PY) -m sim.demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q

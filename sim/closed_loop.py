@@ -53,6 +53,7 @@ class ClosedLoopConfig:
     link_drops: tuple[tuple[float, float], ...] = ()  # (start_s, duration_s) on the service link
     operator_modes: tuple[tuple[float, str], ...] = ()  # (time_s, mode): the pilot switches mode
     start_mode: str = ""  # "" = GUIDED / OFFBOARD
+    altitude_m: float = 30.0  # vehicle height above the ground plane
     daemon_overrides: dict = field(default_factory=dict)
     telemetry_timeout_s: float = 15.0
     startup_timeout_s: float = 60.0
@@ -192,7 +193,8 @@ class ClosedLoop:
         self.service_port, self.gcs_port = free_port(2), free_port(2)  # SOCK_DGRAM
         self.zenoh_port = free_port(1)  # SOCK_STREAM
         self.scene = Scene(cfg.scene, cfg.camera)
-        self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode),
+        self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
+                                                     start_altitude_m=cfg.altitude_m),
                                        self.service_port, self.gcs_port)
         self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",)))
         self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),

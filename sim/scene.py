@@ -25,7 +25,7 @@ class CameraConfig:
 
     width: int = 640
     height: int = 480
-    hfov_deg: float = 60.0
+    hfov_deg: float = 50.0
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
@@ -55,7 +55,7 @@ class SceneConfig:
     target_length_m: float = 5.0
     target_width_m: float = 2.2
     target_speed_m_s: float = 5.0
-    target_start_north_m: float = 40.0  # ahead of a vehicle at home looking north at -45 degrees
+    target_start_north_m: float = 30.0  # ahead of a vehicle 30 m up at home, looking north at -45 degrees
     target_start_east_m: float = 0.0
     target_start_heading_deg: float = 30.0
     straight_s: tuple[float, float] = (4.0, 9.0)  # duration range of straight segments
@@ -63,9 +63,10 @@ class SceneConfig:
     turn_rate_deg_s: tuple[float, float] = (12.0, 30.0)  # |heading rate| range of turns
     occlusion_times_s: tuple[float, ...] = (8.0,)  # the car is under an occluder's centre at these times
     occlusion_period_s: float = 25.0  # then one every period after the last listed time (0: none)
-    canopy_radius_m: float = 3.8
+    canopy_radius_m: float = 3.2
     bridge_width_m: float = 6.0  # along the road
     path_step_s: float = 0.02
+    car_colour_bgr: tuple[int, int, int] | None = (40, 40, 200)  # None: drawn from the seed
 
     def __post_init__(self) -> None:
         if self.texture not in ("auto", "data", "procedural"):
@@ -317,7 +318,8 @@ def ground_from_frames(frames: list[Path], size: int, seed: int, tiles: int = 8)
             if frame is None:
                 raise ValueError("unreadable frame while building the ground texture")
             h, w = frame.shape[:2]
-            side = int(min(h, w) * rng.uniform(0.5, 0.9))
+            # 1-2 source pixels per texel: aerial frames have a few cm per pixel, texels are 10 cm.
+            side = min(int(cell * rng.uniform(1.0, 2.0)), h, w)
             y0, x0 = int(rng.integers(0, h - side + 1)), int(rng.integers(0, w - side + 1))
             patch = cv2.resize(frame[y0:y0 + side, x0:x0 + side], (cell, cell), interpolation=cv2.INTER_AREA)
             image[row * cell:(row + 1) * cell, col * cell:(col + 1) * cell] = patch
@@ -332,10 +334,13 @@ def ground_from_frames(frames: list[Path], size: int, seed: int, tiles: int = 8)
     return (image * (1.0 - seam) + blurred * seam).astype(np.uint8)
 
 
-def car_texture(seed: int, length_px: int = 100, width_px: int = 44) -> np.ndarray:
-    """Top view of a car (BGR uint8, x = forward): coloured body, dark windows, light roof."""
+def car_texture(seed: int, colour_bgr: tuple[int, int, int] | None = None, length_px: int = 100,
+                width_px: int = 44) -> np.ndarray:
+    """Top view of a car (BGR uint8, x = forward): coloured body (given, or drawn from the seed), dark
+    windows, light roof."""
     rng = np.random.default_rng(seed + 1)
-    body = np.array(rng.choice([[40, 40, 200], [200, 200, 210], [30, 160, 230], [180, 60, 40]]), np.uint8)
+    palette = [[40, 40, 200], [200, 200, 210], [30, 160, 230], [180, 60, 40]]
+    body = np.array(colour_bgr if colour_bgr is not None else palette[int(rng.integers(0, len(palette)))], np.uint8)
     tex = np.empty((width_px, length_px, 3), np.uint8)
     tex[:] = body
     # Windscreen (front), rear window, roof panel: give the car inner structure to correlate on.
@@ -427,7 +432,7 @@ class Scene:
             self.texture_source = "given"
         self.ground = ground
         self.path = TargetPath(config)
-        self.car = car_texture(config.seed)
+        self.car = car_texture(config.seed, config.car_colour_bgr)
         self.canopy = canopy_texture(config.seed)
         self.bridge = bridge_texture()
         self._occluders: list[Occluder] = []

@@ -283,3 +283,84 @@ def test_quaternion_to_euler_round_trip() -> None:
 
 def test_zero_velocity_constant() -> None:
     assert (ZERO_VELOCITY.forward, ZERO_VELOCITY.right, ZERO_VELOCITY.down, ZERO_VELOCITY.yaw_rate) == (0, 0, 0, 0)
+
+
+# --- follow_target, geo status, point proposal -------------------------------------------------------
+def test_follow_target_sends_the_ground_estimate_only_while_tracking() -> None:
+    from service.control.geo import GroundTarget
+    ground = GroundTarget(lat_deg=47.1, lon_deg=8.2, alt_amsl_m=500.0, ground_range_m=20.0, bearing_rad=0.3)
+    outputs, link = _outputs({"guidance": {"mode": "follow_target", "rate_hz": 10.0}}, AutopilotView(system_id=1))
+    outputs.apply(1.0, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground))
+    outputs.apply(1.05, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground))  # throttled
+    outputs.apply(1.2, ControlCommand("lost", False, (0.0, 0.0), None, None))
+    outputs.apply(1.3, ControlCommand("tracking", False, (0.0, 0.0), 0.1, None))  # no ground estimate
+    follows = [m for m in link.sent if m.get_type() == "FOLLOW_TARGET"]
+    assert len(follows) == 1
+    assert (follows[0].lat, follows[0].lon, follows[0].est_capabilities) == (471000000, 82000000, 1)
+    assert follows[0].alt == pytest.approx(500.0)
+    assert "SET_POSITION_TARGET_LOCAL_NED" not in link.types()
+
+
+def test_geo_status_message_carries_the_estimate() -> None:
+    from service.control.geo import GroundTarget
+    from service.mavlink.messages import tracking_geo_status
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=100)
+    msg = tracking_geo_status(mav, 1, GroundTarget(47.0, 8.0, 500.0, 30.0, 0.0), 540.0)
+    assert (msg.lat, msg.lon, msg.tracking_status) == (470000000, 80000000, 1)
+    assert msg.dist == pytest.approx(50.0)  # 30 m on the ground, 40 m below
+    unknown = tracking_geo_status(mav, 0, None, None)
+    assert (unknown.lat, unknown.lon) == (0, 0) and math.isnan(unknown.alt)
+
+
+def test_loop_places_the_target_on_the_ground_from_vehicle_and_gimbal_attitude() -> None:
+    import numpy as np
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "csrt"}, "camera": {"hfov_deg": 90.0}})
+    # vehicle 30 m above home facing north, gimbal pitched 45 degrees down
+    view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
+                         gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))
+
+    class Still:
+        def init(self, image, box):
+            self.box = box
+
+        def update(self, image):
+            from jsar.api import TrackResult
+            return TrackResult(self.box, 1.0, "tracking")
+
+    commands: list[ControlCommand] = []
+    selections: LatestSlot = LatestSlot()
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            commands.append(command)
+
+    loop = TrackingLoop(config, selections, Still, Record(), lambda: view)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))  # centred target
+    image = np.zeros((100, 100, 3), np.uint8)
+    loop.step(Frame(image, 0, 0.0, 0.0))
+    loop.step(Frame(image, 1, 0.0, 0.033))
+    ground = commands[-1].ground
+    assert ground is not None and ground.ground_range_m == pytest.approx(30.0, rel=1e-6)  # 45 deg down from 30 m
+    assert ground.lat_deg > 47.0 and ground.lon_deg == pytest.approx(8.0)  # north, the vehicle faces north
+    assert commands[-1].bearing == pytest.approx(0.0)
+
+
+def test_point_proposal_snaps_to_the_object_under_the_click() -> None:
+    import cv2
+    import numpy as np
+    from service.config import CameraConfig
+    from service.selection import proposal_box
+
+    image = np.full((240, 320, 3), 60, np.uint8)
+    image += np.random.default_rng(1).integers(0, 10, image.shape, dtype=np.uint8)
+    cv2.rectangle(image, (150, 100), (210, 130), (230, 200, 40), -1)  # a 61x31 object
+    click = c.TrackPoint(180 / 320, 115 / 240, 0.03)
+    square = point_box(click, (320, 240), CameraConfig())
+    box = proposal_box(image, click, square)
+    assert box is not None
+    x, y, w, h = box
+    assert x <= 180 <= x + w and y <= 115 <= y + h
+    assert abs(w - 61) < abs(square[2] - 61)  # closer to the object's width than the plain square

@@ -222,3 +222,19 @@ def test_status_query_reports_counters(rig: Rig) -> None:
     assert status["status"] == "ok" and status["source"]["frames"] >= 3
     assert status["config"]["mavlink"]["component_id"] == 100
     assert math.isfinite(status["uptime_s"])
+
+
+def test_follow_target_mode_streams_geo_status_and_announces_it(frames_dir: Path) -> None:
+    rig = Rig({"source": {"path": str(frames_dir), "loop": True},
+               "guidance": {"mode": "follow_target", "rate_hz": 20.0}})
+    try:
+        geo = lambda: rig.gcs.received.of("CAMERA_TRACKING_GEO_STATUS")  # noqa: E731
+        assert rig.gcs.received.wait_for(lambda: len(geo()) >= 3, 5.0)
+        assert geo()[-1].msg.tracking_status == 0  # idle: no estimate yet
+        rig.gcs.command_long(REQUEST, [259, 0, 0, 0, 0, 0, 0], target=CAM)
+        assert rig.gcs.received.wait_for(lambda: any(r.msg.get_srcSystem() == AP_SYSID
+                                                     for r in rig.gcs.received.of("CAMERA_INFORMATION")), 5.0)
+        info = [r.msg for r in rig.gcs.received.of("CAMERA_INFORMATION") if r.msg.get_srcSystem() == AP_SYSID][-1]
+        assert info.flags & 2048  # HAS_TRACKING_GEO_STATUS
+    finally:
+        rig.close()

@@ -54,8 +54,10 @@ class CameraComponent:
         self._lock = threading.Lock()
         self._view = AutopilotView()
         self._snapshot = TrackSnapshot()
+        # 275 is off until a ground station asks; 276 streams at the guidance rate in follow_target mode
+        geo = 1.0 / config.guidance.rate_hz if config.guidance.mode == "follow_target" else None
         self._intervals: dict[int, float | None] = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: None,
-                                                    MSG_ID_CAMERA_TRACKING_GEO_STATUS: None}
+                                                    MSG_ID_CAMERA_TRACKING_GEO_STATUS: geo}
         self._info_requested = threading.Event()
         self._started = time.monotonic()
         self._stop = threading.Event()

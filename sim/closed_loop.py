@@ -357,6 +357,7 @@ class ClosedLoop:
                 self._print_status(k, frames, start_wall, records or [p[1] for p in pending[-1:]])
             if not self.daemon.alive():
                 break
+        wall = time.monotonic() - start_wall
         if cfg.pace == "realtime":
             self.camera.telemetry.wait_frame(self.frame_id, 2.0)
             for frame_id, record, frame in pending:
@@ -370,7 +371,6 @@ class ClosedLoop:
             writer.release()
         if live:
             print(flush=True)
-        wall = time.monotonic() - start_wall
         status = self.camera.status(2.0) if self.daemon.alive() else None
         last = self.camera.telemetry.last or {}
         return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
@@ -388,9 +388,10 @@ class ClosedLoop:
 
     def _print_status(self, k: int, frames: int, start_wall: float, records: list[FrameRecord]) -> None:
         r = records[-1]
+        state = r.state or (self.camera.telemetry.last or {}).get("state") or "-"
         elapsed = time.monotonic() - start_wall
         cx, cy = r.truth.centre
         err = math.hypot(cx - self.cfg.camera.width / 2, cy - self.cfg.camera.height / 2) if r.truth.visible else math.nan
         print(f"\rframe {k + 1:5d}/{frames}  sim {r.time_s:6.1f} s  {(k + 1) / max(elapsed, 1e-9):5.1f} fps  "
-              f"state {r.state or '-':9s}  centring error {err:6.1f} px  mode {r.mode:8s}  "
+              f"state {state:9s}  centring error {err:6.1f} px  mode {r.mode:8s}  "
               f"dist {r.target_distance_m:5.1f} m ", end="", flush=True)

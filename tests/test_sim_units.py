@@ -1,0 +1,306 @@
+"""Sim harness pieces without the daemon: vehicle model, mock autopilot routing, scene, replay."""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+os.environ.setdefault("MAVLINK20", "1")
+
+import cv2
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from sim.autopilot import MockAutopilot
+from sim.replay import open_recording, read_groundtruth, replay
+from sim.scene import (CameraConfig, CameraPose, Scene, SceneConfig, ground_homography, procedural_ground,
+                       project_ground)
+from sim.vehicle_model import VehicleConfig, VehicleModel, custom_mode_of
+from tests.conftest import free_tcp_port, free_udp_port
+
+DT = 1.0 / 30.0
+BODY_VELOCITY_MASK = 0x05C7  # velocity + yaw rate, everything else ignored
+
+
+def step_for(model: VehicleModel, seconds: float) -> None:
+    for _ in range(int(round(seconds / DT))):
+        model.step(DT)
+
+
+# ----- vehicle model ----------------------------------------------------------------------------
+def test_custom_mode_encodings_match_each_firmware():
+    assert custom_mode_of("ardupilot", "GUIDED") == 4
+    assert custom_mode_of("px4", "OFFBOARD") == 6 << 16
+    assert custom_mode_of("px4", "HOLD") == (4 << 16) | (3 << 24)
+    with pytest.raises(ValueError, match="unknown PX4 mode"):
+        custom_mode_of("px4", "GUIDED")
+
+
+def test_velocity_setpoints_only_in_guidance_mode_and_in_body_frame():
+    model = VehicleModel(VehicleConfig(flavour="ardupilot", start_mode="LOITER"))
+    assert model.set_velocity(8, BODY_VELOCITY_MASK, 3.0, 0.0, 0.0, 0.0, 0.0).startswith("ignored")
+    step_for(model, 1.0)
+    assert math.hypot(model.state.v_north, model.state.v_east) == 0.0
+    model.operator_set_mode("GUIDED")
+    model.state.yaw = math.pi / 2  # facing east: body forward = east
+    assert model.set_velocity(8, BODY_VELOCITY_MASK, 3.0, 0.0, 0.0, 0.0, model.time_s) == "applied"
+    step_for(model, 1.5)
+    assert model.state.v_east == pytest.approx(3.0, abs=1e-6)
+    assert abs(model.state.v_north) < 1e-6
+
+
+def test_ardupilot_guided_stops_after_3_s_without_setpoint():
+    model = VehicleModel(VehicleConfig(flavour="ardupilot"))
+    model.set_velocity(1, BODY_VELOCITY_MASK, 4.0, 0.0, 0.0, 0.0, model.time_s)
+    step_for(model, 2.9)
+    assert model.state.v_north == pytest.approx(4.0)
+    step_for(model, 0.2 + 4.0 / model.config.max_accel_m_s2)
+    assert model.state.v_north == pytest.approx(0.0, abs=1e-9)
+    assert model.mode == "GUIDED"  # ArduPilot stays in GUIDED, it just stops
+    assert any("timeout" in e for _, e in model.events)
+
+
+def test_px4_offboard_fails_safe_and_refuses_reengage_without_stream():
+    model = VehicleModel(VehicleConfig(flavour="px4"))
+    model.set_velocity(1, BODY_VELOCITY_MASK, 4.0, 0.0, 0.0, 0.0, model.time_s)
+    step_for(model, 0.4)
+    assert model.mode == "OFFBOARD"
+    step_for(model, 0.2)
+    assert model.mode == "HOLD"
+    with pytest.raises(ValueError, match="setpoint stream"):
+        model.operator_set_mode("OFFBOARD")
+    for _ in range(40):  # a 30 Hz stream for 1.3 s (ignored in HOLD, but counted for the switch)
+        model.set_velocity(1, BODY_VELOCITY_MASK, 0.0, 0.0, 0.0, 0.0, model.time_s)
+        model.step(DT)
+    model.operator_set_mode("OFFBOARD")
+    assert model.mode == "OFFBOARD"
+
+
+def test_gimbal_rate_and_angle_limits():
+    model = VehicleModel(VehicleConfig(gimbal_max_rate_deg_s=100.0, gimbal_pitch_min_deg=-90.0))
+    model.set_gimbal_rates(math.radians(-500.0), math.radians(30.0))
+    model.step(0.1)
+    assert model.state.gimbal_pitch == pytest.approx(math.radians(-45.0 - 10.0))  # rate-limited to 100 deg/s
+    assert model.state.gimbal_yaw == pytest.approx(math.radians(3.0))
+    step_for(model, 2.0)
+    assert model.state.gimbal_pitch == pytest.approx(math.radians(-90.0))  # angle-limited
+    model.set_gimbal_angles(math.radians(-30.0), 0.0)
+    step_for(model, 1.0)
+    assert model.state.gimbal_pitch == pytest.approx(math.radians(-30.0))
+    assert model.state.gimbal_yaw == pytest.approx(0.0, abs=1e-9)
+
+
+def test_follow_target_per_firmware():
+    ardupilot = VehicleModel(VehicleConfig(flavour="ardupilot", start_mode="FOLLOW", system_id=1))
+    assert ardupilot.set_follow_target(50.0, 0.0, 1, 0.0).startswith("ignored")  # own system id
+    px4 = VehicleModel(VehicleConfig(flavour="px4", start_mode="FOLLOW_TARGET"))
+    assert px4.set_follow_target(50.0, 0.0, 1, 0.0) == "applied"
+    for _ in range(10):
+        px4.set_follow_target(50.0, 0.0, 1, px4.time_s)
+        step_for(px4, 1.0)
+    assert 50.0 - px4.state.north == pytest.approx(px4.config.follow_distance_m, abs=3.0)
+
+
+def test_bad_vehicle_config_is_rejected_with_the_key_name():
+    with pytest.raises(ValueError, match="flavour"):
+        VehicleConfig(flavour="inav")
+    with pytest.raises(ValueError, match="px4_offboard_loss_s"):
+        VehicleConfig(px4_offboard_loss_s=0.0)
+
+
+# ----- mock autopilot over UDP ------------------------------------------------------------------
+@pytest.fixture(params=["ardupilot", "px4"])
+def autopilot_with_peers(request):
+    service_port, gcs_port = free_udp_port(), free_udp_port()
+    ap = MockAutopilot(VehicleConfig(flavour=request.param), service_port, gcs_port).start()
+    service = mavutil.mavlink_connection(f"udpout:127.0.0.1:{service_port}", source_system=1, source_component=100)
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255, source_component=190)
+    # Each side announces itself so the mock knows where to send (like udpin).
+    service.mav.heartbeat_send(30, 8, 0, 0, 4)
+    gcs.mav.heartbeat_send(6, 8, 0, 0, 4)
+    assert ap.wait_for_heartbeat(100, 5.0) and ap.wait_for_heartbeat(190, 5.0, link="gcs")
+    yield ap, service, gcs
+    service.close()
+    gcs.close()
+    ap.close()
+
+
+def test_heartbeat_identity_and_routing(autopilot_with_peers):
+    ap, service, gcs = autopilot_with_peers
+    hb = service.recv_match(type="HEARTBEAT", blocking=True, timeout=5,
+                            condition="HEARTBEAT.get_srcComponent() == 1")
+    assert hb is not None and hb.custom_mode == ap.model.custom_mode
+    assert hb.autopilot == (3 if ap.flavour == "ardupilot" else 12)
+    # A ground-station command for the camera (component 100) is forwarded, not handled.
+    gcs.mav.command_long_send(1, 100, 2005, 0, 0.4, 0.4, 0.6, 0.6, 0, 0, 0)
+    forwarded = service.recv_match(type="COMMAND_LONG", blocking=True, timeout=5)
+    assert forwarded is not None and forwarded.command == 2005 and forwarded.get_srcSystem() == 255
+    assert not ap.commands("COMMAND_LONG")
+    # The camera's heartbeat reaches the ground station through the mock.
+    service.mav.heartbeat_send(30, 8, 0, 0, 4)
+    assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=5,
+                          condition="HEARTBEAT.get_srcComponent() == 100") is not None
+
+
+def test_gimbal_commands_per_firmware(autopilot_with_peers):
+    ap, service, _ = autopilot_with_peers
+    service.mav.gimbal_manager_set_pitchyaw_send(1, 1, 0, 0, math.nan, math.nan, 0.1, 0.2)
+    service.mav.gimbal_manager_set_attitude_send(1, 1, 0, 0, [math.nan] * 4, 0.0, -0.1, 0.3)
+    assert ap.wait_for(lambda: len(ap.record) >= 2, 5.0)
+    pitchyaw, attitude = ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")[0], ap.commands("GIMBAL_MANAGER_SET_ATTITUDE")[0]
+    if ap.flavour == "ardupilot":  # ArduPilot takes both, from anyone; the later one wins
+        assert pitchyaw.outcome == "applied: rates" and attitude.outcome == "applied: rates"
+    else:
+        assert pitchyaw.outcome.startswith("ignored")
+        assert attitude.outcome.startswith("ignored: (1, 100) is not the primary")
+        service.mav.command_long_send(1, 1, 1001, 0, 1, 100, -1, -1, 0, 0, 0)  # claim primary control
+        ack = service.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
+        assert ack is not None and ack.command == 1001 and ack.result == 0
+        status = service.recv_match(type="GIMBAL_MANAGER_STATUS", blocking=True, timeout=5)
+        assert (status.primary_control_sysid, status.primary_control_compid) == (1, 100)
+        service.mav.gimbal_manager_set_attitude_send(1, 1, 0, 0, [math.nan] * 4, 0.0, -0.1, 0.3)
+        assert ap.wait_for(lambda: len(ap.commands("GIMBAL_MANAGER_SET_ATTITUDE")) == 2, 5.0)
+        assert ap.commands("GIMBAL_MANAGER_SET_ATTITUDE")[-1].outcome == "applied: rates"
+    ap.step(0.5)
+    expected = (-0.1, 0.3)
+    assert ap.model.state.gimbal_pitch == pytest.approx(math.radians(-45) + 0.5 * expected[0], abs=1e-6)
+    assert ap.model.state.gimbal_yaw == pytest.approx(0.5 * expected[1], abs=1e-6)
+
+
+def test_link_drop_drops_both_ways_then_recovers(autopilot_with_peers):
+    ap, service, _ = autopilot_with_peers
+    ap.drop_link(5.0)
+    service.mav.set_position_target_local_ned_send(0, 1, 1, 8, BODY_VELOCITY_MASK, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0)
+    ap.send_state_now()
+    assert ap.wait_for(lambda: ap.links["service"].dropped_packets >= 2, 5.0)  # one in, one or more out
+    assert not ap.commands("SET_POSITION_TARGET_LOCAL_NED")
+    for _ in range(151):
+        ap.step(DT)
+    assert not ap.link_is_down("service")
+    service.mav.set_position_target_local_ned_send(0, 1, 1, 8, BODY_VELOCITY_MASK, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0)
+    assert ap.wait_for(lambda: len(ap.commands("SET_POSITION_TARGET_LOCAL_NED")) == 1, 5.0)
+    assert ap.commands("SET_POSITION_TARGET_LOCAL_NED")[0].outcome == "applied"
+
+
+# ----- scene ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def scene():
+    return Scene(SceneConfig(seed=3, texture="procedural", texture_size_px=512), CameraConfig())
+
+
+def look_at(target_n: float, target_e: float, altitude: float = 30.0, back: float = 30.0) -> CameraPose:
+    """A camera `back` metres south of the point, looking north at it."""
+    return CameraPose(target_n - back, target_e, altitude, 0.0, -math.atan2(altitude, back))
+
+
+def test_render_is_deterministic_and_the_target_projects_where_aimed(scene):
+    target = scene.path.pose(2.0)
+    pose = look_at(target.north, target.east)
+    frame_a, truth = scene.render(pose, 2.0)
+    other = Scene(SceneConfig(seed=3, texture="procedural", texture_size_px=512), CameraConfig())
+    frame_b, _ = other.render(pose, 2.0)
+    assert frame_a.shape == (480, 640, 3) and frame_a.dtype == np.uint8
+    assert np.array_equal(frame_a, frame_b)
+    cx, cy = truth.centre
+    assert abs(cx - 320) < 2 and abs(cy - 240) < 2
+    assert truth.visible
+    # The car is drawn there: its red body dominates the box.
+    x, y, w, h = (int(round(v)) for v in truth.box)
+    patch = frame_a[y:y + h, x:x + w].astype(int)
+    assert (patch[:, :, 2] - patch[:, :, 1]).mean() > 40
+
+
+def test_aspect_ratio_changes_as_the_car_turns(scene):
+    ratios = []
+    for t in np.arange(0.0, 30.0, 0.5):
+        target = scene.path.pose(float(t))
+        _, truth = scene.render(look_at(target.north, target.east), float(t))
+        ratios.append(truth.box[2] / truth.box[3])
+    assert max(ratios) / min(ratios) > 1.5
+
+
+def test_occluder_hides_the_car_and_it_leaves_a_fixed_view(scene):
+    t_occ = scene.config.occlusion_times_s[0]
+    target = scene.path.pose(t_occ)
+    _, under = scene.render(look_at(target.north, target.east), t_occ)
+    assert under.in_view_fraction > 0.99 and not under.visible
+    fixed = look_at(target.north, target.east)
+    _, later = scene.render(fixed, t_occ + 10.0)  # 50 m further: out of the fixed view
+    assert later.in_view_fraction == 0.0 and not later.visible
+
+
+def test_ground_homography_maps_the_look_at_point_to_the_centre():
+    camera = CameraConfig(width=320, height=240, hfov_deg=40.0)
+    pose = CameraPose(0.0, 0.0, 50.0, math.radians(30.0), math.radians(-90.0) + 1e-6)
+    pixels, in_front = project_ground(ground_homography(camera, pose), np.array([[0.0, 0.0]]))
+    assert in_front.all() and np.allclose(pixels[0], (160.0, 120.0), atol=1e-3)
+
+
+def test_procedural_texture_is_seeded():
+    assert np.array_equal(procedural_ground(256, 1), procedural_ground(256, 1))
+    assert not np.array_equal(procedural_ground(256, 1), procedural_ground(256, 2))
+
+
+def test_bad_scene_config_names_the_key():
+    with pytest.raises(ValueError, match="texture"):
+        SceneConfig(texture="photo")
+    with pytest.raises(ValueError, match="hfov_deg"):
+        CameraConfig(hfov_deg=0.0)
+
+
+# ----- replay -----------------------------------------------------------------------------------
+@pytest.fixture
+def tiny_sequence(tmp_path):
+    (tmp_path / "img").mkdir()
+    for i in range(6):
+        image = np.full((48, 64, 3), 20 * i, np.uint8)
+        cv2.imwrite(str(tmp_path / "img" / f"{i + 1:04d}.jpg"), image)
+    (tmp_path / "groundtruth_rect.txt").write_text("\n".join(["11,21,10,8"] * 5 + ["NaN,NaN,NaN,NaN"]) + "\n")
+    return tmp_path
+
+
+def test_groundtruth_is_converted_to_zero_based(tiny_sequence):
+    boxes = read_groundtruth(tiny_sequence / "groundtruth_rect.txt")
+    assert boxes[0] == (10.0, 20.0, 10.0, 8.0)
+    assert all(math.isnan(v) for v in boxes[5])
+    (tiny_sequence / "bad.txt").write_text("1,2,3\n")
+    with pytest.raises(ValueError, match="expected 4 values"):
+        read_groundtruth(tiny_sequence / "bad.txt")
+    with pytest.raises(ValueError, match="neither"):
+        open_recording(tiny_sequence / "missing")
+
+
+def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
+    """A stand-in daemon (a Zenoh peer) answers each frame; lockstep sends N+1 only after N's answer."""
+    import threading
+
+    import zenoh
+
+    from service.sources.zenoh_wire import decode_frame
+    from sim.zenoh_link import SimCamera, ZenohEndpoints
+
+    port = free_tcp_port()
+    in_flight = []
+    with SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{port}",))) as camera:
+        peer = zenoh.open(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{port}",)).to_zenoh())
+        track = peer.declare_publisher("jsar/track")
+        ready = threading.Event()
+
+        def on_frame(sample) -> None:
+            frame = decode_frame(sample.payload.to_bytes())
+            in_flight.append(frame.frame_id)
+            track.put(json.dumps({"frame_id": frame.frame_id, "state": "idle"}))
+        sub = peer.declare_subscriber("jsar/camera/frame", on_frame)
+        probe = peer.declare_subscriber("jsar/probe", lambda s: ready.set())
+        # Wait until the two sessions see each other (route established) before replaying.
+        while not ready.is_set():
+            camera.session.put("jsar/probe", b"1")
+            ready.wait(0.1)
+        stats = replay(open_recording(tiny_sequence), camera, pace="lockstep", ack_timeout_s=5.0)
+        sub.undeclare()
+        probe.undeclare()
+        track.undeclare()
+        peer.close()
+    assert stats.sent == 6 and stats.acknowledged == 6 and stats.timeouts == 0
+    assert in_flight == [1, 2, 3, 4, 5, 6]

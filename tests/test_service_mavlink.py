@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -238,3 +239,38 @@ def test_follow_target_mode_streams_geo_status_and_announces_it(frames_dir: Path
         assert info.flags & 2048  # HAS_TRACKING_GEO_STATUS
     finally:
         rig.close()
+
+
+def test_serial_link_to_the_autopilot(frames_dir: Path) -> None:
+    """mavlink.url as a serial device (a pseudo-terminal here): heartbeats go out, commands come in."""
+    import os
+    import select
+
+    from pymavlink.dialects.v20 import common as dialect
+
+    master, slave = os.openpty()
+    config = service_config(0, {"source": {"path": str(frames_dir), "loop": True},
+                                "mavlink": {"url": os.ttyname(slave), "baud": 115200, "system_id": 1}})
+    running = RunningService(Service(config)).start()
+    parser = dialect.MAVLink(None)
+    parser.robust_parsing = True
+    gcs = dialect.MAVLink(None, srcSystem=255, srcComponent=190)
+    seen: list[object] = []
+
+    def read_until(predicate, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.1)
+            if ready:
+                seen.extend(m for m in parser.parse_buffer(os.read(master, 4096)) or [] if m.get_type() != "BAD_DATA")
+                if predicate():
+                    return True
+        return False
+    try:
+        assert read_until(lambda: any(m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 100 for m in seen), 10.0)
+        os.write(master, gcs.command_long_encode(1, 100, REQUEST, 0, 259, 0, 0, 0, 0, 0, 0).pack(gcs))
+        assert read_until(lambda: any(m.get_type() == "COMMAND_ACK" and m.command == REQUEST for m in seen), 10.0)
+    finally:
+        running.stop()
+        os.close(master)
+        os.close(slave)

@@ -88,3 +88,12 @@ def test_grey_region_samples_exactly_like_the_full_grey_frame(center):
     via_crop = patches.sample_patches(crop, local_center, sizes, (24, 20))
     full = patches.sample_patches(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), center, sizes, (24, 20))
     np.testing.assert_array_equal(via_crop, full)
+
+
+def test_grid_spectrum_equals_rfft2_over_the_grid_axes():
+    import scipy.fft
+
+    sf = SizeFilter(JsarParams(), (40.0, 30.0))
+    sample = np.random.default_rng(1).standard_normal((13, 13, 50)).astype(np.float32)
+    expected = scipy.fft.rfft2(sample, axes=(0, 1))
+    np.testing.assert_allclose(sf.spectrum(sample), expected, atol=2e-4)

@@ -44,6 +44,12 @@ def grid_sizes(size_wh: tuple[float, float], params: JsarParams) -> np.ndarray:
     return np.stack([w, h], axis=-1)
 
 
+def dft_matrix(n: int) -> np.ndarray:
+    """(n, n) complex64 forward DFT matrix exp(-2 pi i j k / n) (unnormalised, as rfft/fft)."""
+    k = np.arange(n)
+    return np.exp(-2j * np.pi * np.outer(k, k) / n).astype(np.complex64)
+
+
 def grid_label(params: JsarParams) -> np.ndarray:
     """(S, A) float32 Gaussian over the grid, peak 1 at the centre cell, sigmas in grid cells."""
     ns = grid_exponents(params.num_scales)[:, None]
@@ -78,6 +84,8 @@ class SizeFilter:
         self.grid_shape = (params.num_scales, params.num_aspects)
         self.label_f = sfft.rfft2(grid_label(params), workers=1)  # (S, A//2+1)
         self.window = grid_window(params)
+        self._dft_aspect = dft_matrix(params.num_aspects)[: params.num_aspects // 2 + 1]
+        self._dft_scale = dft_matrix(params.num_scales)
         self.numerator: np.ndarray | None = None  # (S, A//2+1, D) complex64
         self.denominator: np.ndarray | None = None  # (S, A//2+1) float32
 
@@ -93,13 +101,19 @@ class SizeFilter:
         return (feats * self.window[:, :, None]).astype(np.float32, copy=False)
 
     def spectrum(self, sample: np.ndarray) -> np.ndarray:
-        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample over the grid axes."""
-        return sfft.rfft2(sample, axes=(0, 1), workers=1)
+        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample over the grid axes.
+
+        Same values as rfft2 over axes (0, 1), computed as two small DFT-matrix products: with
+        ~1000 channels of 13-point transforms the matrix products are ~2.5x faster than pocketfft.
+        """
+        half = np.matmul(self._dft_aspect, sample.astype(np.complex64))  # (S, A//2+1, D)
+        spec = self._dft_scale @ half.reshape(half.shape[0], -1)
+        return spec.reshape(half.shape)
 
     def train(self, sample_f: np.ndarray) -> None:
         """DSST update: first call sets the model, later calls interpolate with the learning rate."""
         num = np.conj(self.label_f)[:, :, None] * sample_f
-        den = np.einsum("sad,sad->sa", sample_f.conj(), sample_f).real.astype(np.float32)
+        den = (sample_f.real**2 + sample_f.imag**2).sum(axis=-1)
         if self.numerator is None:
             self.numerator, self.denominator = num, den
             return
@@ -111,7 +125,7 @@ class SizeFilter:
         """(S, A) float32 response over the grid; the peak cell is the size estimate."""
         if self.numerator is None or self.denominator is None:
             raise RuntimeError("SizeFilter.response called before train")
-        resp_f = np.einsum("sad,sad->sa", self.numerator.conj(), sample_f)
+        resp_f = (self.numerator.conj() * sample_f).sum(axis=-1)
         resp_f /= self.denominator + np.float32(self.params.size_lambda)
         return sfft.irfft2(resp_f, s=self.grid_shape, workers=1).astype(np.float32)
 

@@ -187,6 +187,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
         raise SystemExit(f"{tracker}: nothing tracked")
     total = np.array([r["latency_ms"]["total"] for r in window])
     track = np.array([r["latency_ms"]["track"] for r in window])
+    queue = np.array([r["latency_ms"]["queue"] for r in window])
     frames_seen = window[-1]["frame_id"] - window[0]["frame_id"] + 1
     centre_err = [np.hypot(r["box_px"][0] + r["box_px"][2] / 2 - g[0] - g[2] / 2,
                            r["box_px"][1] + r["box_px"][3] / 2 - g[1] - g[3] / 2)
@@ -194,6 +195,8 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
     return {"tracker": tracker, "frames_processed": len(window), "frames_offered": frames_seen,
             "processed_fps": len(window) / wall, "latency_p50_ms": float(np.percentile(total, 50)),
             "latency_p99_ms": float(np.percentile(total, 99)), "track_p50_ms": float(np.percentile(track, 50)),
+            "queue_p50_ms": float(np.percentile(queue, 50)),
+            "control_send_p50_ms": float(np.percentile(total - queue - track, 50)),
             "cpu_cores": cpu / wall, "dropped_frames": window[-1]["dropped_frames"] - window[0]["dropped_frames"],
             "gimbal_commands": autopilot.gimbal_commands,
             "centre_error_median_px": float(np.median(centre_err)) if centre_err else float("nan")}
@@ -215,12 +218,14 @@ def main(argv: list[str] | None = None) -> int:
     video, gt = prepare_video(Path(root) / args.sequence, out, max_frames=int(FPS * (args.seconds + 5)))
     results = [run_one(name, video, gt, args.seconds, out) for name in args.trackers.split(",")]
     print(f"640x480 @ {FPS:.0f} fps, {args.sequence}, one thread; latency = frame read -> gimbal command")
-    print(f"{'tracker':<9} {'frames':>7} {'fps':>6} {'p50 ms':>8} {'p99 ms':>8} {'track p50':>9} "
-          f"{'CPU':>6} {'dropped':>8} {'centre err px':>13}")
+    print("| tracker | frames | fps | latency p50 ms | latency p99 ms | wait p50 ms | track p50 ms "
+          "| control+send p50 ms | CPU (cores) | dropped | centre error px |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
-        print(f"{r['tracker']:<9} {r['frames_processed']:>7} {r['processed_fps']:>6.1f} {r['latency_p50_ms']:>8.1f} "
-              f"{r['latency_p99_ms']:>8.1f} {r['track_p50_ms']:>9.1f} {r['cpu_cores']:>6.2f} {r['dropped_frames']:>8} "
-              f"{r['centre_error_median_px']:>13.1f}")
+        print(f"| {r['tracker']} | {r['frames_processed']} | {r['processed_fps']:.1f} | {r['latency_p50_ms']:.1f} "
+              f"| {r['latency_p99_ms']:.1f} | {r['queue_p50_ms']:.1f} | {r['track_p50_ms']:.1f} "
+              f"| {r['control_send_p50_ms']:.2f} | {r['cpu_cores']:.2f} | {r['dropped_frames']} "
+              f"| {r['centre_error_median_px']:.1f} |")
     (out / "results.json").write_text(json.dumps(results, indent=2))
     return 0
 

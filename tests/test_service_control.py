@@ -364,3 +364,9 @@ def test_point_proposal_snaps_to_the_object_under_the_click() -> None:
     x, y, w, h = box
     assert x <= 180 <= x + w and y <= 115 <= y + h
     assert abs(w - 61) < abs(square[2] - 61)  # closer to the object's width than the plain square
+
+
+def test_configured_system_id_is_commanded_before_any_heartbeat() -> None:
+    outputs, link = _outputs({"mavlink": {"system_id": 9}}, AutopilotView())
+    outputs.apply(1.0, TRACKING)
+    assert [m.target_system for m in link.sent] == [9]

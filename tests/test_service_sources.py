@@ -2,7 +2,6 @@
 latest-frame-wins, frame size change, tracker failure, lost / stop behaviour."""
 from __future__ import annotations
 
-import json
 import threading
 from pathlib import Path
 
@@ -265,7 +264,6 @@ def _wait(predicate, timeout_s: float) -> bool:
 
 # --- zenoh source ------------------------------------------------------------------------------------
 def test_zenoh_source_decodes_frames_and_counts_corrupt_ones() -> None:
-    import zenoh
     from service.config import ZenohConfig
     from service.sources.zenoh import ZenohReader, frame_key
     from service.telemetry import open_session

@@ -8,7 +8,6 @@ not yet applied).
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -19,7 +18,7 @@ from service.control.geo import GroundTarget
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView, observe
 from service.mavlink.commands import (
-    CAMERA_COMMANDS, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MSG_ID_CAMERA_INFORMATION,
+    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MSG_ID_CAMERA_INFORMATION,
     MSG_ID_CAMERA_TRACKING_GEO_STATUS, MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, Decision, RequestMessage,
     SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide, is_for_us,
 )

@@ -35,9 +35,10 @@ class MavlinkOutputs:
 
     def apply(self, now_s: float, command: ControlCommand) -> None:
         view = self.autopilot()
-        if view.system_id is None:
-            return  # nobody to command yet
-        target = (view.system_id, MAV_COMP_ID_AUTOPILOT1)
+        system_id = view.system_id or self.config.mavlink.system_id
+        if not system_id:
+            return  # no autopilot heard and none configured: nobody to command yet
+        target = (system_id, MAV_COMP_ID_AUTOPILOT1)
         if command.rates is not None:
             self._gimbal(now_s, view, target, command.rates, tracking=command.state != "idle")
         mode = self.config.guidance.mode

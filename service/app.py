@@ -55,11 +55,16 @@ class Service:
                 self._session.close()
             raise
         self._last_report: FrameReport | None = None
+        self.telemetry_errors = 0
 
     def _publish_report(self, report: FrameReport) -> None:
         self._last_report = report
         if self.telemetry is not None:
-            self.telemetry.publish(report.as_json())
+            try:
+                self.telemetry.publish(report.as_json())
+            except Exception as exc:  # noqa: BLE001 - losing a telemetry sample must not stop tracking
+                self.telemetry_errors += 1
+                log.warning('event=telemetry_failed error="%s"', exc)
 
     def status(self) -> dict[str, Any]:
         """Status, counters and effective configuration (answer of the <prefix>/status queryable)."""
@@ -75,7 +80,8 @@ class Service:
             "counters": {"dropped_frames": self.worker.dropped, **self.loop.counters,
                          **{f"mavlink_{k}": v for k, v in self.camera.counters.items()},
                          **{f"out_{k}": v for k, v in self.outputs.counters.items()},
-                         "mavlink_sent": self.link.sent, "mavlink_send_errors": self.link.send_errors},
+                         "mavlink_sent": self.link.sent, "mavlink_send_errors": self.link.send_errors,
+                         "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
                           "custom_mode": view.custom_mode},
             "mavlink_system_id": self.link.system_id,

@@ -118,6 +118,7 @@ def admm_solve(
     penalty_init: float,
     penalty_growth: float,
     penalty_max: float,
+    box_transforms: bool | None = None,
 ) -> np.ndarray:
     """STRCF filter spectrum (C, H, W//2+1) complex64 minimising, by ADMM,
 
@@ -132,6 +133,13 @@ def admm_solve(
     mu is ignored (0) when `previous_f` is None (first frame). The last g-step is skipped: it
     would not change the returned f. Returns F (the unconstrained split variable), which after
     the last, large-penalty iteration agrees with the constrained g to within the ADMM residual.
+
+    For the two-valued box windows of `regularisation_window` the g-step is done without full
+    FFTs (same result up to float32 rounding): 1 / (lam w^2 + p) = a + b * box, so
+    G = a (p F + H) + DFT(b * box * IDFT(p F + H)), where the inverse DFT is needed on the box
+    only and the forward DFT of a box-supported signal is two small matrix products.
+    `box_transforms`: None = use them when the window is such a box covering <= 1/4 of the
+    map, False = always full FFTs, True = require the box path (ValueError if not a box).
     """
     height = sample_f.shape[1]
     shape_hw = (height, reg_window.shape[1])
@@ -147,6 +155,16 @@ def admm_solve(
     if mu > 0.0:
         constant += np.complex64(mu_n) * previous_f
     reg_sq = np.float32(lam) * reg_window.astype(np.float32) ** 2
+    box = _two_valued_box(reg_window)
+    if box_transforms and box is None:
+        raise ValueError("box_transforms=True needs a two-valued rectangular regularisation window")
+    if box is not None and box_transforms is None:
+        (r0, r1, c0, c1), _, _ = box
+        if (r1 - r0) * (c1 - c0) * 4 > height * shape_hw[1]:
+            box = None
+    if box_transforms is False:
+        box = None
+    partial = _BoxDft(shape_hw, box[0]) if box is not None else None
     g_f: np.ndarray | None = None
     h_f: np.ndarray | None = None
     penalty = penalty_init * n
@@ -172,15 +190,69 @@ def admm_solve(
         numerator = filter_f * np.float32(penalty)
         if h_f is not None:
             numerator += h_f
-        spatial = fourier.irfft2(numerator, shape_hw)
-        spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
-        g_f = fourier.rfft2(spatial.astype(np.float32, copy=False))
+        if partial is not None and box is not None:
+            _, inside, outside = box
+            a = 1.0 / (lam * outside**2 + penalty)
+            b = 1.0 / (lam * inside**2 + penalty) - a
+            inner = partial.inverse(numerator)
+            inner *= np.float32(b)
+            g_f = partial.forward(inner)
+            g_f += numerator * np.float32(a)
+        else:
+            spatial = fourier.irfft2(numerator, shape_hw)
+            spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
+            g_f = fourier.rfft2(spatial.astype(np.float32, copy=False))
         # dual ascent on the constraint f = g
         step = filter_f - g_f
         step *= np.float32(penalty)
         h_f = step if h_f is None else h_f + step
         penalty = min(penalty * penalty_growth, penalty_cap)
     return filter_f.astype(np.complex64, copy=False)
+
+
+def _two_valued_box(window: np.ndarray) -> tuple[tuple[int, int, int, int], float, float] | None:
+    """((r0, r1, c0, c1), inside, outside) if `window` is `inside` on one rectangle and `outside`
+    elsewhere (inside < outside), else None."""
+    inside, outside = float(window.min()), float(window.max())
+    if inside == outside:
+        return None
+    mask = window == window.min()
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    if int(mask.sum()) != (r1 - r0) * (c1 - c0) or not np.all(window[~mask] == window.max()):
+        return None
+    return (r0, r1, c0, c1), inside, outside
+
+
+class _BoxDft:
+    """Inverse DFT restricted to a box of the (H, W) grid, and forward DFT of box-supported signals.
+
+    Half spectra (C, H, W//2+1) in the MATLAB scaling, exactly the values irfft2 / rfft2 give
+    on (resp. from) the box, by two small matrix products per channel.
+    """
+
+    def __init__(self, shape_hw: tuple[int, int], box: tuple[int, int, int, int]):
+        height, width = shape_hw
+        r0, r1, c0, c1 = box
+        ky, kx = fourier.frequencies(shape_hw)
+        ys = np.arange(r0, r1)
+        xs = np.arange(c0, c1)
+        weights = fourier.half_spectrum_weights(shape_hw)
+        self.box = box
+        self.inv_y = np.exp(2j * np.pi * np.outer(ys, ky) / height).astype(np.complex64)  # (bh, H)
+        self.inv_x = (weights[:, None] * np.exp(2j * np.pi * np.outer(kx, xs) / width)
+                      / (height * width)).astype(np.complex64)  # (W', bw)
+        self.fwd_y = np.exp(-2j * np.pi * np.outer(ky, ys) / height).astype(np.complex64)  # (H, bh)
+        self.fwd_x = np.exp(-2j * np.pi * np.outer(xs, kx) / width).astype(np.complex64)  # (bw, W')
+
+    def inverse(self, spectrum: np.ndarray) -> np.ndarray:
+        """(C, bh, bw) float32: irfft2(spectrum) on the box."""
+        return np.real(np.matmul(self.inv_y, np.matmul(spectrum, self.inv_x))).astype(np.float32)
+
+    def forward(self, box_values: np.ndarray) -> np.ndarray:
+        """(C, H, W//2+1) complex64: rfft2 of the signal equal to box_values on the box, 0 elsewhere."""
+        return np.matmul(np.matmul(self.fwd_y, box_values.astype(np.complex64)), self.fwd_x)
 
 
 def strcf_objective(

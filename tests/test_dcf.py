@@ -173,3 +173,26 @@ def test_interpolant_matches_samples_and_numeric_derivatives():
     assert dxy == pytest.approx(num_dxy, rel=1e-2, abs=1e-3)
     num_dyy = (interp.value(y + eps, x) - 2 * interp.value(y, x) + interp.value(y - eps, x)) / eps**2
     assert dyy == pytest.approx(num_dyy, rel=1e-2, abs=1e-3)
+
+
+@pytest.mark.parametrize("box_cells", [(10.0, 10.0), (4.0, 17.0), (13.0, 3.0)])
+def test_box_restricted_g_step_equals_the_full_fft_g_step(box_cells):
+    rng = np.random.default_rng(9)
+    sample_f = fourier.rfft2(_smooth_random_features(rng, 5))
+    previous_f = fourier.rfft2(_smooth_random_features(rng, 5)) * np.float32(1e-3)
+    label_f = fourier.rfft2(dcf.gaussian_label(SHAPE, 0.6))
+    window = dcf.regularisation_window(SHAPE, box_cells, 1e-3, 1e5)
+    results = [dcf.admm_solve(sample_f, label_f, window, previous_f, lam=1e-2, mu=16.0, iterations=4,
+                              penalty_init=1.0, penalty_growth=10.0, penalty_max=1e4, box_transforms=flag)
+               for flag in (False, True)]
+    scale = np.abs(results[0]).max()
+    np.testing.assert_allclose(results[1], results[0], atol=2e-4 * scale)
+
+
+def test_box_transforms_require_a_box_window():
+    window = dcf.regularisation_window(SHAPE, (10.0, 10.0), 1e-3, 1e5)
+    window[0, 0] = 5.0
+    zeros = np.zeros((2, 50, 26), np.complex64)
+    with pytest.raises(ValueError, match="rectangular"):
+        dcf.admm_solve(zeros, zeros[0], window, None, lam=1e-2, mu=16.0, iterations=2, penalty_init=1.0,
+                       penalty_growth=10.0, penalty_max=1e4, box_transforms=True)

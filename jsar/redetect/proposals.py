@@ -29,6 +29,9 @@ class EdgeBoxesSettings:
     that max_boxes remain after that filter. working_target_side_px: the region is resampled so that
     the target's sqrt(w*h) spans about this many pixels (scale clamped to [min_working_scale,
     max_working_scale]); this bounds the cost on big targets and gives tiny ones enough edge pixels.
+    max_working_pixels caps the resampled region's area (EdgeBoxes' cost grows with it: a whole
+    1280x720 frame at a small target's working scale took 2.5 s), shrinking the scale further when
+    omega has grown large.
     edge_min_mag: EdgeBoxes' edgeMinMag (default 0.1): gradient edges are denser than the
     structured-edge output the default was tuned on; 0.15 halves the cost on cluttered frames at the
     same recall (measured on the shared sequences, see the report).
@@ -47,6 +50,7 @@ class EdgeBoxesSettings:
     edge_min_mag: float = 0.15
     min_working_scale: float = 0.125
     max_working_scale: float = 4.0
+    max_working_pixels: int = 256 * 256
 
     def __post_init__(self) -> None:
         if not 0 < self.alpha < 1 or not 0 < self.beta <= 1:
@@ -61,6 +65,8 @@ class EdgeBoxesSettings:
             raise ValueError("EdgeBoxes max_area_ratio must exceed min_area_fraction; candidate_factor >= 1")
         if not 0 <= self.edge_min_mag < 1:
             raise ValueError(f"EdgeBoxes edge_min_mag must be in [0, 1), got {self.edge_min_mag}")
+        if self.max_working_pixels < 64 * 64:
+            raise ValueError(f"EdgeBoxes max_working_pixels must be >= 4096, got {self.max_working_pixels}")
         if not 0 < self.min_working_scale <= self.max_working_scale or self.working_target_side_px <= 0:
             raise ValueError("EdgeBoxes working scale bounds must satisfy 0 < min <= max, side > 0")
 
@@ -95,10 +101,12 @@ def search_region(center_xy: tuple[float, float], target_wh: tuple[float, float]
     return (x0, y0, x1 - x0, y1 - y0)
 
 
-def working_scale(target_wh: tuple[float, float], settings: EdgeBoxesSettings) -> float:
-    """Resampling factor (working px per image px) that makes sqrt(w*h) span working_target_side_px."""
+def working_scale(target_wh: tuple[float, float], region_wh: tuple[int, int], settings: EdgeBoxesSettings) -> float:
+    """Resampling factor (working px per image px): sqrt(w*h) spans working_target_side_px, clamped,
+    and the region (pixels) stays within max_working_pixels."""
     scale = settings.working_target_side_px / math.sqrt(target_wh[0] * target_wh[1])
-    return min(settings.max_working_scale, max(settings.min_working_scale, scale))
+    scale = min(settings.max_working_scale, max(settings.min_working_scale, scale))
+    return min(scale, math.sqrt(settings.max_working_pixels / (region_wh[0] * region_wh[1])))
 
 
 def min_box_area(target_wh: tuple[float, float], settings: EdgeBoxesSettings) -> float:
@@ -117,7 +125,7 @@ def generate_proposals(frame: np.ndarray, center_xy: tuple[float, float], target
     """
     image_h, image_w = frame.shape[:2]
     rx, ry, rw, rh = search_region(center_xy, target_wh, omega, (image_w, image_h))
-    scale = working_scale(target_wh, settings)
+    scale = working_scale(target_wh, (rw, rh), settings)
     region = frame[ry:ry + rh, rx:rx + rw]
     out_w, out_h = max(3, round(rw * scale)), max(3, round(rh * scale))
     if (out_w, out_h) != (rw, rh):

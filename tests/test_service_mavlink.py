@@ -274,3 +274,27 @@ def test_serial_link_to_the_autopilot(frames_dir: Path) -> None:
         running.stop()
         os.close(master)
         os.close(slave)
+
+
+def test_px4_backend_claims_the_gimbal_then_sends_angular_velocities(frames_dir: Path) -> None:
+    rig = Rig({"source": {"path": str(frames_dir), "loop": True}, "gimbal": {"backend": "px4"}},
+              autopilot_kwargs={"autopilot": 12})
+    ap = rig.autopilot
+    ap.gimbal_primary = (0, 0)  # nobody in control yet
+    try:
+        assert rig.gcs.received.wait_for(lambda: rig.service.camera.autopilot_alive(), 5.0)
+        rig.gcs.command_long(TRACK_RECT, [0.55, 0.2, 0.8, 0.5, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(TRACK_RECT, 0).result == ACCEPTED
+
+        def of(kind: str) -> list:
+            return [r.msg for r in ap.from_service.of(kind)]
+        assert ap.from_service.wait_for(lambda: len(of("GIMBAL_MANAGER_SET_ATTITUDE")) >= 5, 10.0)
+        claim = [m for m in of("COMMAND_LONG") if m.command == 1001][0]
+        assert (claim.param1, claim.param2, claim.target_system, claim.target_component) == (AP_SYSID, 100, AP_SYSID, 1)
+        assert ap.gimbal_primary == (AP_SYSID, 100)
+        rates = of("GIMBAL_MANAGER_SET_ATTITUDE")[-1]
+        assert all(math.isnan(q) for q in rates.q)
+        assert rates.angular_velocity_z > 0 and rates.angular_velocity_y > 0  # target right of and above centre
+        assert of("GIMBAL_MANAGER_SET_PITCHYAW") == []  # PX4 ignores 287: not sent
+    finally:
+        rig.close()

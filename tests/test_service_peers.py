@@ -102,6 +102,7 @@ class AutopilotPeer:
         self.autopilot = autopilot
         self.custom_mode = custom_mode
         self.heartbeats_on = True
+        self.gimbal_primary: tuple[int, int] | None = None  # set: the peer reports GIMBAL_MANAGER_STATUS (PX4-like)
         self.extra_periodic: list[Callable[[object], object]] = []  # msg builders sent with each heartbeat
         self.links = {"service": UdpLink(service_port, system_id, 1), "gcs": UdpLink(gcs_port, system_id, 1)}
         self.from_service = Recorder()
@@ -127,12 +128,21 @@ class AutopilotPeer:
         with self._lock:
             self.links[link].mav.send(msg)  # dropped until the peer has sent to us (udpin)
 
+    def _handle_own(self, link: str, msg: object) -> None:
+        """PX4-like gimbal manager: MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (1001) sets the primary controller."""
+        if msg.get_type() == "COMMAND_LONG" and msg.command == 1001:
+            self.gimbal_primary = (int(msg.param1), int(msg.param2))
+            conn = self.links[link]
+            self.send(link, conn.mav.command_ack_encode(1001, 0, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+
     def _beat(self) -> None:
         while not self._stop.wait(self._period):
             if not self.heartbeats_on:
                 continue
             for name, conn in self.links.items():
                 self.send(name, conn.mav.heartbeat_encode(MAV_TYPE_QUADROTOR, self.autopilot, 1, self.custom_mode, 4))
+                if self.gimbal_primary is not None:  # GIMBAL_MANAGER_STATUS: who is in control
+                    self.send(name, conn.mav.gimbal_manager_status_encode(0, 0, 0, *self.gimbal_primary, 0, 0))
                 for build in self.extra_periodic:
                     self.send(name, build(conn.mav))
 
@@ -145,6 +155,7 @@ class AutopilotPeer:
                     self.from_service.add(msg)
                 target = (getattr(msg, "target_system", 0), getattr(msg, "target_component", 0))
                 if target == (self.system_id, 1):
+                    self._handle_own(name, msg)
                     continue  # addressed to the autopilot only
                 other.write(msg.get_msgbuf())  # as received, signature included
 

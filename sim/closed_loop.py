@@ -59,6 +59,9 @@ class ClosedLoopConfig:
     startup_timeout_s: float = 60.0
     video_path: Path | None = None  # annotated video (MJPG .avi)
     rss_every_s: float = 5.0  # sample the daemon's RSS this often (simulated seconds)
+    # Lockstep never sends faster than real time: the daemon's controllers integrate over the wall-clock
+    # interval between frames (right for a camera), so a sim running 2x fast would double their gains.
+    lockstep_realtime_floor: bool = True
 
     def __post_init__(self) -> None:
         if self.flavour not in ("ardupilot", "px4"):
@@ -344,6 +347,10 @@ class ClosedLoop:
                 records.append(record)
                 self.autopilot.step(dt)
                 self.autopilot.send_state_now()
+                if cfg.lockstep_realtime_floor:
+                    delay = start_wall + (k + 1) * dt - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)  # pacing (see lockstep_realtime_floor), not synchronisation
             else:
                 pending.append((frame_id, record, frame if writer is not None else None))
                 delay = start_wall + (k + 1) * dt - time.monotonic()

@@ -4,7 +4,8 @@ Times (median over repeats, milliseconds) the per-frame feature work of the JSAR
 frame (first frame of a sequence under JSAR_DATA_ROOT when set, else a synthetic 1280x720 frame):
 - search patch: sample_patch of the 5x context square -> 200x200 BGR, then extract_features (42 ch);
 - size filter: sample_patches of the 13x13 scale x aspect grid -> 32x16 grey, then fhog_batch;
-and, in the same run, OpenCV's cv2.resize (INTER_AREA) of the same search region and the numpy
+and, in the same run, OpenCV yardsticks (cv2.resize of a same-size search region, cv2.HOGDescriptor
+with 4-px cells on the 200x200 grey patch, a loop of 169 crop + cv2.resize INTER_AREA) and the numpy
 reference implementations, so the numbers can be read as ratios on this (noisy, shared) machine.
 Set OMP_NUM_THREADS=1 (the Makefile does) before running; cv2 is limited to one thread here.
 """
@@ -86,8 +87,20 @@ def run(repeats: int, data_root: str | None) -> dict[str, object]:
     model_scale = min(1.0, np.sqrt(512.0 / (w * h)))
     sizes = size_grid(w, h)
     small = patches.sample_patches(grey, centre, sizes, (32, 16))
-    x0, y0 = int(round(centre[0] - side / 2)), int(round(centre[1] - side / 2))
-    inside = 0 <= x0 and 0 <= y0 and x0 + int(side) <= frame.shape[1] and y0 + int(side) <= frame.shape[0]
+    # OpenCV yardsticks for the same jobs (a region of the same size, moved inside the frame).
+    side_px = min(int(round(side)), frame.shape[0], frame.shape[1])
+    x0 = int(np.clip(round(centre[0] - side_px / 2), 0, frame.shape[1] - side_px))
+    y0 = int(np.clip(round(centre[1] - side_px / 2), 0, frame.shape[0] - side_px))
+    region = frame[y0:y0 + side_px, x0:x0 + side_px]
+    hog = cv2.HOGDescriptor((200, 200), (8, 8), (4, 4), (4, 4), 9)
+    grey_patch = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY)
+
+    def opencv_crops_169() -> None:
+        for w_n, h_n in sizes:
+            wi, hi = max(1, int(round(w_n))), max(1, int(round(h_n)))
+            xa = int(np.clip(round(centre[0] - wi / 2), 0, grey.shape[1] - wi))
+            ya = int(np.clip(round(centre[1] - hi / 2), 0, grey.shape[0] - hi))
+            cv2.resize(grey[ya:ya + hi, xa:xa + wi], (32, 16), interpolation=cv2.INTER_AREA)
 
     timings: dict[str, float] = {
         "search_sample_patch": median_ms(lambda: patches.sample_patch(frame, centre, (side, side), (200, 200)), repeats),
@@ -99,10 +112,11 @@ def run(repeats: int, data_root: str | None) -> dict[str, object]:
         "reference_numpy_resample_169": median_ms(
             lambda: patches.resample_regions_reference(grey, centre, sizes, (32, 16)), max(3, repeats // 10)),
     }
-    region = frame[max(y0, 0):y0 + int(side), max(x0, 0):x0 + int(side)]
-    if inside:
-        timings["opencv_resize_inter_area_search"] = median_ms(
-            lambda: cv2.resize(region, (200, 200), interpolation=cv2.INTER_AREA), repeats)
+    timings["opencv_resize_search"] = median_ms(
+        lambda: cv2.resize(region, (200, 200), interpolation=cv2.INTER_AREA if side_px > 200 else cv2.INTER_LINEAR),
+        repeats)
+    timings["opencv_hog_descriptor_search_grey"] = median_ms(lambda: hog.compute(grey_patch), repeats)
+    timings["opencv_crop_resize_loop_169"] = median_ms(opencv_crops_169, repeats)
     timings["search_total"] = timings["search_sample_patch"] + timings["search_extract_features"]
     timings["size_total"] = timings["size_sample_patches_169"] + timings["size_fhog_batch_169"]
     cpu = {
@@ -111,9 +125,8 @@ def run(repeats: int, data_root: str | None) -> dict[str, object]:
         "size_total": cpu_ms(lambda: fhog_module.fhog_batch(
             patches.sample_patches(grey, centre, sizes, (32, 16)), 4), repeats),
     }
-    if inside:
-        cpu["opencv_resize_inter_area_search"] = cpu_ms(
-            lambda: cv2.resize(region, (200, 200), interpolation=cv2.INTER_AREA), repeats)
+    cpu["opencv_hog_descriptor_search_grey"] = cpu_ms(lambda: hog.compute(grey_patch), repeats)
+    cpu["opencv_crop_resize_loop_169"] = cpu_ms(opencv_crops_169, repeats)
     return {
         "source": source,
         "box_xywh": [x, y, w, h],

@@ -157,6 +157,9 @@ def test_track_command_fails_without_camera_frames(tmp_path: Path) -> None:
         rig.gcs.command_long(TRACK_RECT, [0.1, 0.1, 0.3, 0.3, 0, 0, 0], target=CAM)
         ack = rig.gcs.wait_ack(TRACK_RECT, 0)
         assert ack.result == FAILED
+        rig.gcs.command_long(REQUEST, [259, 0, 0, 0, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(REQUEST, 0).result == 1  # TEMPORARILY_REJECTED: no real frame size yet
+        assert rig.gcs.received.of("CAMERA_INFORMATION") == []  # never announced with a made-up size
         assert rig.service.loop.state == "idle"
         assert rig.service.status()["source"]["state"] == "error"
     finally:

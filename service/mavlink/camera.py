@@ -18,7 +18,7 @@ from service.control.geo import GroundTarget
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView, observe
 from service.mavlink.commands import (
-    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MSG_ID_CAMERA_INFORMATION,
+    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MSG_ID_CAMERA_INFORMATION,
     MSG_ID_CAMERA_TRACKING_GEO_STATUS, MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, Decision, RequestMessage,
     SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide, is_for_us,
 )
@@ -153,6 +153,10 @@ class CameraComponent:
             if not self._source_ok() or self._frame_size() is None:
                 return Decision(MAV_RESULT_FAILED, f"no camera frames: {self._source_reason()}")
             self.selections.put(intent)
+        elif isinstance(intent, RequestMessage) and intent.message_id == MSG_ID_CAMERA_INFORMATION:
+            if self._frame_size() is None:
+                # the real frame size is part of the answer: ask again once the camera delivers frames
+                return Decision(MAV_RESULT_TEMPORARILY_REJECTED, f"no camera frames yet: {self._source_reason()}")
         elif isinstance(intent, StopTracking):
             self.selections.put(intent)
         elif isinstance(intent, SetMessageInterval):
@@ -173,7 +177,9 @@ class CameraComponent:
             self._send_geo_status()
 
     def _send_camera_information(self) -> None:
-        size = self._frame_size() or (0, 0)
+        size = self._frame_size()
+        if size is None:
+            return  # announced as soon as the first frame gives the real size
         cam = self.config.camera
         self.link.send(messages.camera_information(
             self.link.mav, self.time_boot_ms(), cam.vendor_name, cam.model_name, size,
@@ -194,8 +200,7 @@ class CameraComponent:
     def _send_loop(self) -> None:
         next_heartbeat = time.monotonic()
         next_due: dict[int, float] = {}
-        announced_size: tuple[int, int] | None = None
-        self._info_requested.set()  # once at start
+        announced_size: tuple[int, int] | None = None  # once at start (first frame), again on a size change
         senders = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self._send_image_status,
                    MSG_ID_CAMERA_TRACKING_GEO_STATUS: self._send_geo_status}
         while not self._stop.is_set():
@@ -210,7 +215,7 @@ class CameraComponent:
             if size is not None and size != announced_size:
                 announced_size = size  # first real frame size, or a size change mid-stream
                 self._info_requested.set()
-            if self._info_requested.is_set():
+            if self._info_requested.is_set() and size is not None:
                 self._info_requested.clear()
                 self._send_camera_information()
             wake = next_heartbeat

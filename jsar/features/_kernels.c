@@ -13,6 +13,16 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* On x86-64 with GCC >= 11 and glibc, the two hot loops are compiled twice, for AVX2/FMA
+ * (x86-64-v3) and for the baseline, and the loader picks one per CPU (ifunc): ~1.5x faster on
+ * AVX2 machines, still runs on any x86-64. Results of the two versions differ only by float
+ * rounding (FMA contraction). Elsewhere (ARM, clang, musl) the baseline build is used. */
+#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 11 && defined(__x86_64__) && defined(__GLIBC__)
+#define HOT_LOOP_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define HOT_LOOP_CLONES
+#endif
+
 static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
 {
     int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
@@ -94,6 +104,7 @@ static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_s
 /* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
  * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
  * columns the region reads, then each output pixel a weighted sum of entries of that row. */
+HOT_LOOP_CLONES
 static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
                          float *row, void *out, int out_u8)
 {
@@ -286,6 +297,7 @@ typedef struct {
 /* One image: hist (hc, wc, 18) -> out (hc, wc, 31). The per-pixel work is split into loops the
  * compiler vectorises (gradient, magnitude, angle) and one scalar scatter into a row histogram,
  * which is then spread over the two cell rows it belongs to. */
+HOT_LOOP_CLONES
 static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
                      FhogScratch *sc, float *hist, float *energy, float *out)
 {
@@ -575,7 +587,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 2
+#define KERNELS_ABI 3
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

@@ -183,3 +183,17 @@ def test_real_sequence_precision_above_floor(data_root):
     # FFT scaling convention: confident peaks sit just above the paper's JSAR-Re thresholds
     # (enable re-detection below 0.0105, reliable above 0.013); measured median 0.021.
     assert 0.013 < float(np.median(scores)) < 0.05
+
+
+def test_public_helpers_for_composition_match_the_internal_samples():
+    frames, boxes = _sequence((240, 320), lambda t: (120 + 2.0 * t, 110.0), (30, 26), frames=2)
+    tracker = make_jsar()
+    tracker.init(frames[0], boxes[0])
+    loc = tracker.locate(frames[1])
+    again = tracker.sample_spectrum(frames[1], (135.0, 123.0), loc.search_side)
+    np.testing.assert_array_equal(again, tracker.sample_spectrum(frames[1], (135.0, 123.0), loc.search_side))
+    np.testing.assert_allclose(tracker.sample_spectrum(frames[1], tracker.center_xy, loc.search_side),
+                               loc.sample_f, rtol=1e-5, atol=1e-4)
+    h_cells, w_cells = tracker.target_cells()
+    assert w_cells / h_cells == pytest.approx(tracker.size_wh[0] / tracker.size_wh[1])
+    assert tracker.prepare(frames[1]).shape == (240, 320, 3) and tracker.feature_colour_table is not None

@@ -144,6 +144,24 @@ class JsarTracker:
         box = validate_box(box, image.shape)
         self._setup(image, box)
 
+    def target_cells(self) -> tuple[float, float]:
+        """Target (h, w) in feature cells of the translation filter's search patch."""
+        return self._target_cells()
+
+    def prepare(self, frame: np.ndarray) -> np.ndarray:
+        """`frame` validated and converted to the tracker's mode (2-D grey or HxWx3 BGR)."""
+        return self._prepare_checked(frame)
+
+    @property
+    def feature_colour_table(self) -> np.ndarray | None:
+        """The colour-attribute table the translation features use (None in grey mode)."""
+        return None if self._grey else self._colour_table
+
+    def sample_spectrum(self, frame: np.ndarray, center_xy: tuple[float, float], side: float) -> np.ndarray:
+        """Windowed feature spectrum (C, H, W//2+1) of the square of side `side` px at `center_xy`,
+        exactly as the translation filter sees its samples (e.g. to score re-detection proposals)."""
+        return self._sample_spectrum(self._prepare_checked(frame), center_xy, side)
+
     # ----------------------------------------------------------------- internals
     def _setup(self, image: np.ndarray, box: Box) -> None:
         """Fresh filters for `box` on `image`, trained on that frame (first-frame rules: mu = 0)."""

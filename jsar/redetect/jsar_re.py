@@ -124,7 +124,7 @@ class JsarReTracker:
         box = validate_box(box, frame.shape)
         self.core.init(frame, box)
         translation = self.core.translation
-        self.decision = TranslationFilter(self.params, translation.shape_hw, self.core._target_cells())
+        self.decision = TranslationFilter(self.params, translation.shape_hw, self.core.target_cells())
         self.decision.filter_f = translation.filter_f  # trained on the same first sample (mu = 0)
         self._decision_in_sync = True
         self.monitor = FailureMonitor(self.monitor.params)
@@ -186,8 +186,8 @@ class JsarReTracker:
         p = self.params
         cells = self.decision.shape_hw[0]
         px_per_cell = p.search_area_factor * math.sqrt(last_wh[0] * last_wh[1]) / cells
-        image = self.core._prepare(frame)  # the core's grey/colour mode, so features match its samples
-        table = None if self.core._grey else self.core._colour_table
+        image = self.core.prepare(frame)  # the core's grey/colour mode, so features match its samples
+        table = self.core.feature_colour_table
         centres = boxes[:, :2] + boxes[:, 2:] / 2.0
         windows, window_centres, owner = window_features(image, table, centres, px_per_cell, cells, p.cell_size)
         stack = np.moveaxis(windows, -1, 1) * self.decision.cos_window[None, None]
@@ -222,7 +222,7 @@ class JsarReTracker:
             return
         sample_f = self.core.last_training_sample_f
         assert sample_f is not None
-        self.decision.set_target_cells(self.core._target_cells())
+        self.decision.set_target_cells(self.core.target_cells())
         self.decision.train(sample_f)
 
 

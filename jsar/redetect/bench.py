@@ -1,0 +1,81 @@
+"""Cost of JSAR-Re's re-detection, one thread: `python -m jsar.redetect.bench DATA_ROOT [--frames N]`.
+
+Per sequence: jsar-re tracks the first N frames normally (timing its confident frames), then on the
+next N frames re-detection is forced at the last confident box (proposals + decision-filter scoring,
+omega = 5 and omega = 10, no re-initialisation); OpenCV's CSRT runs on the same frames in the same
+process for scale. Prints milliseconds per frame (median over frames, pooled over sequences) and
+the split between EdgeBoxes proposals and decision-filter scoring.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jsar.config import JsarParams  # noqa: E402
+from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
+from jsar.redetect.proposals import generate_proposals  # noqa: E402
+
+
+def _sequences(root: Path) -> list[Path]:
+    return sorted(p for p in root.iterdir() if (p / "img").is_dir() and (p / "groundtruth_rect.txt").is_file())
+
+
+def _load(folder: Path, count: int) -> tuple[list[np.ndarray], tuple[float, float, float, float]]:
+    paths = sorted((folder / "img").glob("*.jpg"))[:count]
+    first = (folder / "groundtruth_rect.txt").read_text().split("\n")[0].replace("\t", ",")
+    x, y, w, h = (float(v) for v in first.split(","))
+    return [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths], (x - 1.0, y - 1.0, w, h)
+
+
+def _ms(fn) -> float:  # type: ignore[no-untyped-def]
+    start = time.perf_counter()
+    fn()
+    return (time.perf_counter() - start) * 1e3
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data_root", type=Path)
+    parser.add_argument("--frames", type=int, default=20, help="confident frames, then as many re-detection frames")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    timings: dict[str, list[float]] = {k: [] for k in ("confident", "csrt", "redetect5", "proposals5", "scoring5", "redetect10")}
+    for folder in _sequences(args.data_root):
+        frames, box = _load(folder, 2 * args.frames + 1)
+        tracker = JsarReTracker(JsarParams.jsar_re())
+        tracker.init(frames[0], box)
+        csrt = cv2.TrackerCSRT_create()
+        csrt.init(frames[0], tuple(int(round(v)) for v in box))
+        for frame in frames[1:args.frames + 1]:
+            timings["confident"].append(_ms(lambda: tracker.update(frame)))
+            timings["csrt"].append(_ms(lambda: csrt.update(frame)))
+        last = tracker.core.box
+        centre, size = (last[0] + last[2] / 2, last[1] + last[3] / 2), (last[2], last[3])
+        for frame in frames[args.frames + 1:]:
+            timings["redetect5"].append(_ms(lambda: tracker.redetect(frame, last, 5.0, 0.02)))
+            timings["redetect10"].append(_ms(lambda: tracker.redetect(frame, last, 10.0, 0.02)))
+            holder: list = []
+            timings["proposals5"].append(_ms(lambda: holder.append(generate_proposals(
+                frame, centre, size, 5.0, tracker._edgeboxes, tracker._edges))))
+            boxes = holder[0].boxes
+            if len(boxes):
+                timings["scoring5"].append(_ms(lambda: tracker.score_proposals(frame, boxes, size)))
+        print(f"{folder.name:28s} confident {np.median(timings['confident'][-args.frames:]):6.1f} ms  "
+              f"re-detection (omega 5) {np.median(timings['redetect5'][-args.frames:]):6.1f} ms", flush=True)
+    print("\nmedian ms per frame over all sequences (one thread):")
+    for key, values in timings.items():
+        print(f"  {key:12s} {np.median(values):7.1f} ms   (p90 {np.percentile(values, 90):7.1f})")
+    print(f"  re-detection frame (omega 5) / confident frame: {np.median(timings['redetect5']) / np.median(timings['confident']):.1f}x")
+
+
+if __name__ == "__main__":
+    main()

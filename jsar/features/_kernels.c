@@ -58,6 +58,7 @@ static void axis_taps_free(AxisTaps *a)
     a->weight = NULL;
 }
 
+HOT_LOOP_CLONES
 static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_src, AxisTaps *a)
 {
     const double step = size / (double)n_out;
@@ -127,13 +128,30 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
          * so the inner loops have one trip count and the channel loop is unrolled for C = 1, 3. */
         const Py_ssize_t T = tx->max_taps;
         float *acc = row + span + T * C; /* OW * C accumulators after the zero tail */
-        if (C == 1) {
+        if (C == 1 && T == 2) { /* enlarging: bilinear */
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 2 * j, *rj = row + (tx->first[j] - xmin);
+                acc[j] = wj[0] * rj[0] + wj[1] * rj[1];
+            }
+        } else if (C == 1 && T == 3) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 3 * j, *rj = row + (tx->first[j] - xmin);
+                acc[j] = wj[0] * rj[0] + wj[1] * rj[1] + wj[2] * rj[2];
+            }
+        } else if (C == 1) {
             for (Py_ssize_t j = 0; j < OW; j++) {
                 const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin);
                 float a = 0.0f;
                 for (Py_ssize_t k = 0; k < T; k++)
                     a += wj[k] * rj[k];
                 acc[j] = a;
+            }
+        } else if (C == 3 && T == 2) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 2 * j, *rj = row + (tx->first[j] - xmin) * 3;
+                acc[3 * j] = wj[0] * rj[0] + wj[1] * rj[3];
+                acc[3 * j + 1] = wj[0] * rj[1] + wj[1] * rj[4];
+                acc[3 * j + 2] = wj[0] * rj[2] + wj[1] * rj[5];
             }
         } else if (C == 3) {
             for (Py_ssize_t j = 0; j < OW; j++) {

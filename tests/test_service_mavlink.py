@@ -43,6 +43,8 @@ class Rig:
         # like a real ground station: command the camera only after its heartbeat came through the autopilot
         # (until the service has sent something, the autopilot does not know where to forward to)
         assert self.wait_service_heartbeats(1, 10.0), "no heartbeat from the camera component"
+        # commands to system 42 are not for the camera until it has learned that it belongs to system 42
+        assert self.autopilot.from_service.wait_for(lambda: self.service.link.system_id == AP_SYSID, 10.0)
 
     def close(self) -> None:
         self.running.stop()
@@ -299,5 +301,25 @@ def test_px4_backend_claims_the_gimbal_then_sends_angular_velocities(frames_dir:
         assert all(math.isnan(q) for q in rates.q)
         assert rates.angular_velocity_z > 0 and rates.angular_velocity_y > 0  # target right of and above centre
         assert of("GIMBAL_MANAGER_SET_PITCHYAW") == []  # PX4 ignores 287: not sent
+    finally:
+        rig.close()
+
+
+def test_frame_size_change_is_announced_and_tracking_continues(tmp_path: Path) -> None:
+    for i in range(75):  # 2.5 s at 160x120, then the camera switches to 320x240
+        cv2.imwrite(str(tmp_path / f"a{i:04d}.png"), scene((160, 120), (110, 40), 20))
+    for i in range(30):
+        cv2.imwrite(str(tmp_path / f"b{i:04d}.png"), scene((320, 240), (220, 80), 40))
+    rig = Rig({"source": {"path": str(tmp_path), "loop": False}})
+    try:
+        rig.gcs.command_long(TRACK_RECT, [100 / 160, 30 / 120, 120 / 160, 50 / 120, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(TRACK_RECT, 0).result == ACCEPTED
+        sizes = lambda: {(r.msg.resolution_h, r.msg.resolution_v) for r in rig.gcs.received.of("CAMERA_INFORMATION")}  # noqa: E731
+        assert rig.gcs.received.wait_for(lambda: (320, 240) in sizes(), 10.0)
+        assert rig.service.worker.health.wait_for(lambda h: h.state == "ended", 10.0)
+        assert rig.service.loop.counters["resized"] == 1
+        assert rig.service.loop.state in ("tracking", "recovered")
+        x, y, w, h = rig.service.loop.box
+        assert abs(x + w / 2 - 220) < 10 and abs(y + h / 2 - 80) < 10
     finally:
         rig.close()

@@ -50,7 +50,7 @@ def test_region_far_outside_is_the_replicated_edge_without_a_huge_copy(frame):
     # Far left: every column is the image's column 0 (rows 50..149) averaged down to 20 rows.
     column = cv2.resize(frame[50:150, :1], (1, 20), interpolation=cv2.INTER_AREA)
     assert np.abs(patch.astype(int) - column).max() <= 1
-    assert peak < 2_000_000  # a padded copy of the region would need 15 MB
+    assert peak < 1_000_000  # numpy-side allocations; a padded copy of the region would need 15 MB
 
 
 def test_huge_region_is_not_copied(frame):
@@ -58,7 +58,7 @@ def test_huge_region_is_not_copied(frame):
     patch = sample_patch(frame, (160.0, 120.0), (1e5, 1e5), (10, 10))
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    assert peak < 20_000_000  # a padded copy would need 30 GB
+    assert peak < 1_000_000  # numpy-side allocations; a padded copy would need 30 GB
     # The image is a tiny part of the region: the centre sample is an average of the whole image.
     assert np.abs(patch[5, 5].astype(float) - frame.reshape(-1, 3).mean(axis=0)).max() < 60
 

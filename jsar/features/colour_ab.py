@@ -46,7 +46,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    folders = discover_sequences(args.data_root)
+    try:
+        folders = discover_sequences(args.data_root)
+    except ValueError as exc:
+        parser.error(str(exc))
     if not folders:
         parser.error(f"no sequences under {args.data_root}")
     colour = {"use_colour": True, "colour_table_path": args.table}

@@ -152,11 +152,20 @@ def test_source_failure_mid_stream_reopens() -> None:
 
 # --- the tracking loop ----------------------------------------------------------------------------------
 class RecordingOutputs:
+    """loop.Outputs that records commands and lets a test wait for one."""
+
     def __init__(self) -> None:
         self.commands: list[ControlCommand] = []
+        self._cond = threading.Condition()
 
     def apply(self, now_s: float, command: ControlCommand) -> None:
-        self.commands.append(command)
+        with self._cond:
+            self.commands.append(command)
+            self._cond.notify_all()
+
+    def wait_for(self, predicate, timeout_s: float) -> bool:
+        with self._cond:
+            return self._cond.wait_for(predicate, timeout=timeout_s)
 
 
 def make_loop(make_tracker=None) -> tuple[TrackingLoop, LatestSlot, RecordingOutputs]:
@@ -239,27 +248,15 @@ def test_run_stops_promptly_and_stop_applies_without_frames() -> None:
     stop = threading.Event()
     runner = threading.Thread(target=loop.run, args=(mailbox, stop.is_set))
     runner.start()
+    assert outputs.wait_for(lambda: len(outputs.commands) >= 1, 5.0)  # the one frame was tracked
     # the camera goes silent; a stop request must still reach the loop
     selections.put(StopTracking())
-    assert _wait(lambda: loop.state == "idle" and loop.counters["frames"] == 1, 5.0)
+    assert outputs.wait_for(lambda: any(c.stopped for c in outputs.commands), 5.0)
+    assert loop.state == "idle" and loop.counters["frames"] == 1
     stop.set()
     runner.join(2.0)
     assert not runner.is_alive()
     assert outputs.commands[-1].stopped
-
-
-def _wait(predicate, timeout_s: float) -> bool:
-    done = threading.Event()
-    deadline = threading.Timer(timeout_s, done.set)
-    deadline.start()
-    try:
-        while not done.is_set():
-            if predicate():
-                return True
-            done.wait(0.01)
-        return predicate()
-    finally:
-        deadline.cancel()
 
 
 # --- zenoh source ------------------------------------------------------------------------------------

@@ -141,7 +141,9 @@ class RunResult:
         latencies = [r.latency_ms for r in self.records if r.latency_ms is not None]
         lost, recovered = self.lost_recovered()
         return {"frames": len(self.records), "answered": sum(r.state is not None for r in self.records),
-                "wall_s": round(self.wall_s, 2), "fps": round(len(self.records) / max(self.wall_s, 1e-9), 1),
+                "wall_s": round(self.wall_s, 2),
+                "sent_fps": round(len(self.records) / max(self.wall_s, 1e-9), 1),
+                "processed_fps": round(sum(r.state is not None for r in self.records) / max(self.wall_s, 1e-9), 1),
                 "dropped_frames": self.dropped_frames, "lost": lost, "recovered": recovered,
                 "centred_ratio": round(self.centring_ratio(), 3),
                 "centring_error_px_median": round(float(np.median(errors)), 1) if errors else None,

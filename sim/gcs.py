@@ -11,6 +11,7 @@ MAV_CMD_SET_MESSAGE_INTERVAL for CAMERA_TRACKING_IMAGE_STATUS (275) through `sen
 
     python -m sim.gcs --url udpout://127.0.0.1:14550 list
     python -m sim.gcs --url udpout://127.0.0.1:14550 rect 0.45 0.40 0.55 0.60 --watch 5
+    python -m sim.gcs --url udpout://127.0.0.1:14550 status --watch 5
     python -m sim.gcs --url udpout://127.0.0.1:14550 point 0.5 0.5 --radius 0.03
     python -m sim.gcs --url udpout://127.0.0.1:14550 stop
 """
@@ -197,21 +198,22 @@ def main(argv: list[str] | None = None) -> int:
     """Command line."""
     parser = argparse.ArgumentParser(description="mavsdk ground station: camera tracking commands and status")
     parser.add_argument("--url", default="udpout://127.0.0.1:14550", help="mavsdk connection URL")
-    parser.add_argument("--camera", type=int, default=None, help="camera component id (default: first found)")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--camera", type=int, default=None, help="camera component id (default: first found)")
+    common.add_argument("--watch", type=float, default=0.0, help="print tracking status for this many seconds")
+    common.add_argument("--interval", type=float, default=0.5, help="status interval to request, seconds")
     parser.add_argument("--timeout", type=float, default=10.0)
-    parser.add_argument("--watch", type=float, default=0.0, help="print tracking status for this many seconds")
-    parser.add_argument("--interval", type=float, default=0.5, help="status interval to request, seconds")
     sub = parser.add_subparsers(dest="action", required=True)
-    sub.add_parser("list")
-    point = sub.add_parser("point")
+    sub.add_parser("list", parents=[common])
+    point = sub.add_parser("point", parents=[common])
     point.add_argument("x", type=float)
     point.add_argument("y", type=float)
     point.add_argument("--radius", type=float, default=0.03)
-    rect = sub.add_parser("rect")
+    rect = sub.add_parser("rect", parents=[common])
     for name in ("top_x", "top_y", "bottom_x", "bottom_y"):
         rect.add_argument(name, type=float)
-    sub.add_parser("stop")
-    sub.add_parser("status")
+    sub.add_parser("stop", parents=[common])
+    sub.add_parser("status", parents=[common])
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     with GroundStation(args.url, args.timeout) as gcs:

@@ -7,13 +7,18 @@ frame (first frame of a sequence under JSAR_DATA_ROOT when set, else a synthetic
 and, in the same run, OpenCV yardsticks (cv2.resize of a same-size search region, cv2.HOGDescriptor
 with 4-px cells on the 200x200 grey patch, a loop of 169 crop + cv2.resize INTER_AREA) and the numpy
 reference implementations, so the numbers can be read as ratios on this (noisy, shared) machine.
-Set OMP_NUM_THREADS=1 (the Makefile does) before running; cv2 is limited to one thread here.
+With --tracker-frames N it also runs the "jsar" tracker over the first N frames of that sequence
+under cProfile (process CPU time) and reports how much of its per-frame time the feature
+functions take. Set OMP_NUM_THREADS=1 (the Makefile does) before running; cv2 is limited to one
+thread here.
 """
 from __future__ import annotations
 
 import argparse
+import cProfile
 import json
 import os
+import pstats
 import statistics
 import sys
 import time
@@ -140,15 +145,69 @@ def run(repeats: int, data_root: str | None) -> dict[str, object]:
     }
 
 
+def tracker_profile(data_root: str, n_frames: int) -> dict[str, object]:
+    """CPU ms per frame of jsar's update and of the feature work inside it, first n_frames of a sequence."""
+    import jsar  # the tracker package: imported here so the feature timings above do not need it
+
+    _, box, source = load_frame(data_root)
+    seq_dir = Path(data_root) / source.split(" ")[0]
+    paths = sorted((seq_dir / "img").glob("*.jpg"))[:n_frames]
+    frames = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path in paths]
+    tracker = jsar.create("jsar")
+    tracker.init(frames[0], box)
+    profiler = cProfile.Profile(time.process_time)
+    profiler.enable()
+    for frame in frames[1:]:
+        tracker.update(frame)
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
+    per_frame = 1e3 / max(1, len(frames) - 1)
+
+    def entry(suffix: str, name: str) -> tuple | None:
+        for (filename, _line, func), value in stats.items():
+            if func == name and filename.endswith(suffix):
+                return value
+        return None
+
+    def cumulative(suffix: str, name: str) -> float:
+        value = entry(suffix, name)
+        return 0.0 if value is None else value[3] * per_frame
+
+    fhog_batch = entry("features/fhog.py", "fhog_batch")
+    # fhog_batch called by fhog (inside extract_features) is already counted there.
+    size_fhog = 0.0 if fhog_batch is None else sum(
+        ct for (filename, _l, func), (_cc, _nc, _tt, ct) in fhog_batch[4].items()
+        if not (func == "fhog" and filename.endswith("features/fhog.py"))) * per_frame
+    search_sample = cumulative("features/patches.py", "sample_patch")
+    all_sampling = cumulative("features/patches.py", "sample_patches")  # sample_patch calls it too
+    extract = cumulative("features/translation.py", "extract_features")
+    rows = {
+        "tracker update, total": cumulative("tracking/jsar_tracker.py", "update"),
+        "search patch: sample_patch": search_sample,
+        "search patch: extract_features": extract,
+        "size filter: sample_patches": all_sampling - search_sample,
+        "size filter: fhog_batch": size_fhog,
+    }
+    rows["features, total"] = all_sampling + extract + size_fhog
+    return {"sequence": source.split(" ")[0], "frames": len(frames) - 1,
+            "cpu_ms_per_frame": {k: round(v, 3) for k, v in rows.items()}}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=200, help="timed calls per measurement (median reported)")
     parser.add_argument("--data-root", default=os.environ.get("JSAR_DATA_ROOT"), help="sequences root (default: $JSAR_DATA_ROOT)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
+    parser.add_argument("--tracker-frames", type=int, default=0,
+                        help="also profile the jsar tracker on this many frames of the data-root sequence")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error("--repeats must be positive")
+    if args.tracker_frames and not args.data_root:
+        parser.error("--tracker-frames needs a data root (--data-root or JSAR_DATA_ROOT)")
     result = run(args.repeats, args.data_root)
+    if args.tracker_frames:
+        result["tracker_profile"] = tracker_profile(args.data_root, max(2, args.tracker_frames))
     print(f"source: {result['source']}  box {result['box_xywh']}  search side {result['search_region_side_px']} px")
     print(f"threads: {result['threads']}  cv2 {result['cv2_threads']}  repeats {result['repeats']}")
     print("wall time, median:")
@@ -157,6 +216,12 @@ def main(argv: list[str] | None = None) -> int:
     print("process CPU time, median:")
     for key, value in result["cpu_ms"].items():  # type: ignore[union-attr]
         print(f"  {key:36s} {value:8.3f} ms")
+    if "tracker_profile" in result:
+        profile = result["tracker_profile"]
+        print(f"jsar tracker, {profile['sequence']}, {profile['frames']} frames, cProfile CPU ms per frame "  # type: ignore[index]
+              "(profiling overhead included):")
+        for key, value in profile["cpu_ms_per_frame"].items():  # type: ignore[index]
+            print(f"  {key:42s} {value:8.3f} ms")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2))

@@ -46,7 +46,11 @@ def main(argv: list[str] | None = None) -> int:
     except (ConnectionError, ValueError) as exc:
         log.error('event=startup_failed error="%s"', exc)
         return 1
-    daemon.run(stop)
+    try:
+        daemon.run(stop)
+    except RuntimeError as exc:
+        log.error('event=exit reason="%s"', exc)
+        return 1
     return 0
 
 

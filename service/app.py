@@ -89,7 +89,11 @@ class Service:
         }
 
     def run(self, stop: threading.Event) -> None:
-        """Start the threads, notify systemd, run the loop until `stop`, then shut down (< 2 s)."""
+        """Start the threads, notify systemd, run the loop until `stop`, then shut down (< 2 s).
+
+        RuntimeError if the tracking loop itself crashed (the process then exits non-zero and systemd
+        restarts it); per-frame errors are handled inside the loop.
+        """
         self.worker.start()
         self.camera.start()
         watchdog_s = watchdog_interval_s()
@@ -105,10 +109,29 @@ class Service:
         log.info("event=started source=%s tracker=%s mavlink=%s gimbal=%s guidance=%s watchdog_s=%s",
                  self.worker.reader.name, self.config.tracker.name, self.config.mavlink.url,
                  self.config.gimbal.backend, self.config.guidance.mode, watchdog_s)
+        # The loop runs on its own thread so that a slow tracker step (a re-detection can take a while)
+        # never delays the stop: the main thread waits for the stop request and bounds the join.
+        loop_failed: list[BaseException] = []
+
+        def run_loop() -> None:
+            try:
+                self.loop.run(self.mailbox, stop.is_set, on_iteration=ping)
+            except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+                loop_failed.append(exc)
+                log.exception("event=loop_crashed")
+                stop.set()
+
+        runner = threading.Thread(target=run_loop, name="tracking-loop", daemon=True)
+        runner.start()
         try:
-            self.loop.run(self.mailbox, stop.is_set, on_iteration=ping)
+            stop.wait()
         finally:
+            runner.join(timeout=0.8)
+            if runner.is_alive():
+                log.warning("event=loop_still_busy detail=abandoning_the_current_frame")
             self.shutdown()
+        if loop_failed:
+            raise RuntimeError("tracking loop crashed") from loop_failed[0]
 
     def shutdown(self) -> None:
         """Zero the gimbal if tracking, stop threads, close links."""

@@ -119,3 +119,37 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
         notify.close()
     stderr = proc.stderr.read() if proc.stderr else ""
     assert "event=started" in stderr and "event=stopped" in stderr and "Traceback" not in stderr
+
+
+def test_stop_is_prompt_even_while_the_tracker_is_stuck_in_a_frame(frames_dir: Path) -> None:
+    import threading
+
+    from service.app import Service
+    from tests.test_service_peers import RunningService, service_config
+
+    entered, release = threading.Event(), threading.Event()
+
+    class StuckTracker:
+        def init(self, image, box) -> None:
+            pass
+
+        def update(self, image):
+            entered.set()
+            release.wait(30.0)  # a pathological frame (e.g. a very slow re-detection)
+            raise RuntimeError("released")
+
+    config = service_config(free_udp_port(), {"source": {"path": str(frames_dir), "loop": True}})
+    service = Service(config)
+    service.loop.make_tracker = StuckTracker
+    running = RunningService(service).start()
+    try:
+        assert service.worker.health.wait_for(lambda h: h.state == "ok", 10.0)
+        from service.mavlink.commands import TrackRectangle
+        service.selections.put(TrackRectangle(0.5, 0.3, 0.7, 0.6))
+        assert entered.wait(10.0)
+        started = time.monotonic()
+        running.stop_event.set()
+        running.thread.join(5.0)
+        assert not running.thread.is_alive() and time.monotonic() - started < 2.0
+    finally:
+        release.set()

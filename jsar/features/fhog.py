@@ -17,8 +17,10 @@ fast implementations):
   n_k = 1 / sqrt(block energy + eps); every histogram value times n_k is clipped at 0.2.
 - Channels: 0..17 signed: 0.5 * sum_k min(h[o] n_k, 0.2); 18..26 unsigned: 0.5 * sum_k
   min((h[o] + h[o+9]) n_k, 0.2); 27..30 texture: 0.2357 * sum_o min(h[o] n_k, 0.2) for k = 0..3.
-  eps = 1e-4 on the 0..255 scale, so features are contrast invariant except where the block energy
-  is comparable to eps (practically flat regions).
+  eps = 1e-4 on this histogram scale (gradients not halved, no 1/cell^2 factor, so eps is
+  relatively ~1000x smaller than in piotr's toolbox; it only matters where the block energy is
+  comparable to eps, i.e. practically flat regions). Everything else is scale free: the features
+  are contrast invariant up to eps.
 
 Implementation: `fhog` / `fhog_batch` run the compiled kernel (jsar/features/_kernels.c); the numpy
 functions below (`gradients`, `orientation_histograms`, `clipped_normalised`,

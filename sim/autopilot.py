@@ -29,8 +29,8 @@ from typing import Callable, Iterable
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (after MAVLINK20)
 
-from sim.vehicle_model import (FLAVOURS, ReceivedCommand, VehicleConfig, VehicleModel,  # noqa: E402
-                               wrap_pi)
+from sim.vehicle_model import (ARDUCOPTER_MODES, FLAVOURS, PX4_MODES, ReceivedCommand,  # noqa: E402
+                               VehicleConfig, VehicleModel, wrap_pi)
 
 AUTOPILOT_COMPONENT = 1
 LINK_NAMES = ("service", "gcs")
@@ -74,7 +74,8 @@ class Link:
     peer: tuple[str, int] | None = None
     rx_packets: int = 0
     tx_packets: int = 0
-    dropped_packets: int = 0
+    dropped_packets: int = 0  # both ways (link drops, send errors)
+    dropped_incoming: int = 0  # received during a link drop
 
 
 @dataclass
@@ -209,6 +210,8 @@ class MockAutopilot:
             with self.lock:
                 if self.model.time_s < self._drop_until.get(link.name, -math.inf):
                     link.dropped_packets += 1
+                    link.dropped_incoming += 1
+                    self.changed.notify_all()
                     continue
                 link.peer = addr
                 link.rx_packets += 1
@@ -337,7 +340,6 @@ class MockAutopilot:
         return f"ack {result}: {outcome}"
 
     def _mode_name(self, base_mode: int, custom: int, sub: int) -> str | None:
-        from sim.vehicle_model import ARDUCOPTER_MODES, PX4_MODES
         if self.flavour == "ardupilot":
             return next((n for n, v in ARDUCOPTER_MODES.items() if v == custom), None)
         return next((n for n, (m, s) in PX4_MODES.items() if m == custom and s == sub), None)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from sim.autopilot import MockAutopilot
-from sim.daemon import Daemon
+from sim.daemon import Daemon, deep_merge
 from sim.scene import CameraConfig, GroundTruth, Scene, SceneConfig, pose_from_vehicle
 from sim.vehicle_model import VehicleConfig
 from sim.zenoh_link import SimCamera, ZenohEndpoints
@@ -164,7 +164,6 @@ def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
     }
     if cfg.tracker is not None:
         overrides["tracker"] = {"name": cfg.tracker, "params": {}}
-    from sim.daemon import deep_merge
     return deep_merge(overrides, cfg.daemon_overrides)
 
 
@@ -355,6 +354,7 @@ class ClosedLoop:
                         time.sleep(delay)  # pacing (see lockstep_realtime_floor), not synchronisation
             else:
                 pending.append((frame_id, record, frame if writer is not None else None))
+                self._collect(pending, records, writer, final=False)
                 delay = start_wall + (k + 1) * dt - time.monotonic()
                 if delay > 0:
                     self.camera.telemetry.wait_frame(frame_id, delay)  # pacing; returns early on telemetry
@@ -363,19 +363,13 @@ class ClosedLoop:
                         time.sleep(remaining)  # pacing a real-time camera, not synchronisation
                 self.autopilot.step(dt)
             if live and (k % 10 == 0 or k == frames - 1):
-                self._print_status(k, frames, start_wall, records or [p[1] for p in pending[-1:]])
+                self._print_status(k, frames, start_wall, [p[1] for p in pending[-1:]] or records)
             if not self.daemon.alive():
                 break
         wall = time.monotonic() - start_wall
         if cfg.pace == "realtime":
             self.camera.telemetry.wait_frame(self.frame_id, 2.0)
-            for frame_id, record, frame in pending:
-                sample = self.camera.telemetry.by_frame.get(frame_id)
-                if sample is not None:
-                    self._fill(record, sample)
-                if writer is not None and frame is not None:
-                    writer.write(annotate(frame, record))
-                records.append(record)
+            self._collect(pending, records, writer, final=True)
         if writer is not None:
             writer.release()
         if live:
@@ -386,6 +380,25 @@ class ClosedLoop:
                          int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
                          self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
                          selection)
+
+    def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
+                 final: bool) -> None:
+        """Real time: move frames the daemon has answered (or skipped: a later frame was answered) from
+        `pending` to `records`, oldest first, so the telemetry log's bounded window never misses them."""
+        last = self.camera.telemetry.last
+        newest = int(last["frame_id"]) if last else 0
+        done = 0
+        for frame_id, record, frame in pending:
+            if frame_id > newest and not final:
+                break
+            sample = self.camera.telemetry.by_frame.get(frame_id)
+            if sample is not None:
+                self._fill(record, sample)
+            if writer is not None and frame is not None:
+                writer.write(annotate(frame, record))
+            records.append(record)
+            done += 1
+        del pending[:done]
 
     @staticmethod
     def _fill(record: FrameRecord, sample: dict[str, Any]) -> None:

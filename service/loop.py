@@ -28,6 +28,7 @@ from service.sources.base import Frame, LatestSlot
 log = logging.getLogger("service.loop")
 LoopState = Literal["idle", "tracking", "lost", "recovered"]
 MIN_DT_S, MAX_DT_S = 1e-3, 0.5  # controller time step bounds (a stall must not kick the integrator)
+FRAME_GAP_S = 0.5  # no frame for this long while tracking: hold gimbal and vehicle
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,7 @@ class TrackingLoop:
         self.tracked_size: tuple[int, int] | None = None
         self.gimbal = GimbalState()
         self.last_time: float | None = None
+        self.halted = False  # zero commands already sent for the current frame gap
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0}
 
@@ -111,12 +113,17 @@ class TrackingLoop:
     def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
             on_iteration: Callable[[], None] = lambda: None) -> None:
         """Take the newest frame and step, until should_stop(); on_iteration pings the watchdog."""
+        last_frame_s = time.monotonic()
         while not should_stop():
             on_iteration()
-            frame = mailbox.take(timeout_s=0.2)
+            frame = mailbox.take(timeout_s=FRAME_GAP_S / 2)
             if frame is None:
                 self._apply_selection_without_frame()
+                if time.monotonic() - last_frame_s > FRAME_GAP_S:
+                    self._hold_without_frames()
                 continue
+            last_frame_s = time.monotonic()
+            self.halted = False
             try:
                 self.step(frame)
             except Exception:  # noqa: BLE001 - never crash the daemon on one frame
@@ -186,6 +193,21 @@ class TrackingLoop:
         self.last_time = None
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
         return False
+
+    def _hold_without_frames(self) -> None:
+        """No frame for FRAME_GAP_S while tracking: command zero rates / zero velocity once.
+
+        Rate commands persist on some gimbals and velocity setpoints until the autopilot's timeout:
+        without frames nothing would correct them, so the camera and vehicle are held still until
+        frames come back (the track itself is kept and resumes with the next frame).
+        """
+        if self.tracker is None or self.halted:
+            return
+        self.halted = True
+        self.gimbal = GimbalState()
+        self.last_time = None
+        log.warning("event=no_frames_while_tracking action=hold_gimbal_and_vehicle gap_s=%.1f", FRAME_GAP_S)
+        self.outputs.apply(time.monotonic(), ControlCommand("lost", False, (0.0, 0.0), None, None))
 
     def _apply_selection_without_frame(self) -> None:
         """A stop must take effect even while no frames arrive (camera unplugged)."""

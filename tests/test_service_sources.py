@@ -290,3 +290,46 @@ def test_zenoh_source_decodes_frames_and_counts_corrupt_ones() -> None:
     finally:
         publisher_side.close()
         service_side.close()
+
+
+def test_frames_stop_while_tracking_holds_gimbal_and_vehicle_once() -> None:
+    loop, selections, outputs = make_loop(lambda: ScriptedTracker(["tracking"] * 10))
+    mailbox: LatestSlot[Frame] = LatestSlot()
+    selections.put(TrackRectangle(0.6, 0.1, 0.9, 0.4))
+    mailbox.put(frame(np.zeros((40, 40, 3), np.uint8), 0, 0.0))
+    stop = threading.Event()
+    iterations = [0]
+    ticked = threading.Condition()
+
+    def count_iteration() -> None:
+        with ticked:
+            iterations[0] += 1
+            ticked.notify_all()
+
+    runner = threading.Thread(target=loop.run, args=(mailbox, stop.is_set, count_iteration))
+    runner.start()
+    try:
+        assert outputs.wait_for(lambda: len(outputs.commands) >= 2, 5.0)  # the frame, then the hold
+        assert outputs.commands[0].rates[0] > 0  # tracked: turning right towards the target
+        hold = outputs.commands[1]
+        assert hold.state == "lost" and hold.rates == (0.0, 0.0) and hold.bearing is None
+        assert loop.tracker is not None  # the track is kept for when frames come back
+        at_hold = iterations[0]
+        with ticked:
+            assert ticked.wait_for(lambda: iterations[0] >= at_hold + 4, 10.0)
+        assert len(outputs.commands) == 2  # several more empty waits: held once per gap, not every timeout
+        mailbox.put(frame(np.zeros((40, 40, 3), np.uint8), 1, 1.0))
+        assert outputs.wait_for(lambda: len(outputs.commands) >= 3, 5.0)
+        assert outputs.commands[2].state == "tracking"
+    finally:
+        stop.set()
+        runner.join(2.0)
+
+
+def test_status_reports_error_when_the_camera_fails_while_tracking() -> None:
+    from service.mavlink import messages as m
+    active = m.TrackingStatus(m.TRACKING_STATUS_ACTIVE, m.TRACKING_MODE_RECTANGLE, (0.1, 0.1, 0.2, 0.2))
+    assert m.with_source_state(active, False) == m.TrackingStatus(m.TRACKING_STATUS_ERROR, m.TRACKING_MODE_RECTANGLE,
+                                                                  (0.1, 0.1, 0.2, 0.2))
+    assert m.with_source_state(active, True) == active
+    assert m.with_source_state(m.TrackingStatus(), False) == m.TrackingStatus()

@@ -188,6 +188,7 @@ class CameraComponent:
     def _send_image_status(self) -> None:
         with self._lock:
             status = self._snapshot.image
+        status = messages.with_source_state(status, self._source_ok())
         self.link.send(messages.tracking_image_status(self.link.mav, status))
         self.counters["status_sent"] += 1
 

@@ -43,6 +43,13 @@ class TrackingStatus:
     box: tuple[float, float, float, float] | None = None
 
 
+def with_source_state(status: TrackingStatus, source_ok: bool) -> TrackingStatus:
+    """A track whose camera has failed is reported as ERROR (keeping mode and last box); idle stays idle."""
+    if source_ok or status.status == TRACKING_STATUS_IDLE:
+        return status
+    return TrackingStatus(TRACKING_STATUS_ERROR, status.mode, status.box)
+
+
 def heartbeat(mav: object, healthy: bool) -> object:
     """Camera heartbeat: MAV_TYPE_CAMERA, autopilot INVALID; CRITICAL while the frame source is failing."""
     return mav.heartbeat_encode(MAV_TYPE_CAMERA, MAV_AUTOPILOT_INVALID, 0, 0,  # type: ignore[attr-defined]

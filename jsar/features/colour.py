@@ -21,10 +21,9 @@ Derivation (`derived_colour_table`):
    basis gives the same tracker; the original's 10-channel table is the same kind of projection.
 An external 32768 x 11 table is projected with the same Q; a 32768 x 10 table is used as is.
 
-sigma was chosen before measuring. Sensitivity on the 7 shared sequences (jsar, one-pass; commands
-in the features README section): mean precision / AUC 0.819 / 0.547 at sigma 8, 0.865 / 0.518 at
-16, 0.873 / 0.516 at 32, and 0.829 / 0.473 without colour channels: the colour channels help at
-every sigma; the differences between sigmas are within the spread of 7 sequences.
+sigma was chosen before measuring and not tuned on the shared sequences: `python -m
+jsar.features.colour_ab DATA_ROOT [--sigma S]` measures the tracker with and without the colour
+channels (numbers in the README's features section; they move with the tracker's version).
 """
 from __future__ import annotations
 

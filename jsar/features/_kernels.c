@@ -536,6 +536,33 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+HOT_LOOP_CLONES
+static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
+                             Py_ssize_t hc, Py_ssize_t wc, float *o)
+{
+    memset(o, 0, sizeof(float) * (size_t)(hc * wc * K));
+    for (Py_ssize_t y = 0; y < hc * cell; y++) {
+        float *cells = o + (y / cell) * wc * K;
+        const uint8_t *p = s + y * W * 3;
+        for (Py_ssize_t cx = 0; cx < wc; cx++) { /* cell by cell: no division per pixel */
+            float *acc = cells + cx * K;
+            for (Py_ssize_t dx = 0; dx < cell; dx++, p += 3) {
+                const float *entry = tab + (Py_ssize_t)((p[2] >> 3) + 32 * (p[1] >> 3) + 1024 * (p[0] >> 3)) * K;
+                if (K == 10) { /* the derived and the original tables: a fixed count the compiler unrolls */
+                    for (int k = 0; k < 10; k++)
+                        acc[k] += entry[k];
+                } else {
+                    for (Py_ssize_t k = 0; k < K; k++)
+                        acc[k] += entry[k];
+                }
+            }
+        }
+    }
+    const float inv = 1.0f / (float)(cell * cell);
+    for (Py_ssize_t t = 0; t < hc * wc * K; t++)
+        o[t] *= inv;
+}
+
 /* ---------------------------------------------------------------------------------------------
  * colour_cells(src, h, w, table, channels, cell, out): mean over each cell of table[row(pixel)],
  * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels).
@@ -564,29 +591,8 @@ static PyObject *colour_cells(PyObject *self, PyObject *args)
         PyBuffer_Release(&src);
         return NULL;
     }
-    const uint8_t *s = (const uint8_t *)src.buf;
-    const float *tab = (const float *)table.buf;
-    float *o = (float *)out.buf;
     Py_BEGIN_ALLOW_THREADS
-    memset(o, 0, sizeof(float) * (size_t)(hc * wc * K));
-    for (Py_ssize_t y = 0; y < hc * cell; y++) {
-        float *cells = o + (y / cell) * wc * K;
-        for (Py_ssize_t x = 0; x < wc * cell; x++) {
-            const uint8_t *p = s + (y * W + x) * 3;
-            const float *entry = tab + (Py_ssize_t)((p[2] >> 3) + 32 * (p[1] >> 3) + 1024 * (p[0] >> 3)) * K;
-            float *acc = cells + (x / cell) * K;
-            if (K == 10) { /* the derived and the original tables: a fixed count the compiler unrolls */
-                for (int k = 0; k < 10; k++)
-                    acc[k] += entry[k];
-            } else {
-                for (Py_ssize_t k = 0; k < K; k++)
-                    acc[k] += entry[k];
-            }
-        }
-    }
-    const float inv = 1.0f / (float)(cell * cell);
-    for (Py_ssize_t t = 0; t < hc * wc * K; t++)
-        o[t] *= inv;
+    colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&out);
     PyBuffer_Release(&table);

@@ -51,7 +51,13 @@ def test_normalised_values_are_clipped_at_0_2(texture):
     assert np.isclose(fh.clipped_normalised(fh.orientation_histograms(*fh.gradients(ramp(40.0)[None]), 4)).max(), 0.2)
     out = fh.fhog(texture)
     assert out[..., :27].max() <= 0.5 * 4 * 0.2 + 1e-6  # four clipped blocks, halved
-    assert out[..., 27:].max() <= fh.TEXTURE_SCALE * 4 * 0.2 * 18 + 1e-6
+    assert out[..., 27:].max() <= fh.TEXTURE_SCALE * 18 * 0.2 + 1e-6  # 18 clipped values of one block
+    # Compiled path, exactly: on a 40 degree ramp an inner cell holds one bin h, each block's energy
+    # is 4 h^2, so h * n_k = 0.5 is clipped to 0.2 in all four blocks.
+    inner = fh.fhog(ramp(40.0))[2:-2, 2:-2]
+    assert np.allclose(inner[..., 2], 0.5 * 4 * 0.2, atol=1e-5)  # signed bin 2
+    assert np.allclose(inner[..., 18 + 2], 0.5 * 4 * 0.2, atol=1e-5)  # unsigned bin 2
+    assert np.allclose(inner[..., 27:], fh.TEXTURE_SCALE * 0.2, atol=1e-5)  # one clipped value per block
 
 
 def test_contrast_invariance(texture):

@@ -16,7 +16,7 @@ import numpy as np
 
 from jsar.api import Tracker, TrackResult
 from service.config import ServiceConfig
-from service.control.geo import GroundTarget, camera_ray_ned, locate_on_ground
+from service.control.geo import GroundTarget, camera_ray_ned, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, gimbal_step
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView
@@ -288,10 +288,8 @@ class TrackingLoop:
         ground: GroundTarget | None = None
         pose = view.pose()
         if view.gimbal is not None:
-            gimbal_yaw = view.gimbal.yaw - (pose.yaw if pose and view.gimbal.yaw_in_earth_frame else 0.0)
-            if view.gimbal.yaw_in_earth_frame and pose is None:
-                gimbal_yaw = float("nan")
-            bearing = gimbal_yaw + yaw_err if math.isfinite(gimbal_yaw) else None
+            gimbal_yaw = relative_gimbal_yaw(view.gimbal, pose.yaw if pose is not None else None)
+            bearing = gimbal_yaw + yaw_err if gimbal_yaw is not None else None
             if pose is not None:
                 ground = locate_on_ground(pose, camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw))
         elif self.config.gimbal.backend == "none":

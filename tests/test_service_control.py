@@ -370,3 +370,10 @@ def test_configured_system_id_is_commanded_before_any_heartbeat() -> None:
     outputs, link = _outputs({"mavlink": {"system_id": 9}}, AutopilotView())
     outputs.apply(1.0, TRACKING)
     assert [m.target_system for m in link.sent] == [9]
+
+
+def test_relative_gimbal_yaw() -> None:
+    from service.control.geo import relative_gimbal_yaw
+    assert relative_gimbal_yaw(GimbalAttitude(0.0, 0.3, False), None) == 0.3
+    assert relative_gimbal_yaw(GimbalAttitude(0.0, 0.3, True), None) is None
+    assert relative_gimbal_yaw(GimbalAttitude(0.0, -3.0, True), 3.0) == pytest.approx(2 * math.pi - 6.0)

@@ -67,6 +67,15 @@ def gimbal_attitude_from_status(q: tuple[float, float, float, float], flags: int
     return GimbalAttitude(pitch, yaw, bool(flags & GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME))
 
 
+def relative_gimbal_yaw(gimbal: GimbalAttitude, vehicle_yaw: float | None) -> float | None:
+    """Gimbal yaw relative to the vehicle's nose (rad, + right); None if earth-framed and the heading is unknown."""
+    if not gimbal.yaw_in_earth_frame:
+        return gimbal.yaw
+    if vehicle_yaw is None:
+        return None
+    return math.atan2(math.sin(gimbal.yaw - vehicle_yaw), math.cos(gimbal.yaw - vehicle_yaw))
+
+
 def camera_ray_ned(yaw_error: float, pitch_error: float, gimbal: GimbalAttitude, vehicle_yaw: float) -> np.ndarray:
     """Unit NED direction of the ray through the target; errors as in control.gimbal.angular_error.
 

@@ -95,3 +95,14 @@ def test_protocol_misuse_and_bad_values_are_named():
         MonitorParams(enable_peak=0.02, reliable_peak=0.01)
     with pytest.raises(ValueError, match="inside_rule"):
         MonitorParams(inside_rule="half")  # type: ignore[arg-type]
+
+
+def test_omega_growth_stops_at_omega_max_while_eta_keeps_decaying():
+    monitor = FailureMonitor(MonitorParams(omega_max=6.0))
+    for frame in range(10):
+        verdict = monitor.assess(0.0, BOX, IMAGE, 40 + frame)
+        monitor.redetection_result(False)
+    assert verdict.omega == pytest.approx(6.0)
+    assert verdict.eta_d == pytest.approx(0.02 / 1.005 ** 9)
+    with pytest.raises(ValueError, match="omega_max"):
+        MonitorParams(omega_max=4.0)

@@ -44,11 +44,17 @@ class RedetectOptions:
 
     size_blend: re-initialised size = proposal^size_blend * last_confident^(1 - size_blend)
     (geometric, per side; 1 = the proposal's size as the original). inside_rule: see monitor.py.
+    omega_max: cap on the growing proposal square (units of sqrt(w*h)); the paper has none. With
+    acceptance disabled, 44 of the 46 frames whose best proposal was the reappeared target lay
+    within 5 target sides of the last confident position, while the wrong best proposals above
+    eta_d had a median distance of 13.8 sides (368 frames, 31 of them within 5 sides): beyond
+    about 6 sides (omega 12) the square adds false re-initialisations and cost, not recoveries.
     edge_sigma_px / edge_nms_radius: the gradient edge map (edges.py).
     """
 
     size_blend: float = 0.5
     inside_rule: InsideRule = "full"
+    omega_max: float = 12.0
     edge_sigma_px: float = 2.0
     edge_nms_radius: int = 1
     edgeboxes: EdgeBoxesSettings = EdgeBoxesSettings()
@@ -68,9 +74,10 @@ class Redetection:
     eta_d: float
     omega: float
     n_proposals: int
+    sharpness: float = math.nan  # peak-to-sidelobe ratio of the best proposal's response (diagnostic)
 
 
-def monitor_params(params: JsarParams, inside_rule: InsideRule = "full") -> MonitorParams:
+def monitor_params(params: JsarParams, inside_rule: InsideRule = "full", omega_max: float = math.inf) -> MonitorParams:
     """The failure monitor's thresholds from the one tracker config (redetect_* fields)."""
     return MonitorParams(
         enable_peak=params.redetect_enable_peak,
@@ -78,6 +85,7 @@ def monitor_params(params: JsarParams, inside_rule: InsideRule = "full") -> Moni
         accept_peak=params.redetect_accept_score,
         omega=params.redetect_area_factor,
         omega_growth=params.redetect_area_growth,
+        omega_max=max(omega_max, params.redetect_area_factor),
         accept_decay=params.redetect_accept_decay,
         warmup_frames=params.redetect_min_frame,
         min_area_px2=params.redetect_min_area,
@@ -108,7 +116,7 @@ class JsarReTracker:
             self._edges = lambda image: edge_maps(image, sigma, radius)
         self._edgeboxes = EdgeBoxesSettings(**{
             **options.edgeboxes.__dict__, "max_boxes": self.params.redetect_num_proposals})
-        self.monitor = FailureMonitor(monitor_params(self.params, options.inside_rule))
+        self.monitor = FailureMonitor(monitor_params(self.params, options.inside_rule, options.omega_max))
         self.decision: TranslationFilter | None = None
         # True while the decision filter has seen exactly the translation filter's training history:
         # then both are the same STRCF solution and the decision filter is shared instead of solved.
@@ -164,14 +172,17 @@ class JsarReTracker:
         proposals = generate_proposals(frame, (x + w / 2, y + h / 2), (w, h), omega, self._edgeboxes, self._edges)
         if len(proposals.boxes) == 0:
             return Redetection(False, None, -math.inf, eta_d, omega, 0)
-        scores, boxes = self.score_proposals(frame, proposals.boxes, (w, h))
+        scores, boxes, sharpness = self.score_proposals(frame, proposals.boxes, (w, h))
         best = int(np.argmax(scores))
         score = float(scores[best])
         box = _clip_box(boxes[best], frame.shape)
-        return Redetection(score > eta_d and box is not None, box, score, eta_d, omega, len(scores))
+        return Redetection(score > eta_d and box is not None, box, score, eta_d, omega, len(scores),
+                           float(sharpness[best]))
 
-    def score_proposals(self, frame: np.ndarray, boxes: np.ndarray, last_wh: tuple[float, float]) -> tuple[np.ndarray, list[Box]]:
-        """Decision-filter peak for each proposal (N, 4) px, and the box each would re-initialise at.
+    def score_proposals(self, frame: np.ndarray, boxes: np.ndarray,
+                        last_wh: tuple[float, float]) -> tuple[np.ndarray, list[Box], np.ndarray]:
+        """Decision-filter peak for each proposal (N, 4) px, the box each would re-initialise at, and
+        the peak-to-sidelobe ratio of its response (unitless).
 
         Each proposal is scored on the decision filter's own sample geometry: a square of side
         search_area_factor*sqrt(w*h) of the LAST CONFIDENT size centred on the proposal, i.e. the
@@ -195,6 +206,7 @@ class JsarReTracker:
         response_f = np.einsum("chw,mchw->mhw", self.decision.filter_f.conj(), spectra)
         responses = fourier.irfft2(response_f, self.decision.shape_hw)
         peaks = responses.reshape(len(responses), -1).max(axis=1)
+        window_sharpness = np.array([peak_to_sidelobe(r) for r in responses])
         scores = np.empty(len(boxes), np.float64)
         refined: list[Box] = []
         for k, (bw, bh) in enumerate(boxes[:, 2:]):
@@ -206,7 +218,7 @@ class JsarReTracker:
             cy = window_centres[m, 1] + dy * px_per_cell
             new_w, new_h = blend_size((float(bw), float(bh)), last_wh, self.options.size_blend)
             refined.append((cx - new_w / 2, cy - new_h / 2, new_w, new_h))
-        return scores, refined
+        return scores, refined, window_sharpness[owner]
 
     def _train_decision(self, reliable: bool) -> None:
         """After a commit: train the decision filter on the core's training sample if reliable."""
@@ -224,6 +236,18 @@ class JsarReTracker:
         assert sample_f is not None
         self.decision.set_target_cells(self.core.target_cells())
         self.decision.train(sample_f)
+
+
+def peak_to_sidelobe(response: np.ndarray, exclude: int = 5) -> float:
+    """(peak - mean) / std of a (H, W) response outside the (2*exclude+1)^2 cells around its peak (circular)."""
+    height, width = response.shape
+    row, col = divmod(int(np.argmax(response)), width)
+    rows = (np.arange(row - exclude, row + exclude + 1) % height)[:, None]
+    cols = (np.arange(col - exclude, col + exclude + 1) % width)[None, :]
+    mask = np.ones(response.shape, bool)
+    mask[rows, cols] = False
+    sidelobe = response[mask]
+    return float((response[row, col] - sidelobe.mean()) / (sidelobe.std() + 1e-12))
 
 
 def window_features(image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray, px_per_cell: float,

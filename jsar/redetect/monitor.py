@@ -19,8 +19,8 @@ Rules (paper, Algorithm 1, and the original's gating, with the choices stated he
   (`inside_rule`: "full" = the whole box, as the original; "centre" = its centre, which keeps
   re-detection available while the target leaves the view across a border). A frame that is not
   confident but not eligible is committed as usual (plain JSAR behaviour).
-- while re-detecting, each failed attempt multiplies omega by omega_growth and divides eta_d by
-  accept_decay for the next frame; an accepted proposal or a confident frame resets omega and eta_d
+- while re-detecting, each failed attempt multiplies omega by omega_growth (up to omega_max, an
+  addition: the paper lets it grow without bound) and divides eta_d by accept_decay for the next frame; an accepted proposal or a confident frame resets omega and eta_d
   to their initial values. The monitor never asks for a re-initialisation other than on the frame a
   proposal is accepted (the original's never-cleared flag retrained from scratch on every later frame).
 """
@@ -42,6 +42,7 @@ class MonitorParams:
     accept_peak: float = 0.02  # eta_d at the first failed frame
     omega: float = 5.0  # side of the proposal square, in units of sqrt(w*h)
     omega_growth: float = 1.05
+    omega_max: float = math.inf
     accept_decay: float = 1.005
     warmup_frames: int = 30
     min_area_px2: float = 100.0
@@ -56,6 +57,8 @@ class MonitorParams:
                 f"need 0 < enable_peak <= reliable_peak, got {self.enable_peak}, {self.reliable_peak}")
         if self.accept_peak <= 0 or self.omega <= 0:
             raise ValueError(f"accept_peak and omega must be > 0, got {self.accept_peak}, {self.omega}")
+        if self.omega_max < self.omega:
+            raise ValueError(f"omega_max must be >= omega, got {self.omega_max} < {self.omega}")
         if self.omega_growth < 1 or self.accept_decay < 1:
             raise ValueError(
                 f"omega_growth and accept_decay must be >= 1, got {self.omega_growth}, {self.accept_decay}")
@@ -145,7 +148,7 @@ class FailureMonitor:
             self._reference = None
         else:
             self._failed_frames += 1
-            self._omega *= self.params.omega_growth
+            self._omega = min(self._omega * self.params.omega_growth, self.params.omega_max)
             self._eta_d /= self.params.accept_decay
 
     def _reset(self) -> None:

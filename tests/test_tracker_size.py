@@ -97,3 +97,16 @@ def test_grid_spectrum_equals_rfft2_over_the_grid_axes():
     sample = np.random.default_rng(1).standard_normal((13, 13, 50)).astype(np.float32)
     expected = scipy.fft.rfft2(sample, axes=(0, 1))
     np.testing.assert_allclose(sf.spectrum(sample), expected, atol=2e-4)
+
+
+@pytest.mark.parametrize("shift", [(1, 0), (0, -1), (-1, 1), (2, -2)])
+def test_shifted_sample_equals_a_fresh_sample_at_the_new_size(shift):
+    params = JsarParams()
+    sf = SizeFilter(params, (48.0, 40.0))
+    frame = _scene((50.0, 38.0))
+    old = sf.sample(frame, (160.0, 120.0), (48.0, 40.0))
+    fw, fh = sf.cell_factors(6 + shift[0], 6 + shift[1])
+    new_size = (48.0 * fw, 40.0 * fh)
+    shifted = sf.shifted_sample(frame, (160.0, 120.0), new_size, old, shift)
+    fresh = sf.sample(frame, (160.0, 120.0), new_size)
+    np.testing.assert_allclose(shifted, fresh, atol=1e-5)

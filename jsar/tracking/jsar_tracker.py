@@ -189,12 +189,20 @@ class JsarTracker:
         i, j = self.size_filter.estimate(sample_f)
         fw, fh = self.size_filter.cell_factors(i, j)
         w, h = self.size_wh
-        new_size = self._clamp((w * fw, h * fh), image)
+        grid_size = (w * fw, h * fh)
+        new_size = self._clamp(grid_size, image)
         if new_size != self.size_wh:
+            centre_i = (self.size_filter.grid_shape[0] - 1) // 2
+            centre_j = (self.size_filter.grid_shape[1] - 1) // 2
+            if new_size == grid_size:
+                # The new grid is the old one shifted by (i - c, j - c) cells around the same
+                # centre: reuse the overlap, sample only the cells that enter the grid.
+                sample = self.size_filter.shifted_sample(
+                    image, self.center_xy, new_size, sample, (i - centre_i, j - centre_j))
+            else:  # clamped: not on the old grid, sample it afresh
+                sample = self.size_filter.sample(image, self.center_xy, new_size)
             self.size_wh = new_size
-            # The grid moved: re-sample it around the new size (exact, unlike a circular shift).
-            sample_f = self.size_filter.spectrum(
-                self.size_filter.sample(image, self.center_xy, self.size_wh))
+            sample_f = self.size_filter.spectrum(sample)
         self.size_filter.train(sample_f)
 
     def _clamp(self, size_wh: tuple[float, float], image: np.ndarray) -> tuple[float, float]:

@@ -90,23 +90,51 @@ class SizeFilter:
         self.denominator: np.ndarray | None = None  # (S, A//2+1) float32
 
     def sample(self, frame: np.ndarray, center_xy: tuple[float, float], size_wh: tuple[float, float]) -> np.ndarray:
-        """(S, A, D) float32: windowed, vectorised fHOG of every grid patch around `center_xy`."""
+        """(S, A, D) float32: vectorised fHOG of every grid patch around `center_xy` (unwindowed)."""
         sizes = grid_sizes(size_wh, self.params).reshape(-1, 2)
+        return self._features(frame, center_xy, sizes).reshape(self.grid_shape[0], self.grid_shape[1], -1)
+
+    def shifted_sample(
+        self, frame: np.ndarray, center_xy: tuple[float, float], size_wh: tuple[float, float],
+        previous: np.ndarray, shift: tuple[int, int],
+    ) -> np.ndarray:
+        """The grid sample at `size_wh` = the size of cell (c + di, c + dj) of `previous`.
+
+        `previous` was sampled at the same centre with the grid shifted by `shift` = (di, dj)
+        cells, so cell (i, j) now holds what previous cell (i + di, j + dj) held; only the cells
+        that fall outside the previous grid are sampled (the same result as `sample`, for a
+        fraction of the crops).
+        """
+        di, dj = shift
+        n_s, n_a = self.grid_shape
+        out = np.empty_like(previous)
+        src_i = np.arange(n_s) + di
+        src_j = np.arange(n_a) + dj
+        keep_i = (src_i >= 0) & (src_i < n_s)
+        keep_j = (src_j >= 0) & (src_j < n_a)
+        out[np.ix_(keep_i, keep_j)] = previous[np.ix_(src_i[keep_i], src_j[keep_j])]
+        missing = ~(keep_i[:, None] & keep_j[None, :])
+        if missing.any():
+            sizes = grid_sizes(size_wh, self.params)[missing]
+            out[missing] = self._features(frame, center_xy, sizes)
+        return out
+
+    def _features(self, frame: np.ndarray, center_xy: tuple[float, float], sizes: np.ndarray) -> np.ndarray:
+        """(N, D) float32 vectorised fHOG of the N patches of `sizes` (N, 2) px around `center_xy`."""
         if frame.ndim == 3:
             # fHOG of the size filter runs on luminance: convert only the region the grid covers.
             frame, center_xy = grey_region(frame, center_xy, sizes.max(axis=0))
         crops = patches.sample_patches(frame, center_xy, sizes, self.model_wh)
-        feats = fhog.fhog_batch(crops, self.params.cell_size)
-        feats = feats.reshape(self.grid_shape[0], self.grid_shape[1], -1)
-        return (feats * self.window[:, :, None]).astype(np.float32, copy=False)
+        return fhog.fhog_batch(crops, self.params.cell_size).reshape(len(sizes), -1)
 
     def spectrum(self, sample: np.ndarray) -> np.ndarray:
-        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample over the grid axes.
+        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample (windowed if configured).
 
         Same values as rfft2 over axes (0, 1), computed as two small DFT-matrix products: with
         ~1000 channels of 13-point transforms the matrix products are ~2.5x faster than pocketfft.
         """
-        half = np.matmul(self._dft_aspect, sample.astype(np.complex64))  # (S, A//2+1, D)
+        windowed = sample * self.window[:, :, None] if self.params.size_grid_window else sample
+        half = np.matmul(self._dft_aspect, windowed.astype(np.complex64))  # (S, A//2+1, D)
         spec = self._dft_scale @ half.reshape(half.shape[0], -1)
         return spec.reshape(half.shape)
 

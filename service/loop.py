@@ -136,11 +136,12 @@ class TrackingLoop:
         image = frame.image
         size = (image.shape[1], image.shape[0])
         self.counters["frames"] += 1
-        stopped = self._apply_selection(image, size)
+        change = self._apply_selection(image, size)
+        stopped = change == "stopped"
         if self.tracker is not None and self.tracked_size != size:
             self._handle_resize(image, size)
         result: TrackResult | None = None
-        if self.tracker is not None and not stopped:
+        if self.tracker is not None and change != "started":  # the init frame's box is the selection
             result = self._track(image)
         track_done = time.monotonic()
         command = self._control(frame, size, result, stopped)
@@ -163,13 +164,13 @@ class TrackingLoop:
         return report
 
     # --- pieces -------------------------------------------------------------------------------
-    def _apply_selection(self, image: np.ndarray, size: tuple[int, int]) -> bool:
-        """Apply a pending selection; True if tracking was just stopped."""
+    def _apply_selection(self, image: np.ndarray, size: tuple[int, int]) -> Literal["started", "stopped"] | None:
+        """Apply a pending selection: "started" (tracker initialised on this frame), "stopped", or None."""
         selection = self.selections.take(timeout_s=0.0)
         if selection is None:
-            return False
+            return None
         if isinstance(selection, StopTracking):
-            return self._stop_tracking("stop requested")
+            return "stopped" if self._stop_tracking("stop requested") else None
         self.counters["selections"] += 1
         if isinstance(selection, TrackRectangle):
             box, mode, how = rectangle_box(selection, size), messages.TRACKING_MODE_RECTANGLE, "rectangle"
@@ -177,7 +178,7 @@ class TrackingLoop:
             box, mode, how = point_box(selection, size, self.config.camera), messages.TRACKING_MODE_POINT, "point"
             if self.config.camera.point_proposal:
                 proposal = proposal_box(image, selection, box)
-                how = "point+proposal" if proposal is not None else "point (no proposal qualified)"
+                how = "point+proposal" if proposal is not None else "point,no_proposal_qualified"
                 box = proposal or box
         else:
             raise TypeError(f"unexpected selection {selection!r}")
@@ -186,13 +187,13 @@ class TrackingLoop:
             tracker.init(image, box)
         except ValueError as exc:
             log.error('event=track_init_failed box=%s reason="%s"', _fmt_box(box), exc)
-            return self._stop_tracking("init failed")
+            return "stopped" if self._stop_tracking("init failed") else None
         self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
         self.state = "tracking"
         self.gimbal = GimbalState()
         self.last_time = None
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
-        return False
+        return "started"
 
     def _hold_without_frames(self) -> None:
         """No frame for FRAME_GAP_S while tracking: command zero rates / zero velocity once.

@@ -218,16 +218,17 @@ def test_lost_gives_zero_rates_and_resets_the_integrator_then_stop_ends_commands
     loop, selections, outputs = make_loop(lambda: tracker)
     image = scene((160, 120), (120, 30), 20)
     selections.put(TrackRectangle(110 / 160, 20 / 120, 130 / 160, 40 / 120))
-    states = [loop.step(frame(image, i, i / 30)).state for i in range(6)]
-    assert states == ["tracking", "tracking", "lost", "lost", "recovered", "tracking"]
+    states = [loop.step(frame(image, i, i / 30)).state for i in range(7)]
+    # frame 0 initialises (its box is the selection); the tracker's script starts with frame 1
+    assert states == ["tracking", "tracking", "tracking", "lost", "lost", "recovered", "tracking"]
     rates = [cmd.rates for cmd in outputs.commands]
-    assert rates[2] == (0.0, 0.0) and rates[3] == (0.0, 0.0)
+    assert rates[3] == (0.0, 0.0) and rates[4] == (0.0, 0.0)
     assert loop.counters["tracker_errors"] == 1 and loop.counters["recovered"] == 1
     # after recovery the integrator restarted from zero: the first rate equals the first rate after init
-    assert rates[4] == pytest.approx(rates[0])
+    assert rates[5] == pytest.approx(rates[0]) and rates[6] != pytest.approx(rates[0])
     selections.put(StopTracking())
-    stopped = loop.step(frame(image, 6, 7 / 30))
-    after = loop.step(frame(image, 7, 8 / 30))
+    stopped = loop.step(frame(image, 7, 8 / 30))
+    after = loop.step(frame(image, 8, 9 / 30))
     assert stopped.state == "idle" and outputs.commands[-2].stopped and outputs.commands[-2].rates == (0.0, 0.0)
     assert after.state == "idle" and outputs.commands[-1].rates is None  # no more gimbal commands
 

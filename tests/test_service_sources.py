@@ -334,3 +334,39 @@ def test_status_reports_error_when_the_camera_fails_while_tracking() -> None:
                                                                   (0.1, 0.1, 0.2, 0.2))
     assert m.with_source_state(active, True) == active
     assert m.with_source_state(m.TrackingStatus(), False) == m.TrackingStatus()
+
+
+def test_backoff_restarts_after_the_source_worked_again() -> None:
+    class Flaky:
+        """Fails to open three times, then delivers one frame and fails, and so on."""
+
+        name = "flaky-open"
+
+        def __init__(self) -> None:
+            self.opens = 0
+
+        def open(self) -> None:
+            self.opens += 1
+            if self.opens % 4 != 0:
+                raise SourceError("not yet")
+
+        def frame_interval_s(self) -> None:
+            return None
+
+        def read(self, timeout_s: float) -> Frame | None:
+            if getattr(self, "served", 0) < self.opens:
+                self.served = self.opens
+                return frame(np.zeros((4, 4, 3), np.uint8), self.opens, 0.0)
+            raise SourceError("gone again")
+
+        def close(self) -> None:
+            pass
+
+    worker = CaptureWorker(Flaky(), LatestSlot(), 0.01, 0.08)
+    reasons: list[str] = []
+    worker.start()
+    assert worker.health.wait_for(lambda h: (reasons.append(h.reason) or True) and h.frames >= 2, 10.0)
+    worker.stop()
+    delays = [r.rsplit("retry in ", 1)[1] for r in reasons if "retry in" in r]
+    # 0.01, 0.02, 0.04, then a frame, then "gone again" retries from 0.01 instead of continuing at 0.08
+    assert "0.0 s" in delays[0] and any("gone again" in r and "retry in 0.0 s" in r for r in reasons)

@@ -111,7 +111,7 @@ class SourceHealth:
             self.state, self.reason = state, reason
             self._lock.notify_all()
         if changed:
-            level = logging.INFO if state == "ok" else logging.WARNING
+            level = logging.WARNING if state in ("error", "ended") else logging.INFO
             log.log(level, "event=source_state state=%s reason=%s", state, _quote(reason))
 
     def wait_for(self, predicate: "Callable[[SourceHealth], bool]", timeout_s: float) -> bool:
@@ -169,25 +169,26 @@ class CaptureWorker:
                     return
                 continue
             self.health.set("starting", "opened, waiting for the first frame")
+            frames_before = self.health.frames
+            failure: str | None = None
             try:
-                if self._pump():
-                    delays = backoff_delays(*self._retry)
+                self._pump()
             except EndOfStream as exc:
                 self.reader.close()
                 self.health.set("ended", str(exc) or "end of stream")
                 return
             except SourceError as exc:
-                self.reader.close()
-                if not self._fail(str(exc), next(delays)):
-                    return
-                continue
+                failure = str(exc)
             except Exception as exc:  # noqa: BLE001 - a reader bug must not kill the service
                 log.exception("event=source_crash reader=%s", self.reader.name)
-                self.reader.close()
-                if not self._fail(f"{type(exc).__name__}: {exc}", next(delays)):
-                    return
-                continue
+                failure = f"{type(exc).__name__}: {exc}"
             self.reader.close()
+            if failure is None:
+                return  # stopped
+            if self.health.frames > frames_before:
+                delays = backoff_delays(*self._retry)  # it worked for a while: start the backoff afresh
+            if not self._fail(failure, next(delays)):
+                return
 
     def _fail(self, reason: str, delay_s: float) -> bool:
         """Record a failure, wait delay_s (or until stopped); False when stopping."""
@@ -197,9 +198,8 @@ class CaptureWorker:
         self.health.set("error", f"{reason}; retry in {delay_s:.1f} s")
         return not self._stop.wait(delay_s)
 
-    def _pump(self) -> bool:
-        """Read frames until stopped; returns True if at least one frame was read."""
-        got_any = False
+    def _pump(self) -> None:
+        """Read frames into the mailbox until stopped; raises what the reader raises (but CorruptFrame)."""
         interval = self.reader.frame_interval_s()
         next_due: float | None = None
         last_frame = time.monotonic()
@@ -208,7 +208,7 @@ class CaptureWorker:
                 # pace like a camera: one frame per interval; after a stall, restart the clock
                 wait_s = next_due - time.monotonic()
                 if wait_s > 0 and self._stop.wait(wait_s):
-                    return got_any
+                    return
             try:
                 frame = self.reader.read(timeout_s=0.2)
             except CorruptFrame as exc:
@@ -231,9 +231,7 @@ class CaptureWorker:
                 self.health.last_frame_size = (width, height)
                 self.health._lock.notify_all()
             self.health.set("ok")
-            got_any = True
             self.mailbox.put(frame)
-        return got_any
 
 
 def _quote(text: str) -> str:

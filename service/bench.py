@@ -33,6 +33,7 @@ from pymavlink.dialects.v20 import common as dialect  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
+IDLE_S = 3.0  # measured before the selection: decoding, telemetry and MAVLink without tracking
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MAVLINK20": "1"}
 
 
@@ -164,6 +165,11 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
         with lock:
             if not lock.wait_for(lambda: len(reports) > 0, 30.0):
                 raise SystemExit(f"{tracker}: no telemetry from the daemon")
+            # idle: frames decoded and reported, nothing tracked (IDLE_S of the file)
+            idle_wall, idle_cpu = time.monotonic(), cpu_seconds(proc.pid)
+            first_idle = reports[-1]["frame_id"]
+            lock.wait_for(lambda: reports[-1]["frame_id"] >= first_idle + int(IDLE_S * FPS), IDLE_S + 10)
+            idle_cores = (cpu_seconds(proc.pid) - idle_cpu) / (time.monotonic() - idle_wall)
             current = reports[-1]["frame_id"]
         autopilot.track(gt[min(current + 1, len(gt) - 1)])
         with lock:
@@ -197,7 +203,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
             "latency_p99_ms": float(np.percentile(total, 99)), "track_p50_ms": float(np.percentile(track, 50)),
             "queue_p50_ms": float(np.percentile(queue, 50)),
             "control_send_p50_ms": float(np.percentile(total - queue - track, 50)),
-            "cpu_cores": cpu / wall, "dropped_frames": window[-1]["dropped_frames"] - window[0]["dropped_frames"],
+            "cpu_cores": cpu / wall, "idle_cpu_cores": idle_cores, "dropped_frames": window[-1]["dropped_frames"] - window[0]["dropped_frames"],
             "gimbal_commands": autopilot.gimbal_commands,
             "centre_error_median_px": float(np.median(centre_err)) if centre_err else float("nan")}
 
@@ -215,16 +221,16 @@ def main(argv: list[str] | None = None) -> int:
         print("JSAR_DATA_ROOT is not set: the benchmark plays a real shared sequence", file=sys.stderr)
         return 2
     out = Path(args.out)
-    video, gt = prepare_video(Path(root) / args.sequence, out, max_frames=int(FPS * (args.seconds + 5)))
+    video, gt = prepare_video(Path(root) / args.sequence, out, max_frames=int(FPS * (args.seconds + IDLE_S + 5)))
     results = [run_one(name, video, gt, args.seconds, out) for name in args.trackers.split(",")]
     print(f"640x480 @ {FPS:.0f} fps, {args.sequence}, one thread; latency = frame read -> gimbal command")
     print("| tracker | frames | fps | latency p50 ms | latency p99 ms | wait p50 ms | track p50 ms "
-          "| control+send p50 ms | CPU (cores) | dropped | centre error px |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| control+send p50 ms | CPU (cores) | idle CPU | dropped | centre error px |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
         print(f"| {r['tracker']} | {r['frames_processed']} | {r['processed_fps']:.1f} | {r['latency_p50_ms']:.1f} "
               f"| {r['latency_p99_ms']:.1f} | {r['queue_p50_ms']:.1f} | {r['track_p50_ms']:.1f} "
-              f"| {r['control_send_p50_ms']:.2f} | {r['cpu_cores']:.2f} | {r['dropped_frames']} "
+              f"| {r['control_send_p50_ms']:.2f} | {r['cpu_cores']:.2f} | {r['idle_cpu_cores']:.2f} | {r['dropped_frames']} "
               f"| {r['centre_error_median_px']:.1f} |")
     (out / "results.json").write_text(json.dumps(results, indent=2))
     return 0

@@ -1,0 +1,101 @@
+"""python -m jsar.eval DATA_ROOT --trackers jsar,strcf,csrt,kcf [--json F] [--plots D] [--published D]
+[--sequences a,b] [--longterm [--kinds ...] [--lengths 5,15,40] [--seed 0]] [--max-frames N]
+
+One thread: the BLAS / OpenMP env vars are set to 1 for libraries loaded later, cv2.setNumThreads(1),
+and threadpoolctl caps the pools of libraries already loaded (numpy's OpenBLAS is loaded by
+`import jsar`, before this module runs, so env vars alone would be too late); the resulting
+pool sizes are printed and stored in the JSON ("threads").
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from jsar.eval.runner import limit_threads_env
+
+limit_threads_env()  # before the trackers' modules (scipy, ...) are imported below
+
+import cv2  # noqa: E402
+from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from jsar.eval import dataset, evaluate, longterm, report  # noqa: E402
+
+
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m jsar.eval", description=__doc__.split("\n\n")[0])
+    parser.add_argument("data_root", type=Path, help="folder of OTB-layout sequences (or one sequence)")
+    parser.add_argument("--trackers", default="jsar,strcf,csrt,kcf", help="comma-separated jsar.create names")
+    parser.add_argument("--sequences", default="", help="comma-separated sequence folder names (default all)")
+    parser.add_argument("--published", type=Path, help="DIR/<tracker>/<seq>.txt results to score as extra rows")
+    parser.add_argument("--json", type=Path, help="write every number and per-frame boxes here")
+    parser.add_argument("--plots", type=Path, help="write precision / success PNG plots into this folder")
+    parser.add_argument("--max-frames", type=int, help="only the first N frames of each sequence (quick runs)")
+    parser.add_argument("--longterm", action="store_true", help="long-term protocol with injected events")
+    parser.add_argument("--kinds", default=",".join(longterm.EVENT_KINDS), help="event kinds (--longterm)")
+    parser.add_argument("--lengths", default=",".join(map(str, longterm.DEFAULT_LENGTHS)),
+                        help="event lengths in frames (--longterm)")
+    parser.add_argument("--seed", type=int, default=0, help="event placement seed (--longterm)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    trackers = _csv(args.trackers)
+    if not trackers:
+        raise SystemExit("--trackers: give at least one tracker name")
+    if args.longterm and args.published:
+        raise SystemExit("--published does not apply to --longterm (published boxes are for the original frames)")
+    try:
+        folders = dataset.select_sequences(dataset.discover_sequences(args.data_root), _csv(args.sequences))
+        sequences = [evaluate.truncated(dataset.load_sequence(f), args.max_frames) for f in folders]
+        factories = evaluate.tracker_factories(trackers)
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from exc
+    for factory in factories.values():
+        factory()  # import every tracker's modules now, so the thread cap below covers their libraries
+    limiter = threadpool_limits(limits=1)
+    threads = {"cv2": cv2.getNumThreads(),
+               "pools": [{"library": p["internal_api"], "prefix": p["prefix"], "threads": p["num_threads"]}
+                         for p in threadpool_info()]}
+    print(f"threads: cv2 {threads['cv2']}, " + ", ".join(
+        f"{p['prefix']} {p['threads']}" for p in threads["pools"]), file=sys.stderr)
+    kinds = _csv(args.kinds)
+    lengths = tuple(int(v) for v in _csv(args.lengths))
+    total = sum(len(s) for s in sequences) * (len(kinds) if args.longterm else 1)
+    with tqdm(total=total, unit="frame", disable=args.no_progress, file=sys.stderr) as bar:
+        try:
+            if args.longterm:
+                result = evaluate.evaluate_longterm(sequences, trackers, kinds, lengths, args.seed,
+                                                    progress=bar.update)
+            else:
+                result = evaluate.evaluate(sequences, trackers, args.published, progress=bar.update)
+        except ValueError as exc:
+            raise SystemExit(f"error: {exc}") from exc
+    limiter.restore_original_limits()
+    result["threads"] = threads
+    result["data_root"] = str(args.data_root)
+    result["max_frames"] = args.max_frames
+    if args.longterm:
+        print(report.format_longterm_table(result))
+    else:
+        print(report.format_sequence_table(result))
+        print()
+        print(report.format_summary_table(result))
+    if args.json:
+        report.write_json(result, args.json)
+        print(f"json: {args.json}")
+    if args.plots:
+        paths = report.save_plots(result, args.plots, "injected events" if args.longterm else "shared UAV sequences")
+        print(f"plots: {len(paths)} PNG in {args.plots}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""The evaluation procedures behind `python -m jsar.eval`: one-pass and long-term, returning plain dicts.
+
+Result layout (also what --json writes):
+  {"sequences": {seq: {"frames": N, "trackers": {name: entry}}}, "summary": {name: {...}}}
+where an entry holds precision (at 20 px), auc, the two curves, boxes (N x 4, 0-based x,y,w,h) and,
+for trackers run here, fps, seconds, scores and states; published entries have "published": true.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+import jsar
+from jsar.api import Tracker
+from jsar.eval import dataset, longterm, metrics
+from jsar.eval.runner import TrackerRun, track_lockstep
+
+CSRT = "csrt"
+
+
+def tracker_factories(names: list[str], overrides: dict[str, dict] | None = None
+                      ) -> dict[str, Callable[[], Tracker]]:
+    """Name -> zero-argument factory via jsar.create; ValueError now if a name is unknown."""
+    overrides = overrides or {}
+    available = jsar.available()
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise ValueError(f"unknown tracker(s) {', '.join(unknown)}; available: {', '.join(available)}")
+    return {n: (lambda n=n: jsar.create(n, **overrides.get(n, {}))) for n in names}
+
+
+def truncated(sequence: dataset.Sequence, max_frames: int | None) -> dataset.Sequence:
+    """The first `max_frames` frames of `sequence` (all of them when None)."""
+    if max_frames is None or max_frames >= len(sequence):
+        return sequence
+    if max_frames < 2:
+        raise ValueError(f"max_frames must be >= 2, got {max_frames}")
+    return dataset.Sequence(sequence.name, sequence.frame_paths[:max_frames],
+                            sequence.groundtruth[:max_frames])
+
+
+def run_entry(run: TrackerRun, groundtruth: np.ndarray) -> dict[str, object]:
+    """Scores and raw output of one tracker run."""
+    entry = metrics.score(run.boxes, groundtruth)
+    entry.update({
+        "published": False,
+        "fps": run.fps,
+        "seconds": run.seconds,
+        "frames_timed": run.frames_timed,
+        "boxes": run.boxes,
+        "scores": run.scores,
+        "states": run.states,
+        "frame_ms": run.frame_seconds * 1000.0,
+        "error": run.error,
+        "failed_at": run.failed_at,
+    })
+    return entry
+
+
+def evaluate(sequences: list[dataset.Sequence], tracker_names: list[str],
+             published_dir: Path | None = None,
+             progress: Callable[[int], None] | None = None) -> dict[str, object]:
+    """One-pass evaluation of every tracker (and published result) on every sequence."""
+    factories = tracker_factories(tracker_names)
+    published = dataset.published_trackers(published_dir) if published_dir else []
+    clash = set(published) & set(tracker_names)
+    if clash:
+        raise ValueError(f"published tracker names clash with run trackers: {sorted(clash)}")
+    per_sequence: dict[str, object] = {}
+    for seq in sequences:
+        runs = track_lockstep((seq.read_frame(i) for i in range(len(seq))), len(seq),
+                              seq.groundtruth[0], factories, seq.name,
+                              on_frame=(lambda: progress(1)) if progress else None)
+        entries: dict[str, object] = {name: run_entry(run, seq.groundtruth) for name, run in runs.items()}
+        for name in published:
+            boxes = dataset.load_published(published_dir, name, seq.name, len(seq))  # type: ignore[arg-type]
+            if boxes is None:
+                continue
+            entry = metrics.score(boxes, seq.groundtruth)
+            entry.update({"published": True, "boxes": boxes})
+            entries[name] = entry
+        per_sequence[seq.name] = {"frames": len(seq), "trackers": entries}
+    return {"sequences": per_sequence, "summary": summarise(per_sequence)}
+
+
+def summarise(per_sequence: dict[str, object]) -> dict[str, dict[str, object]]:
+    """Per tracker: means over its sequences of precision / AUC / fps, frame-weighted fps, ratio vs CSRT."""
+    names: list[str] = []
+    for seq in per_sequence.values():
+        for name in seq["trackers"]:  # type: ignore[index]
+            if name not in names:
+                names.append(name)
+    summary: dict[str, dict[str, object]] = {}
+    for name in names:
+        entries = [(s["frames"], s["trackers"][name]) for s in per_sequence.values()  # type: ignore[index]
+                   if name in s["trackers"]]  # type: ignore[index]
+        row: dict[str, object] = {
+            "published": bool(entries[0][1]["published"]),
+            "sequences": len(entries),
+            "precision": float(np.mean([e["precision"] for _, e in entries])),
+            "auc": float(np.mean([e["auc"] for _, e in entries])),
+            "precision_curve": np.mean([e["precision_curve"] for _, e in entries], axis=0),
+            "success_curve": np.mean([e["success_curve"] for _, e in entries], axis=0),
+        }
+        if not row["published"]:
+            frames = sum(e["frames_timed"] for _, e in entries)
+            seconds = sum(e["seconds"] for _, e in entries)
+            row.update({
+                "fps_mean": float(np.mean([e["fps"] for _, e in entries])),
+                "fps_frame_weighted": frames / seconds if seconds > 0 else float("nan"),
+                "errors": [f"{e['error'].splitlines()[0]} (frame {e['failed_at']})"
+                           for _, e in entries if e["error"]],
+            })
+        summary[name] = row
+    if CSRT in summary:
+        csrt_fps = summary[CSRT]["fps_frame_weighted"]
+        for row in summary.values():
+            if not row["published"]:
+                row["fps_ratio_vs_csrt"] = row["fps_frame_weighted"] / csrt_fps  # type: ignore[operator]
+        for seq in per_sequence.values():
+            trackers = seq["trackers"]  # type: ignore[index]
+            if CSRT in trackers:
+                for entry in trackers.values():
+                    if not entry["published"]:
+                        entry["fps_ratio_vs_csrt"] = entry["fps"] / trackers[CSRT]["fps"]
+    return summary
+
+
+def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str],
+                      kinds: list[str], lengths: tuple[int, ...], seed: int,
+                      criteria: longterm.LongTermCriteria | None = None,
+                      config: longterm.InjectionConfig | None = None,
+                      progress: Callable[[int], None] | None = None) -> dict[str, object]:
+    """Long-term evaluation: every tracker on every (sequence, event kind) with injected events."""
+    factories = tracker_factories(tracker_names)
+    criteria = criteria or longterm.LongTermCriteria()
+    per_sequence: dict[str, object] = {}
+    lt_runs: dict[str, list[dict[str, object]]] = {n: [] for n in tracker_names}
+    for seq in sequences:
+        for kind in kinds:
+            events = longterm.inject_events(seq, kind, lengths, seed, config)
+            runs = track_lockstep(events.frames(), len(events), events.groundtruth[0], factories,
+                                  events.name, on_frame=(lambda: progress(1)) if progress else None)
+            entries: dict[str, object] = {}
+            for name, run in runs.items():
+                entry = run_entry(run, events.groundtruth)
+                lt = longterm.longterm_scores(run.boxes, run.states, events.groundtruth, criteria)
+                for event in lt["events"]:  # type: ignore[union-attr]
+                    event["kind"] = kind
+                entry["longterm"] = lt
+                lt_runs[name].append(lt)
+                entries[name] = entry
+            per_sequence[events.name] = {
+                "frames": len(events), "base": seq.name, "kind": kind,
+                "events": [{"start": e.start, "length": e.length} for e in events.events],
+                "dropped_lengths": list(events.dropped_lengths), "trackers": entries,
+            }
+    summary = summarise(per_sequence)
+    for name in tracker_names:
+        row = summary[name]
+        row["longterm"] = longterm.summarise_longterm(lt_runs[name])
+        all_events = [e for lt in lt_runs[name] for e in lt["events"]]  # type: ignore[union-attr]
+        row["reacquisition_by_length"] = _rate_by(all_events, "length")
+        row["reacquisition_by_kind"] = _rate_by(all_events, "kind")
+    return {"sequences": per_sequence, "summary": summary, "seed": seed,
+            "criteria": criteria.__dict__, "lengths": list(lengths), "kinds": kinds}
+
+
+def _rate_by(events: list[dict[str, object]], key: str) -> dict[str, dict[str, float | int]]:
+    """Re-acquisition rate grouped by an event field: {value: {"events": n, "rate": r}}."""
+    groups: dict[str, list[bool]] = {}
+    for event in events:
+        groups.setdefault(str(event[key]), []).append(bool(event["reacquired"]))
+    return {k: {"events": len(v), "rate": float(np.mean(v))} for k, v in sorted(groups.items(), key=lambda kv: (len(kv[0]), kv[0]))}

@@ -1,0 +1,165 @@
+"""Output of an evaluation: text tables, precision / success plots (PNG), JSON with every number."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from jsar.eval import metrics
+
+
+def _fmt(value: object, spec: str = ".3f") -> str:
+    """A number formatted with `spec`, '-' for None / NaN."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return format(value, spec)
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    """Left-aligned first column, right-aligned others, markdown-style pipes."""
+    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
+    def line(cells: list[str]) -> str:
+        parts = [c.ljust(widths[0]) if i == 0 else c.rjust(widths[i]) for i, c in enumerate(cells)]
+        return "| " + " | ".join(parts) + " |"
+    sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    return "\n".join([line(header), sep] + [line(r) for r in rows])
+
+
+def _order(summary: dict[str, dict[str, object]]) -> list[str]:
+    """Run trackers first (in run order), then published ones by decreasing AUC."""
+    run = [n for n, r in summary.items() if not r["published"]]
+    published = sorted((n for n, r in summary.items() if r["published"]),
+                       key=lambda n: -float(summary[n]["auc"]))  # type: ignore[arg-type]
+    return run + published
+
+
+def format_sequence_table(result: dict[str, object]) -> str:
+    """Per sequence and tracker: precision@20px, AUC, fps, fps / CSRT."""
+    summary = result["summary"]
+    rows = []
+    for seq_name, seq in result["sequences"].items():  # type: ignore[union-attr]
+        for name in _order(summary):  # type: ignore[arg-type]
+            entry = seq["trackers"].get(name)
+            if entry is None:
+                continue
+            rows.append([seq_name, name + (" (published)" if entry["published"] else ""),
+                         _fmt(entry["precision"]), _fmt(entry["auc"]),
+                         _fmt(entry.get("fps"), ".1f"), _fmt(entry.get("fps_ratio_vs_csrt"), ".2f")])
+    return _table(["sequence", "tracker", "prec@20", "AUC", "fps", "fps/CSRT"], rows)
+
+
+def format_summary_table(result: dict[str, object]) -> str:
+    """Per tracker: mean precision / AUC over its sequences, mean and frame-weighted fps, ratio vs CSRT."""
+    summary = result["summary"]
+    rows = []
+    for name in _order(summary):  # type: ignore[arg-type]
+        row = summary[name]  # type: ignore[index]
+        rows.append([name + (" (published)" if row["published"] else ""), str(row["sequences"]),
+                     _fmt(row["precision"]), _fmt(row["auc"]), _fmt(row.get("fps_mean"), ".1f"),
+                     _fmt(row.get("fps_frame_weighted"), ".1f"), _fmt(row.get("fps_ratio_vs_csrt"), ".2f")])
+    text = _table(["tracker", "seqs", "mean prec@20", "mean AUC", "mean fps", "fps (frame-weighted)",
+                   "fps/CSRT"], rows)
+    errors = [f"  {name}: {msg}" for name, row in summary.items()  # type: ignore[union-attr]
+              for msg in row.get("errors", [])]
+    if errors:
+        text += "\nTRACKER ERRORS (boxes after the failure count as misses):\n" + "\n".join(errors)
+    return text
+
+
+def format_longterm_table(result: dict[str, object]) -> str:
+    """Per tracker: re-acquisition rate, frames to recover, false re-inits, precision / AUC, fps."""
+    summary = result["summary"]
+    rows = []
+    for name, row in summary.items():  # type: ignore[union-attr]
+        lt = row["longterm"]
+        by_length = ", ".join(f"{k}:{v['rate']:.2f}/{v['events']}"
+                              for k, v in row["reacquisition_by_length"].items())
+        rows.append([name, f"{_fmt(lt['reacquisition_rate'], '.2f')} of {lt['n_events']}", by_length,
+                     _fmt(lt["mean_frames_to_recover"], ".1f"), _fmt(lt["median_frames_to_recover"], ".1f"),
+                     f"{_fmt(lt['false_reinit_rate'], '.3f')} ({lt['false_reinit_absent']}+"
+                     f"{lt['false_reinit_wrong_object']}/{lt['absent_frames']})",
+                     _fmt(row["precision"]), _fmt(row["auc"]), _fmt(row["fps_frame_weighted"], ".1f"),
+                     _fmt(row.get("fps_ratio_vs_csrt"), ".2f")])
+    criteria = result["criteria"]
+    note = (f"re-acquired: on target (IoU > {criteria['min_iou']} or centre error <= "
+            f"{criteria['max_centre_error_px']} px) within {criteria['window']} frames of reappearance; "
+            f"false re-init: 'recovered' state or box jump while absent + 'recovered' onto IoU 0, "
+            f"per absent frame; by length = rate/events; seed {result['seed']}")
+    return _table(["tracker", "re-acquired", "by length", "mean frames", "median frames",
+                   "false re-init (abs+wrong/absent)", "prec@20", "AUC", "fps", "fps/CSRT"], rows) + "\n" + note
+
+
+def save_plots(result: dict[str, object], directory: Path | str, title: str = "shared UAV sequences") -> list[Path]:
+    """Precision and success plots (overall mean, and per sequence) as PNG; returns the paths."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+
+    def draw(curves: dict[str, tuple[np.ndarray, np.ndarray, bool, int]], label: str, stem: str) -> None:
+        for kind in ("precision", "success"):
+            fig, ax = plt.subplots(figsize=(6, 4.5), dpi=100)
+            key = 0 if kind == "precision" else 1
+            thresholds = metrics.PRECISION_THRESHOLDS_PX if kind == "precision" else metrics.SUCCESS_THRESHOLDS
+            def value(name: str) -> float:
+                curve = curves[name][key]
+                return float(np.interp(metrics.PRECISION_AT_PX, thresholds, curve)) if kind == "precision" \
+                    else metrics.auc(curve)
+            palette = plt.get_cmap("tab20").colors  # 20 distinct colours: up to 20 trackers per plot
+            for rank, name in enumerate(sorted(curves, key=lambda n: -value(n))):
+                prec, succ, published, n_seq = curves[name]
+                extra = f", {n_seq} seq" if n_seq and published else ""
+                ax.plot(thresholds, curves[name][key], linestyle="--" if published else "-",
+                        color=palette[(2 * rank + rank // 10) % len(palette)],
+                        linewidth=1.2 if published else 2.2, label=f"{name} [{value(name):.3f}{extra}]")
+            if kind == "precision":
+                ax.set(xlabel="Location error threshold (px)", ylabel="Precision", xlim=(0, 50))
+                ax.set_title(f"Precision plots of OPE on {label}")
+            else:
+                ax.set(xlabel="Overlap threshold", ylabel="Success rate", xlim=(0, 1))
+                ax.set_title(f"Success plots of OPE on {label}")
+            ax.set_ylim(0, 1)
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="lower right" if kind == "precision" else "lower left", fontsize=7)
+            fig.tight_layout()
+            path = directory / f"{stem}_{kind}.png"
+            fig.savefig(path)
+            plt.close(fig)
+            written.append(path)
+
+    summary = result["summary"]
+    draw({n: (r["precision_curve"], r["success_curve"], r["published"], r["sequences"])  # type: ignore
+          for n, r in summary.items()}, title, "overall")  # type: ignore[union-attr]
+    for seq_name, seq in result["sequences"].items():  # type: ignore[union-attr]
+        draw({n: (e["precision_curve"], e["success_curve"], e["published"], 0)
+              for n, e in seq["trackers"].items()}, seq_name, seq_name)
+    return written
+
+
+def _jsonable(value: object) -> object:
+    """numpy arrays / scalars -> lists / floats, NaN and inf -> None (strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def write_json(result: dict[str, object], path: Path | str) -> None:
+    """Every number and the per-frame boxes (0-based x,y,w,h pixels) as strict JSON (NaN -> null)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(_jsonable(result), indent=1))

@@ -165,49 +165,52 @@ def admm_solve(
     if box_transforms is False:
         box = None
     partial = _BoxDft(shape_hw, box[0]) if box is not None else None
-    g_f: np.ndarray | None = None
-    h_f: np.ndarray | None = None
+    # Work buffers, reused across iterations: fresh large temporaries cost page faults.
+    q = np.empty_like(sample_f)  # right-hand side, then the f-step solution
+    tmp = np.empty_like(sample_f)
+    g_f = np.zeros_like(sample_f)
+    h_f = np.zeros_like(sample_f)
     penalty = penalty_init * n
     penalty_cap = penalty_max * n
-    filter_f = constant
     for it in range(iterations):
         # f-step: (x x^H + (mu + p) I) f = q, q = x conj(y) + mu f_prev + p g - h,
         # solved per frequency by Sherman-Morrison.
-        if g_f is None or h_f is None:
-            q = constant.copy()
+        if it == 0:
+            np.copyto(q, constant)  # g = h = 0
         else:
-            q = g_f * np.float32(penalty)
+            np.multiply(g_f, np.float32(penalty), out=q)
             q += constant
             q -= h_f
-        coeff = (sample_conj * q).sum(axis=0)
+        np.multiply(sample_conj, q, out=tmp)
+        coeff = tmp.sum(axis=0)
         coeff /= sxx + np.float32(mu_n + penalty)
-        q -= sample_f * coeff[None]
+        np.multiply(sample_f, coeff[None], out=tmp)
+        q -= tmp
         q *= np.float32(1.0 / (mu_n + penalty))
-        filter_f = q
         if it == iterations - 1:
             break
         # g-step: g = (p f + h) / (lam w^2 + p), spatial, element-wise (p already scaled by N).
-        numerator = filter_f * np.float32(penalty)
-        if h_f is not None:
-            numerator += h_f
+        numerator = np.multiply(q, np.float32(penalty), out=tmp)
+        numerator += h_f
         if partial is not None and box is not None:
             _, inside, outside = box
             a = 1.0 / (lam * outside**2 + penalty)
             b = 1.0 / (lam * inside**2 + penalty) - a
             inner = partial.inverse(numerator)
             inner *= np.float32(b)
-            g_f = partial.forward(inner)
-            g_f += numerator * np.float32(a)
+            partial.forward(inner, out=g_f)
+            numerator *= np.float32(a)
+            g_f += numerator
         else:
             spatial = fourier.irfft2(numerator, shape_hw)
             spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
-            g_f = fourier.rfft2(spatial.astype(np.float32, copy=False))
+            g_f[...] = fourier.rfft2(spatial.astype(np.float32, copy=False))
         # dual ascent on the constraint f = g
-        step = filter_f - g_f
-        step *= np.float32(penalty)
-        h_f = step if h_f is None else h_f + step
+        np.subtract(q, g_f, out=tmp)
+        tmp *= np.float32(penalty)
+        h_f += tmp
         penalty = min(penalty * penalty_growth, penalty_cap)
-    return filter_f.astype(np.complex64, copy=False)
+    return q
 
 
 def _two_valued_box(window: np.ndarray) -> tuple[tuple[int, int, int, int], float, float] | None:
@@ -250,9 +253,10 @@ class _BoxDft:
         """(C, bh, bw) float32: irfft2(spectrum) on the box."""
         return np.real(np.matmul(self.inv_y, np.matmul(spectrum, self.inv_x))).astype(np.float32)
 
-    def forward(self, box_values: np.ndarray) -> np.ndarray:
+    def forward(self, box_values: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(C, H, W//2+1) complex64: rfft2 of the signal equal to box_values on the box, 0 elsewhere."""
-        return np.matmul(np.matmul(self.fwd_y, box_values.astype(np.complex64)), self.fwd_x)
+        rows = np.matmul(box_values.astype(np.complex64), self.fwd_x)  # (C, bh, W')
+        return np.matmul(self.fwd_y, rows, out=out)
 
 
 def strcf_objective(

@@ -43,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         daemon = Service(config)
+    except ConfigError as exc:
+        log.error('event=configuration_error error="%s"', exc)
+        return 2
     except (ConnectionError, ValueError) as exc:
         log.error('event=startup_failed error="%s"', exc)
         return 1

@@ -9,7 +9,7 @@ from typing import Any
 import cv2
 
 import jsar
-from service.config import ServiceConfig, as_plain
+from service.config import ConfigError, ServiceConfig, as_plain
 from service.loop import FrameReport, TrackingLoop
 from service.mavlink.camera import CameraComponent
 from service.mavlink.link import MavlinkLink
@@ -30,7 +30,10 @@ class Service:
         self.started_s = time.monotonic()
         tracker_cfg = config.tracker
         cv2.setNumThreads(tracker_cfg.threads)
-        jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
+        try:
+            jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"tracker.params: {exc}") from exc
         self._session = open_session(config.zenoh) if config.zenoh.enabled else None
         try:
             self.mailbox: LatestSlot[Frame] = LatestSlot()

@@ -83,3 +83,11 @@ def test_missing_or_malformed_file(tmp_path: Path) -> None:
     broken.write_text("gimbal: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(broken)
+
+
+def test_bad_tracker_params_stop_the_service_naming_the_key() -> None:
+    from service.app import Service
+    config = config_from_mapping({"tracker": {"name": "csrt", "params": {"no_such_param": 1}},
+                                  "zenoh": {"enabled": False}})
+    with pytest.raises(ConfigError, match="tracker.params: .*no_such_param"):
+        Service(config)

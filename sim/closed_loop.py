@@ -205,6 +205,7 @@ class ClosedLoop:
                              f"udpout:127.0.0.1:{self.service_port}")
         self.gcs = None
         self.frame_id = 0
+        self._epoch = time.time()
         self.status_line = ""
 
     # ----- lifecycle ----------------------------------------------------------------------------
@@ -256,9 +257,12 @@ class ClosedLoop:
             pose = self.camera_pose()
         return self.scene.render(pose, t)
 
-    def publish(self, frame: np.ndarray) -> int:
+    def publish(self, frame: np.ndarray, sim_time_s: float | None = None) -> int:
+        """Send a frame. Lockstep frames carry the simulated capture time (epoch of the run + t), so a
+        daemon that integrates over capture-time intervals sees exactly 1/fps between frames."""
         self.frame_id += 1
-        self.camera.publish(frame, self.frame_id)
+        stamp = None if sim_time_s is None or self.cfg.pace != "lockstep" else self._epoch + sim_time_s
+        self.camera.publish(frame, self.frame_id, stamp)
         return self.frame_id
 
     def select_target(self, timeout_s: float = 30.0) -> str:
@@ -314,6 +318,7 @@ class ClosedLoop:
         modes = sorted(cfg.operator_modes)
         next_rss = 0.0
         start_wall = time.monotonic()
+        self._epoch = time.time()
         stats = self.autopilot.stats.received_by_type
         for k in range(frames):
             t = k * dt
@@ -331,7 +336,7 @@ class ClosedLoop:
                 next_rss += cfg.rss_every_s
             frame, truth = self.render(t)
             gimbal_before = sum(stats[name] for name in GIMBAL_TYPES)
-            frame_id = self.publish(frame)
+            frame_id = self.publish(frame, t)
             with self.autopilot.lock:
                 st, model = self.autopilot.model.state, self.autopilot.model
                 record = FrameRecord(frame_id, t, truth, None, None, None, (st.north, st.east),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -24,6 +25,7 @@ pytestmark = pytest.mark.slow
 DURATION_S = 24.0
 DROP_START_S, DROP_S = 13.0, 5.0
 OCCLUSION_S = 8.0  # SceneConfig default: the car passes under a canopy at 8 s
+OUT = Path(__file__).resolve().parent.parent / "out"  # git-ignored: annotated videos of the runs
 REENGAGE_S = 20.0  # px4: the pilot tries to re-engage OFFBOARD after the link is back
 
 
@@ -45,7 +47,8 @@ class Scenario:
 def run_scenario(flavour: str) -> Scenario:
     cfg = ClosedLoopConfig(flavour=flavour, duration_s=DURATION_S, guidance="velocity",
                            link_drops=((DROP_START_S, DROP_S),),
-                           operator_modes=((REENGAGE_S, "OFFBOARD"),) if flavour == "px4" else ())
+                           operator_modes=((REENGAGE_S, "OFFBOARD"),) if flavour == "px4" else (),
+                           video_path=OUT / f"test_sim_closed_loop_{flavour}.avi")
     with ClosedLoop(cfg) as loop:
         result = loop.run()
         gcs = loop.gcs
@@ -66,6 +69,17 @@ def run_scenario(flavour: str) -> Scenario:
                         statuses, stop, idle, ap.model.config.setpoint_timeout_s)
 
 
+def trace(result: RunResult) -> str:
+    """Twice-a-second log of a run, for failure messages."""
+    lines = []
+    for r in result.records[::15]:
+        cx, cy = r.truth.centre
+        lines.append(f"t={r.time_s:5.1f} {r.state or '-':9s} visible={r.truth.visible_fraction:4.2f} "
+                     f"dx={cx - result.width / 2:7.1f} dy={cy - result.height / 2:7.1f} {r.mode:8s} "
+                     f"{'LINK DOWN ' if r.link_down else ''}v={r.vehicle_speed:4.1f} d={r.target_distance_m:5.1f}")
+    return "\n".join(lines)
+
+
 @pytest.fixture(scope="module", params=["ardupilot", "px4"])
 def scenario(request) -> Scenario:
     return run_scenario(request.param)
@@ -82,7 +96,8 @@ def test_daemon_survives_and_answers_every_frame(scenario):
 
 def test_target_centred_on_90_percent_of_visible_frames(scenario):
     ratio = scenario.result.centring_ratio(exclude=((DROP_START_S, math.inf),))
-    assert ratio >= 0.90, f"{scenario.flavour}: car centred on only {ratio:.1%} of visible frames"
+    assert ratio >= 0.90, (f"{scenario.flavour}: car centred on only {ratio:.1%} of visible frames\n"
+                           + trace(scenario.result))
 
 
 def test_recovered_after_occlusion_and_recentred(scenario):
@@ -93,7 +108,8 @@ def test_recovered_after_occlusion_and_recentred(scenario):
     assert after, "no frames between the occlusion and the link drop"
     assert all(r.truth.visible for r in after)
     centred = sum(r.centred(scenario.result.width, scenario.result.height) for r in after) / len(after)
-    assert centred >= 0.9, f"gimbal did not re-centre the car after the occlusion ({centred:.0%})"
+    assert centred >= 0.9, f"gimbal did not re-centre the car after the occlusion ({centred:.0%})\n" + trace(
+        scenario.result)
     tracking = sum(r.state in ("tracking", "recovered") for r in after) / len(after)
     assert tracking >= 0.9, "daemon not tracking after the occlusion"
 
@@ -133,7 +149,8 @@ def test_link_drop_resumes_cleanly(scenario):
     end = [r for r in records if r.time_s >= DROP_START_S + DROP_S + 4.0]
     assert end and all(r.truth.visible for r in end), "car lost from view after the link came back"
     centred = sum(r.centred(scenario.result.width, scenario.result.height) for r in end)
-    assert centred >= 0.8 * len(end), "car not re-centred within 4 s of the link coming back"
+    assert centred >= 0.8 * len(end), "car not re-centred within 4 s of the link coming back\n" + trace(
+        scenario.result)
     if scenario.flavour == "ardupilot":
         assert any(c.outcome == "applied" for c in applied_after), "velocity guidance did not resume in GUIDED"
         assert records[-1].vehicle_speed > 0.5

@@ -60,7 +60,9 @@ def regularisation_window(
 
 def response_spectrum(filter_f: np.ndarray, sample_f: np.ndarray) -> np.ndarray:
     """(H, W//2+1) spectrum of the response: sum_c conj(F_c) * X_c (channels first)."""
-    return np.einsum("chw,chw->hw", filter_f.conj(), sample_f)
+    product = filter_f.conj()
+    product *= sample_f
+    return product.sum(axis=0)
 
 
 def response(filter_f: np.ndarray, sample_f: np.ndarray, shape_hw: tuple[int, int]) -> np.ndarray:

@@ -73,8 +73,9 @@ class SizeFilter:
     """The 2-D size filter: `sample` the grid, `estimate` the best cell, `train` DSST-style.
 
     Spectra are over the (S, A) grid axes with the vectorised patch features as channels:
-    numerator = Y^* X (per channel), denominator = sum_c |X_c|^2, both updated with the size
-    learning rate; response = IFFT(sum_c num_c^* Z_c / (den + lambda)) (MATLAB scaling).
+    numerator = Y X_c^* (per channel, stored in this conjugated form), denominator =
+    sum_c |X_c|^2, both updated with the size learning rate; response =
+    IFFT(sum_c num_c Z_c / (den + lambda)) (MATLAB scaling), i.e. DSST's conj(Y^* X) Z.
     """
 
     def __init__(self, params: JsarParams, init_size_wh: tuple[float, float]):
@@ -140,20 +141,23 @@ class SizeFilter:
 
     def train(self, sample_f: np.ndarray) -> None:
         """DSST update: first call sets the model, later calls interpolate with the learning rate."""
-        num = np.conj(self.label_f)[:, :, None] * sample_f
+        # The numerator is kept conjugated (Y X^*), the form the response multiplies with.
+        num = self.label_f[:, :, None] * sample_f.conj()
         den = (sample_f.real**2 + sample_f.imag**2).sum(axis=-1)
         if self.numerator is None:
             self.numerator, self.denominator = num, den
             return
         rate = np.float32(self.params.size_learning_rate)
-        self.numerator = (1 - rate) * self.numerator + rate * num
+        num *= rate
+        self.numerator *= np.float32(1 - rate)
+        self.numerator += num
         self.denominator = (1 - rate) * self.denominator + rate * den
 
     def response(self, sample_f: np.ndarray) -> np.ndarray:
         """(S, A) float32 response over the grid; the peak cell is the size estimate."""
         if self.numerator is None or self.denominator is None:
             raise RuntimeError("SizeFilter.response called before train")
-        resp_f = (self.numerator.conj() * sample_f).sum(axis=-1)
+        resp_f = (self.numerator * sample_f).sum(axis=-1)
         resp_f /= self.denominator + np.float32(self.params.size_lambda)
         return sfft.irfft2(resp_f, s=self.grid_shape, workers=1).astype(np.float32)
 

@@ -1,0 +1,63 @@
+"""Evaluation metrics on hand-computed cases (OTB conventions)."""
+import math
+
+import numpy as np
+import pytest
+
+from jsar.eval import metrics
+
+NAN = [np.nan] * 4
+
+
+def test_centre_error_and_iou_hand_values():
+    gt = np.array([[3, 4, 10, 10], [5, 0, 10, 10], [100, 100, 5, 5], NAN, [0, 0, 10, 10]], float)
+    pred = np.array([[0, 0, 10, 10], [0, 0, 10, 10], [0, 0, 10, 10], [0, 0, 10, 10], NAN], float)
+    errors = metrics.centre_errors(pred, gt)
+    assert errors[0] == pytest.approx(5.0)  # 3-4-5 triangle
+    assert errors[1] == pytest.approx(5.0)
+    assert math.isnan(errors[3])  # target absent: not scored
+    assert errors[4] == math.inf  # no prediction: a miss
+    overlaps = metrics.ious(pred, gt)
+    assert overlaps[0] == pytest.approx(7 * 6 / (200 - 42))
+    assert overlaps[1] == pytest.approx(50 / 150)
+    assert overlaps[2] == 0.0
+    assert math.isnan(overlaps[3])
+    assert overlaps[4] == 0.0
+
+
+def test_precision_curve_and_precision_at_20():
+    errors = np.array([0.0, 5.0, 25.0, np.nan])
+    curve = metrics.precision_curve(errors)
+    assert curve.shape == (51,)
+    assert curve[0] == pytest.approx(1 / 3)
+    assert curve[4] == pytest.approx(1 / 3)
+    assert curve[5] == pytest.approx(2 / 3)
+    assert curve[24] == pytest.approx(2 / 3)
+    assert curve[25] == pytest.approx(1.0)
+    assert metrics.precision_at(errors) == pytest.approx(2 / 3)
+
+
+def test_success_curve_and_auc():
+    overlaps = np.array([1.0, 1 / 3, 0.0, np.nan])
+    curve = metrics.success_curve(overlaps)
+    assert curve.shape == (21,)
+    assert curve[0] == pytest.approx(2 / 3)  # strictly greater than 0
+    assert curve[6] == pytest.approx(2 / 3)  # 0.30
+    assert curve[7] == pytest.approx(1 / 3)  # 0.35
+    assert curve[20] == 0.0  # IoU > 1 never
+    # IoU 1 beats 20 thresholds, IoU 1/3 beats 7 (0..0.30), IoU 0 none.
+    assert metrics.auc(curve) == pytest.approx(27 / 63)
+
+
+def test_score_skips_absent_frames_and_rejects_misaligned_input():
+    gt = np.array([[0, 0, 10, 10], NAN, [10, 10, 10, 10]], float)
+    pred = np.array([[0, 0, 10, 10], [50, 50, 10, 10], [10, 10, 10, 10]], float)
+    result = metrics.score(pred, gt)
+    assert result["frames_scored"] == 2
+    assert result["precision"] == 1.0
+    assert result["auc"] == pytest.approx(20 / 21)
+    with pytest.raises(ValueError, match="predicted boxes but"):
+        metrics.score(pred[:2], gt)
+    with pytest.raises(ValueError, match=r"\(N, 4\)"):
+        metrics.ious(np.zeros((3, 3)), gt)
+    assert np.all(np.isnan(metrics.precision_curve(np.array([np.nan]))))

@@ -62,7 +62,7 @@ def test_one_pass_eval_writes_table_json_and_plots(synthetic_root, tmp_path):
 
 def test_longterm_eval_reports_reacquisition(synthetic_root):
     seq = dataset.load_sequence(synthetic_root / "syn_a")
-    config = longterm.InjectionConfig(first_start=4, gap_after=4)
+    config = longterm.InjectionConfig(first_start=2, gap_after=3)
     result = evaluate.evaluate_longterm([seq], ["kcf"], list(longterm.EVENT_KINDS), (3,), seed=3, config=config)
     assert set(result["sequences"]) == {"syn_a+occlusion", "syn_a+out-of-view"}
     lt = result["summary"]["kcf"]["longterm"]

@@ -377,3 +377,21 @@ def test_relative_gimbal_yaw() -> None:
     assert relative_gimbal_yaw(GimbalAttitude(0.0, 0.3, False), None) == 0.3
     assert relative_gimbal_yaw(GimbalAttitude(0.0, 0.3, True), None) is None
     assert relative_gimbal_yaw(GimbalAttitude(0.0, -3.0, True), 3.0) == pytest.approx(2 * math.pi - 6.0)
+
+
+def test_px4_outside_offboard_streams_only_zero_setpoints_so_the_pilot_can_engage_it() -> None:
+    hold = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=(4 << 16) | (3 << 24),
+                         last_heartbeat_s=10.0)
+    outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 5.0}}, hold)
+    for i in range(10):  # 1 s of tracking at 10 fps in HOLD
+        outputs.apply(10.0 + i * 0.1, TRACKING)
+    setpoints = [m for m in link.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert len(setpoints) == 5  # > 2 Hz stream
+    assert all((m.vx, m.vy, m.vz, m.yaw_rate) == (0, 0, 0, 0) for m in setpoints)
+    idle_link = _outputs({"guidance": {"mode": "velocity"}}, hold)
+    idle_link[0].apply(10.0, ControlCommand("idle", False, None, None, None))
+    assert idle_link[1].sent == []  # not tracking: nothing at all
+    offboard = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
+    outputs.autopilot = lambda: offboard
+    outputs.apply(11.5, TRACKING)
+    assert link.sent[-1].yaw_rate > 0  # in OFFBOARD: real guidance

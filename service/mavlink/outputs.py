@@ -2,7 +2,8 @@
 
 Guidance is gated on the autopilot's heartbeat (alive, GUIDED / OFFBOARD) and throttled to
 guidance.rate_hz; velocity mode commands zero velocity while the track is lost and once when it
-stops. follow_target sends FOLLOW_TARGET only while there is a ground estimate of a tracked target
+stops. With PX4 outside OFFBOARD, zero-velocity setpoints stream while tracking, because PX4 only
+lets the pilot engage OFFBOARD while a setpoint stream exists (and ignores it in other modes). follow_target sends FOLLOW_TARGET only while there is a ground estimate of a tracked target
 (when it stops, the autopilot's follow timeout holds the vehicle). Never arms, never changes modes.
 """
 from __future__ import annotations
@@ -11,7 +12,7 @@ import logging
 from typing import Callable
 
 from service.config import ServiceConfig
-from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
+from service.control.guidance import MAV_AUTOPILOT_PX4, ZERO_VELOCITY, guidance_allowed, velocity_setpoint
 from service.loop import ControlCommand
 from service.mavlink import messages
 from service.mavlink.autopilot import MAV_COMP_ID_AUTOPILOT1, AutopilotView
@@ -31,7 +32,7 @@ class MavlinkOutputs:
         self._last_claim_s: float | None = None
         self._last_guidance_s: float | None = None
         self._guidance_was_allowed = False
-        self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0}
+        self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0, "px4_prestream": 0}
 
     def apply(self, now_s: float, command: ControlCommand) -> None:
         view = self.autopilot()
@@ -71,7 +72,8 @@ class MavlinkOutputs:
     # --- guidance -----------------------------------------------------------------------------
     def _due(self, now_s: float, force: bool) -> bool:
         period = 1.0 / self.config.guidance.rate_hz
-        if force or self._last_guidance_s is None or now_s - self._last_guidance_s >= period:
+        # 5 % slack: frames arrive on their own clock; a frame a hair early must not halve the rate
+        if force or self._last_guidance_s is None or now_s - self._last_guidance_s >= 0.95 * period:
             self._last_guidance_s = now_s
             return True
         return False
@@ -83,8 +85,15 @@ class MavlinkOutputs:
             log.info("event=guidance_gate allowed=%s alive=%s custom_mode=%s", allowed, alive, view.custom_mode)
             self._guidance_was_allowed = allowed
         if not allowed:
-            if command.state != "idle":
-                self.counters["gated"] += 1
+            if command.state == "idle" and not command.stopped:
+                return
+            self.counters["gated"] += 1
+            if alive and view.autopilot == MAV_AUTOPILOT_PX4 and self._due(now_s, force=False):
+                # PX4 lets the pilot engage OFFBOARD only while setpoints already stream (> 2 Hz, ~1 s).
+                # Outside OFFBOARD it ignores them; zero velocity means "hold" the moment OFFBOARD starts,
+                # and real setpoints follow once the heartbeat reports OFFBOARD.
+                self.link.send(messages.velocity_target(self.link.mav, target, self.time_boot_ms(), ZERO_VELOCITY))  # type: ignore[attr-defined]
+                self.counters["px4_prestream"] += 1
             return
         if command.state == "idle" and not command.stopped:
             return

@@ -2,7 +2,8 @@
 
 Per frame: the core tracker locates the target (no state change). The failure monitor looks at the
 raw translation peak (MATLAB FFT convention, see jsar.config):
-- confident (peak > zeta_e), or re-detection not eligible: commit as plain JSAR; if also reliable
+- confident (peak > zeta_e and not dropped below 0.6 x its running level, see monitor.py), or
+  re-detection not eligible: commit as plain JSAR; if also reliable
   (peak > zeta_s) the decision filter is trained on the tracker's own training sample (no second
   feature extraction). Nothing else runs, so re-detection costs nothing on these frames.
 - otherwise the frame is NOT committed (no drift onto the occluder, no training on it): EdgeBoxes
@@ -10,7 +11,7 @@ raw translation peak (MATLAB FFT convention, see jsar.config):
   each is scored by the decision filter on a 5x-context patch at its centre (score = raw response
   peak) and the best is accepted if its score > eta_d: the core is re-initialised there and the
   frame reports "recovered". Otherwise it reports "lost" with the last confident box and the current
-  translation peak as score; omega grows and eta_d decays for the next frame.
+  translation peak as score; omega grows (up to omega_max) and eta_d decays for the next frame.
 
 Choices beyond the paper (stated, measured in the report): the accepted box is centred where the
 decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
@@ -20,6 +21,7 @@ the re-detected sample would let one false acceptance overwrite it).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -46,7 +48,8 @@ class RedetectOptions:
     (geometric, per side; 1 = the proposal's size as the original). 0 (keep the last confident size,
     centred where the decision response peaks) measured best: forced re-detections on the shared
     sequences that landed on the target gave mean IoU 0.537 (blend 0), 0.497 (0.5), 0.428 (1):
-    EdgeBoxes' boxes are loose; the size filter adapts the size on the following frames. inside_rule: see monitor.py.
+    EdgeBoxes' boxes are loose; the size filter adapts the size on the following frames.
+    inside_rule: see monitor.py.
     omega_max: cap on the growing proposal square (units of sqrt(w*h)); the paper has none. With
     acceptance disabled, 44 of the 46 frames whose best proposal was the reappeared target lay
     within 5 target sides of the last confident position, while the wrong best proposals above
@@ -117,8 +120,7 @@ class JsarReTracker:
         else:
             sigma, radius = options.edge_sigma_px, options.edge_nms_radius
             self._edges = lambda image: edge_maps(image, sigma, radius)
-        self._edgeboxes = EdgeBoxesSettings(**{
-            **options.edgeboxes.__dict__, "max_boxes": self.params.redetect_num_proposals})
+        self._edgeboxes = dataclasses.replace(options.edgeboxes, max_boxes=self.params.redetect_num_proposals)
         self.monitor = FailureMonitor(monitor_params(self.params, options.inside_rule, options.omega_max))
         self.decision: TranslationFilter | None = None
         # True while the decision filter has seen exactly the translation filter's training history:

@@ -12,12 +12,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from jsar.eval.runner import limit_threads_env
+from jsar.eval.runner import cap_loaded_pools, limit_threads_env
 
 limit_threads_env()  # before the trackers' modules (scipy, ...) are imported below
 
-import cv2  # noqa: E402
-from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from jsar.eval import dataset, evaluate, longterm, report  # noqa: E402
@@ -60,10 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"error: {exc}") from exc
     for factory in factories.values():
         factory()  # import every tracker's modules now, so the thread cap below covers their libraries
-    limiter = threadpool_limits(limits=1)
-    threads = {"cv2": cv2.getNumThreads(),
-               "pools": [{"library": p["internal_api"], "prefix": p["prefix"], "threads": p["num_threads"]}
-                         for p in threadpool_info()]}
+    threads = cap_loaded_pools()
     print(f"threads: cv2 {threads['cv2']}, " + ", ".join(
         f"{p['prefix']} {p['threads']}" for p in threads["pools"]), file=sys.stderr)
     kinds = _csv(args.kinds)
@@ -78,7 +73,6 @@ def main(argv: list[str] | None = None) -> int:
                 result = evaluate.evaluate(sequences, trackers, args.published, progress=bar.update)
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from exc
-    limiter.restore_original_limits()
     result["threads"] = threads
     result["data_root"] = str(args.data_root)
     result["max_frames"] = args.max_frames

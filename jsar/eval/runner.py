@@ -66,6 +66,21 @@ def limit_threads_env() -> None:
     cv2.setNumThreads(1)
 
 
+def cap_loaded_pools() -> dict[str, object]:
+    """Cap the thread pools of BLAS / OpenMP libraries already loaded to one (threadpoolctl), and
+    OpenCV's to one; return what is in force: {"cv2": n, "pools": [{library, prefix, threads}]}.
+
+    The cap is process-wide and deliberately not undone: this is for the evaluation / demo processes.
+    """
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    cv2.setNumThreads(1)
+    threadpool_limits(limits=1)
+    return {"cv2": cv2.getNumThreads(),
+            "pools": [{"library": p["internal_api"], "prefix": p["prefix"], "threads": p["num_threads"]}
+                      for p in threadpool_info()]}
+
+
 def track_lockstep(frames: Iterable[np.ndarray], n_frames: int, init_box: np.ndarray,
                    trackers: dict[str, Callable[[], Tracker]], sequence: str,
                    on_frame: Callable[[], None] | None = None) -> dict[str, TrackerRun]:

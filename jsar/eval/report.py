@@ -103,7 +103,7 @@ def save_plots(result: dict[str, object], directory: Path | str, title: str = "s
 
     def draw(curves: dict[str, tuple[np.ndarray, np.ndarray, bool, int]], label: str, stem: str) -> None:
         for kind in ("precision", "success"):
-            fig, ax = plt.subplots(figsize=(6, 4.5), dpi=100)
+            fig, ax = plt.subplots(figsize=(8.5, 4.8), dpi=100)
             key = 0 if kind == "precision" else 1
             thresholds = metrics.PRECISION_THRESHOLDS_PX if kind == "precision" else metrics.SUCCESS_THRESHOLDS
             def value(name: str) -> float:
@@ -125,7 +125,7 @@ def save_plots(result: dict[str, object], directory: Path | str, title: str = "s
                 ax.set_title(f"Success plots of OPE on {label}")
             ax.set_ylim(0, 1)
             ax.grid(True, alpha=0.3)
-            ax.legend(loc="lower right" if kind == "precision" else "lower left", fontsize=7)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
             fig.tight_layout()
             path = directory / f"{stem}_{kind}.png"
             fig.savefig(path)

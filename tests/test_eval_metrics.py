@@ -61,3 +61,15 @@ def test_score_skips_absent_frames_and_rejects_misaligned_input():
     with pytest.raises(ValueError, match=r"\(N, 4\)"):
         metrics.ious(np.zeros((3, 3)), gt)
     assert np.all(np.isnan(metrics.precision_curve(np.array([np.nan]))))
+
+
+def test_divergence_finds_the_first_frame_where_two_trackers_part():
+    from jsar.eval.compare import divergence
+
+    gt = np.array([[0, 0, 10, 10]] * 4, float)
+    a = gt.copy()
+    b = gt.copy()
+    b[2:] = [20, 20, 10, 10]
+    d = divergence(a, b, gt)
+    assert d["first_apart"] == 2 and d["frames_apart"] == 2
+    assert d["a_better"] == 2 and d["b_better"] == 0

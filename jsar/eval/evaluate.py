@@ -1,7 +1,8 @@
 """The evaluation procedures behind `python -m jsar.eval`: one-pass and long-term, returning plain dicts.
 
 Result layout (also what --json writes):
-  {"sequences": {seq: {"frames": N, "trackers": {name: entry}}}, "summary": {name: {...}}}
+  {"sequences": {seq: {"frames": N, "groundtruth": (N, 4), "trackers": {name: entry}}},
+   "summary": {name: {...}}}
 where an entry holds precision (at 20 px), auc, the two curves, boxes (N x 4, 0-based x,y,w,h) and,
 for trackers run here, fps, seconds, scores and states; published entries have "published": true.
 """
@@ -81,7 +82,7 @@ def evaluate(sequences: list[dataset.Sequence], tracker_names: list[str],
             entry = metrics.score(boxes, seq.groundtruth)
             entry.update({"published": True, "boxes": boxes})
             entries[name] = entry
-        per_sequence[seq.name] = {"frames": len(seq), "trackers": entries}
+        per_sequence[seq.name] = {"frames": len(seq), "groundtruth": seq.groundtruth, "trackers": entries}
     return {"sequences": per_sequence, "summary": summarise(per_sequence)}
 
 
@@ -153,7 +154,7 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
                 lt_runs[name].append(lt)
                 entries[name] = entry
             per_sequence[events.name] = {
-                "frames": len(events), "base": seq.name, "kind": kind,
+                "frames": len(events), "groundtruth": events.groundtruth, "base": seq.name, "kind": kind,
                 "events": [{"start": e.start, "length": e.length} for e in events.events],
                 "dropped_lengths": list(events.dropped_lengths), "trackers": entries,
             }

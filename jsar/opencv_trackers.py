@@ -1,8 +1,10 @@
-"""OpenCV's CSRT / KCF / MOSSE trackers behind the project's Tracker protocol (jsar.api).
+"""OpenCV's CSRT / KCF trackers behind the project's Tracker protocol (jsar.api).
 
 They are the evaluation's baselines and a working tracker for the service and the simulator while
 the JSAR tracker is written. Boxes are (x, y, w, h) pixels, top-left origin, like everywhere else.
 OpenCV's modern trackers take and return integer rectangles, so boxes are rounded to whole pixels.
+cv2.legacy's MOSSE is not offered: in the pinned OpenCV 5.0 wheel it reports failure on every
+update after init, on real and synthetic sequences alike.
 """
 from __future__ import annotations
 
@@ -32,10 +34,9 @@ class OpenCVTracker:
     response peak); on failure state is "lost" and box is the last box OpenCV reported as good.
     """
 
-    def __init__(self, name: str, factory: Callable[[], object], float_boxes: bool = False) -> None:
+    def __init__(self, name: str, factory: Callable[[], object]) -> None:
         self.name = name
         self._factory = factory
-        self._float_boxes = float_boxes  # cv2.legacy trackers take Rect2d, the modern ones Rect
         self._tracker: object | None = None
         self._last_box: Box | None = None
 
@@ -44,10 +45,7 @@ class OpenCVTracker:
         frame = validate_frame(frame)
         box = validate_box(box, frame.shape)
         tracker = self._factory()
-        rect = tuple(float(v) for v in box) if self._float_boxes else rounded_rect(box)
-        ok = tracker.init(as_bgr(frame), rect)  # type: ignore[attr-defined]
-        if ok is False:  # legacy trackers return a bool, modern ones None
-            raise ValueError(f"{self.name}: OpenCV refused to initialise on box {box}")
+        tracker.init(as_bgr(frame), rounded_rect(box))  # type: ignore[attr-defined]
         self._tracker = tracker
         self._last_box = box
 
@@ -84,13 +82,6 @@ def make_kcf(**params: object) -> OpenCVTracker:
 
     factory()
     return OpenCVTracker("kcf", factory)
-
-
-def make_mosse(**params: object) -> OpenCVTracker:
-    """OpenCV MOSSE (cv2.legacy, no parameters)."""
-    if params:
-        raise ValueError(f"mosse takes no parameters, got {sorted(params)}")
-    return OpenCVTracker("mosse", cv2.legacy.TrackerMOSSE_create, float_boxes=True)
 
 
 def _apply_params(target: object, params: dict[str, object], name: str) -> None:

@@ -8,12 +8,10 @@ from jsar.api import Tracker
 
 def _factories() -> dict[str, Callable[..., Tracker]]:
     # Imported lazily so `import jsar` stays cheap and a missing optional piece names itself.
-    from jsar.opencv_trackers import make_csrt, make_kcf, make_mosse
+    from jsar.opencv_trackers import make_csrt, make_kcf
 
     # OpenCV's trackers: the evaluation's baselines, and usable before the JSAR tracker exists.
-    factories: dict[str, Callable[..., Tracker]] = {
-        "csrt": make_csrt, "kcf": make_kcf, "mosse": make_mosse,
-    }
+    factories: dict[str, Callable[..., Tracker]] = {"csrt": make_csrt, "kcf": make_kcf}
     try:
         from jsar.tracking.jsar_tracker import make_jsar, make_strcf
     except ModuleNotFoundError as exc:
@@ -37,7 +35,7 @@ def available() -> list[str]:
 
 
 def create(name: str, **overrides: Any) -> Tracker:
-    """Build tracker `name` ("jsar", "strcf", "jsar-re", "csrt", "kcf", "mosse") with parameter overrides (ValueError if unknown)."""
+    """Build tracker `name` ("jsar", "strcf", "jsar-re", "csrt", "kcf") with parameter overrides (ValueError if unknown)."""
     factories = _factories()
     if name not in factories:
         raise ValueError(f"unknown tracker {name!r}; available: {', '.join(sorted(factories))}")

@@ -61,11 +61,7 @@ def format_summary_table(result: dict[str, object]) -> str:
                      _fmt(row.get("fps_frame_weighted"), ".1f"), _fmt(row.get("fps_ratio_vs_csrt"), ".2f")])
     text = _table(["tracker", "seqs", "mean prec@20", "mean AUC", "mean fps", "fps (frame-weighted)",
                    "fps/CSRT"], rows)
-    errors = [f"  {name}: {msg}" for name, row in summary.items()  # type: ignore[union-attr]
-              for msg in row.get("errors", [])]
-    if errors:
-        text += "\nTRACKER ERRORS (boxes after the failure count as misses):\n" + "\n".join(errors)
-    return text
+    return text + _errors(summary)  # type: ignore[arg-type]
 
 
 def format_longterm_table(result: dict[str, object]) -> str:
@@ -87,8 +83,15 @@ def format_longterm_table(result: dict[str, object]) -> str:
             f"{criteria['max_centre_error_px']} px) within {criteria['window']} frames of reappearance; "
             f"false re-init: 'recovered' state or box jump while absent + 'recovered' onto IoU 0, "
             f"per absent frame; by length = rate/events; seed {result['seed']}")
-    return _table(["tracker", "re-acquired", "by length", "mean frames", "median frames",
+    text = _table(["tracker", "re-acquired", "by length", "mean frames", "median frames",
                    "false re-init (abs+wrong/absent)", "prec@20", "AUC", "fps", "fps/CSRT"], rows) + "\n" + note
+    return text + _errors(summary)  # type: ignore[arg-type]
+
+
+def _errors(summary: dict[str, dict[str, object]]) -> str:
+    """Trackers that raised, one line each ('' if none)."""
+    errors = [f"  {name}: {msg}" for name, row in summary.items() for msg in row.get("errors", [])]  # type: ignore[attr-defined]
+    return "\nTRACKER ERRORS (boxes after the failure count as misses):\n" + "\n".join(errors) if errors else ""
 
 
 def save_plots(result: dict[str, object], directory: Path | str, title: str = "shared UAV sequences") -> list[Path]:

@@ -104,3 +104,34 @@ def test_real_sequence_quick_run(data_root):
     assert csrt["frames_timed"] == 25 and csrt["error"] is None
     assert csrt["precision"] > 0.9  # CSRT follows the pedestrian over these frames (measured 1.0)
     assert result["summary"]["kcf"]["fps_ratio_vs_csrt"] > 0
+
+
+def test_lockstep_feeds_every_tracker_the_same_frames_and_records_a_crash():
+    from jsar.api import TrackResult
+    from jsar.eval.runner import track_lockstep
+
+    seen: dict[str, list[int]] = {"a": [], "b": []}
+
+    class Recorder:
+        def __init__(self, name, fail_at=None):
+            self.name, self.fail_at, self.count = name, fail_at, 0
+
+        def init(self, frame, box):
+            seen[self.name].append(id(frame))
+
+        def update(self, frame):
+            self.count += 1
+            seen[self.name].append(id(frame))
+            if self.count == self.fail_at:
+                raise ValueError("boom")
+            return TrackResult((1.0, 2.0, 3.0, 4.0), 0.5, "tracking")
+
+    frames = [np.zeros((8, 8, 3), np.uint8) for _ in range(5)]
+    runs = track_lockstep(iter(frames), 5, np.array([0, 0, 4, 4.0]),
+                          {"a": lambda: Recorder("a"), "b": lambda: Recorder("b", fail_at=2)}, "seq")
+    assert seen["a"] == [id(f) for f in frames] and seen["b"] == seen["a"][:3]
+    assert runs["a"].error is None and runs["a"].frames_timed == 5
+    assert runs["b"].failed_at == 2 and "ValueError: boom" in runs["b"].error
+    assert np.all(np.isnan(runs["b"].boxes[2:])) and runs["b"].frames_timed == 2
+    with pytest.raises(ValueError, match="got 4 frames, expected 5"):
+        track_lockstep(iter(frames[:4]), 5, np.array([0, 0, 4, 4.0]), {"a": lambda: Recorder("a")}, "seq")

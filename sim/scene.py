@@ -63,6 +63,7 @@ class SceneConfig:
     turn_rate_deg_s: tuple[float, float] = (12.0, 30.0)  # |heading rate| range of turns
     occlusion_times_s: tuple[float, ...] = (8.0,)  # the car is under an occluder's centre at these times
     occlusion_period_s: float = 25.0  # then one every period after the last listed time (0: none)
+    occluder_kinds: tuple[str, ...] = ("canopy", "bridge")  # cycled over the occlusion times
     canopy_radius_m: float = 3.2
     bridge_width_m: float = 6.0  # along the road
     path_step_s: float = 0.02
@@ -73,6 +74,8 @@ class SceneConfig:
             raise ValueError(f"texture must be auto, data or procedural, got {self.texture!r}")
         if self.texture_size_px < 256:
             raise ValueError(f"texture_size_px must be >= 256, got {self.texture_size_px}")
+        if not self.occluder_kinds or any(k not in ("bridge", "canopy") for k in self.occluder_kinds):
+            raise ValueError(f"occluder_kinds must be a non-empty sequence of bridge / canopy, got {self.occluder_kinds}")
         for name in ("metres_per_texel", "target_length_m", "target_width_m", "target_speed_m_s",
                      "canopy_radius_m", "bridge_width_m", "path_step_s"):
             if not getattr(self, name) > 0:
@@ -266,8 +269,8 @@ def occlusion_times(config: SceneConfig, until_s: float) -> list[float]:
 
 
 def make_occluder(config: SceneConfig, pose: TargetPose, index: int, time_s: float) -> Occluder:
-    """Canopy (even index) or bridge (odd index) centred on the car's route at `pose`."""
-    if index % 2 == 0:
+    """The index-th occluder (kinds cycled from config.occluder_kinds) centred on the route at `pose`."""
+    if config.occluder_kinds[index % len(config.occluder_kinds)] == "canopy":
         angles = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
         r = config.canopy_radius_m
         polygon = np.column_stack([pose.north + r * np.cos(angles), pose.east + r * np.sin(angles)])

@@ -305,3 +305,14 @@ def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
         peer.close()
     assert stats.sent == 6 and stats.acknowledged == 6 and stats.timeouts == 0
     assert in_flight == [1, 2, 3, 4, 5, 6]
+
+
+def test_export_writes_an_otb_sequence_with_nan_rows_when_hidden(tmp_path, monkeypatch):
+    from sim.export import export
+
+    monkeypatch.delenv("JSAR_DATA_ROOT", raising=False)  # procedural ground: no data needed
+    assert export(tmp_path, seconds=0.2, seed=0) == 6
+    recording = open_recording(tmp_path)
+    assert len(recording.frames) == 6 and len(recording.groundtruth) == 6
+    x, y, w, h = recording.groundtruth[0]
+    assert abs(x + w / 2 - 320) < 3 and abs(y + h / 2 - 240) < 3  # the camera follows the car

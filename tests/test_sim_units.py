@@ -274,8 +274,6 @@ def test_groundtruth_is_converted_to_zero_based(tiny_sequence):
 
 def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
     """A stand-in daemon (a Zenoh peer) answers each frame; lockstep sends N+1 only after N's answer."""
-    import threading
-
     import zenoh
 
     from service.sources.zenoh_wire import decode_frame
@@ -286,18 +284,16 @@ def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
     with SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{port}",))) as camera:
         peer = zenoh.open(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{port}",)).to_zenoh())
         track = peer.declare_publisher("jsar/track")
-        ready = threading.Event()
 
         def on_frame(sample) -> None:
             frame = decode_frame(sample.payload.to_bytes())
             in_flight.append(frame.frame_id)
             track.put(json.dumps({"frame_id": frame.frame_id, "state": "idle"}))
         sub = peer.declare_subscriber("jsar/camera/frame", on_frame)
-        probe = peer.declare_subscriber("jsar/probe", lambda s: ready.set())
-        # Wait until the two sessions see each other (route established) before replaying.
-        while not ready.is_set():
+        probe = peer.declare_subscriber("jsar/probe", lambda s: track.put(json.dumps({"frame_id": 0})))
+        # Wait until routes exist both ways (probe out, telemetry back) before replaying.
+        while camera.telemetry.wait_frame(0, 0.1) is None:
             camera.session.put("jsar/probe", b"1")
-            ready.wait(0.1)
         stats = replay(open_recording(tiny_sequence), camera, pace="lockstep", ack_timeout_s=5.0)
         sub.undeclare()
         probe.undeclare()

@@ -1,9 +1,13 @@
 """Closed loop with the real daemon: scene + mock autopilot (each flavour) + daemon subprocess over
 loopback Zenoh (peer, multicast scouting off, explicit tcp/127.0.0.1) and UDP MAVLink, lockstep.
 
+Timeline of one run (simulated seconds): selection at 0; the autopilot link drops at 3 for 5 s; (PX4)
+the pilot re-engages OFFBOARD at 10; the car passes under a tree canopy at 16; the run ends at 24.
+Each phase has its own test, so a failure names the phase.
+
 Centring: the ground-truth centre of the car within |dx| <= 0.1 W and |dy| <= 0.1 H on >= 90 % of the
-frames where >= 50 % of the car is visible, from the selection to the autopilot link drop (after the
-drop the vehicle has stopped or failed safe while the car drove on: re-centring is asserted apart).
+frames where >= 50 % of the car is visible, outside the link drop and the 4 s after it (the daemon
+cannot command the gimbal while the link is down).
 """
 from __future__ import annotations
 
@@ -18,15 +22,18 @@ import pytest
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, RunResult
 from sim.gcs import TrackingStatus
+from sim.scene import SceneConfig
 from sim.soak import SoakCriteria, analyse
 
 pytestmark = pytest.mark.slow
 
 DURATION_S = 24.0
-DROP_START_S, DROP_S = 13.0, 5.0
-OCCLUSION_S = 8.0  # SceneConfig default: the car passes under a canopy at 8 s
+DROP_START_S, DROP_S = 3.0, 5.0
+DROP_END_S = DROP_START_S + DROP_S
+RECENTRE_S = 4.0  # allowed to re-centre after the link is back
+REENGAGE_S = 10.0  # px4: the pilot re-engages OFFBOARD after the link is back
+OCCLUSION_S = 16.0  # the car passes under a canopy
 OUT = Path(__file__).resolve().parent.parent / "out"  # git-ignored: annotated videos of the runs
-REENGAGE_S = 20.0  # px4: the pilot tries to re-engage OFFBOARD after the link is back
 
 
 @dataclass
@@ -46,6 +53,7 @@ class Scenario:
 
 def run_scenario(flavour: str) -> Scenario:
     cfg = ClosedLoopConfig(flavour=flavour, duration_s=DURATION_S, guidance="velocity",
+                           scene=SceneConfig(occlusion_times_s=(OCCLUSION_S,)),
                            link_drops=((DROP_START_S, DROP_S),),
                            operator_modes=((REENGAGE_S, "OFFBOARD"),) if flavour == "px4" else (),
                            video_path=OUT / f"test_sim_closed_loop_{flavour}.avi")
@@ -95,7 +103,7 @@ def test_daemon_survives_and_answers_every_frame(scenario):
 
 
 def test_target_centred_on_90_percent_of_visible_frames(scenario):
-    ratio = scenario.result.centring_ratio(exclude=((DROP_START_S, math.inf),))
+    ratio = scenario.result.centring_ratio(exclude=((DROP_START_S, DROP_END_S + RECENTRE_S),))
     assert ratio >= 0.90, (f"{scenario.flavour}: car centred on only {ratio:.1%} of visible frames\n"
                            + trace(scenario.result))
 
@@ -104,27 +112,14 @@ def test_recovered_after_occlusion_and_recentred(scenario):
     records = scenario.result.records
     hidden = [r.time_s for r in records if abs(r.time_s - OCCLUSION_S) < 2.0 and not r.truth.visible]
     assert hidden, "the scenario must hide the car under the canopy"
-    after = [r for r in records if hidden[-1] + 3.0 <= r.time_s < DROP_START_S]
-    assert after, "no frames between the occlusion and the link drop"
-    assert all(r.truth.visible for r in after)
+    after = [r for r in records if r.time_s >= hidden[-1] + 3.0]
+    assert len(after) > 60, "too few frames after the occlusion"
+    visible = sum(r.truth.visible for r in after) / len(after)
     centred = sum(r.centred(scenario.result.width, scenario.result.height) for r in after) / len(after)
-    assert centred >= 0.9, f"gimbal did not re-centre the car after the occlusion ({centred:.0%})\n" + trace(
-        scenario.result)
     tracking = sum(r.state in ("tracking", "recovered") for r in after) / len(after)
-    assert tracking >= 0.9, "daemon not tracking after the occlusion"
-
-
-def test_vehicle_follows_with_bounded_distance(scenario):
-    records = scenario.result.records
-    start = records[0]
-    before_drop = [r for r in records if r.time_s < DROP_START_S]
-    assert max(r.target_distance_m for r in before_drop) < 1.5 * start.target_distance_m
-    moved = math.hypot(before_drop[-1].vehicle_ne[0] - start.vehicle_ne[0],
-                       before_drop[-1].vehicle_ne[1] - start.vehicle_ne[1])
-    target_moved = math.hypot(before_drop[-1].truth.target.north - start.truth.target.north,
-                              before_drop[-1].truth.target.east - start.truth.target.east)
-    assert moved > 0.5 * target_moved, f"vehicle moved {moved:.1f} m, car {target_moved:.1f} m"
-    assert max(r.target_distance_m for r in records) < 80.0
+    assert visible == 1.0 and centred >= 0.9 and tracking >= 0.9, (
+        f"after the occlusion: visible {visible:.0%}, centred {centred:.0%}, tracking {tracking:.0%}\n"
+        + trace(scenario.result))
 
 
 def test_link_drop_stops_guidance_within_firmware_timeout(scenario):
@@ -135,31 +130,45 @@ def test_link_drop_stops_guidance_within_firmware_timeout(scenario):
     event_times = [t for t, e in scenario.events if expected in e]
     assert event_times and DROP_START_S < event_times[0] <= stop_by, scenario.events
     # ... and the vehicle brakes to a stop (max_accel 4 m/s^2 from <= 5 m/s) before the link returns.
-    stopped = [r for r in records if stop_by + 1.5 <= r.time_s < DROP_START_S + DROP_S]
+    stopped = [r for r in records if stop_by + 1.5 <= r.time_s < DROP_END_S]
     assert stopped and all(r.vehicle_speed < 0.05 for r in stopped)
+    assert scenario.result.daemon_alive
 
 
 def test_link_drop_resumes_cleanly(scenario):
     records = scenario.result.records
-    applied_after = [c for c in scenario.commands if c.msg_type == "SET_POSITION_TARGET_LOCAL_NED"
-                     and c.time_s >= DROP_START_S + DROP_S]
+    setpoints_after = [c for c in scenario.commands if c.msg_type == "SET_POSITION_TARGET_LOCAL_NED"
+                       and c.time_s >= DROP_END_S]
     gimbal_after = [c for c in scenario.commands if c.msg_type.startswith("GIMBAL_MANAGER_SET")
-                    and c.time_s >= DROP_START_S + DROP_S and c.outcome.startswith("applied")]
+                    and c.time_s >= DROP_END_S and c.outcome.startswith("applied")]
     assert gimbal_after, "gimbal control did not resume after the link came back"
-    end = [r for r in records if r.time_s >= DROP_START_S + DROP_S + 4.0]
-    assert end and all(r.truth.visible for r in end), "car lost from view after the link came back"
-    centred = sum(r.centred(scenario.result.width, scenario.result.height) for r in end)
-    assert centred >= 0.8 * len(end), "car not re-centred within 4 s of the link coming back\n" + trace(
+    window = [r for r in records if DROP_END_S + RECENTRE_S <= r.time_s < OCCLUSION_S - 2.0]
+    assert window and all(r.truth.visible for r in window), "car lost from view after the link came back"
+    centred = sum(r.centred(scenario.result.width, scenario.result.height) for r in window) / len(window)
+    assert centred >= 0.9, f"car not re-centred within {RECENTRE_S} s of the link coming back\n" + trace(
         scenario.result)
     if scenario.flavour == "ardupilot":
-        assert any(c.outcome == "applied" for c in applied_after), "velocity guidance did not resume in GUIDED"
-        assert records[-1].vehicle_speed > 0.5
+        assert any(c.outcome == "applied" for c in setpoints_after), "velocity guidance did not resume in GUIDED"
     else:
-        # PX4 stays in HOLD until the pilot re-engages OFFBOARD (and PX4 only allows that while
-        # setpoints stream); the daemon must never switch modes itself.
-        assert all(r.mode in ("OFFBOARD", "HOLD") for r in records)
-        assert any(r.mode == "HOLD" for r in records if r.time_s > DROP_START_S + DROP_S)
-        assert not [c for c in applied_after if c.outcome == "applied" and c.time_s < REENGAGE_S]
+        # PX4 stays in HOLD until the pilot re-engages OFFBOARD, which PX4 allows only while setpoints
+        # stream; the daemon must never switch modes itself.
+        assert not [c for c in setpoints_after if c.outcome == "applied" and c.time_s < REENGAGE_S]
+        assert any("HOLD -> OFFBOARD (operator)" in e for _, e in scenario.events), (
+            f"pilot could not re-engage OFFBOARD (no setpoint stream in HOLD?): {scenario.events}")
+        assert any(c.outcome == "applied" for c in setpoints_after if c.time_s >= REENGAGE_S)
+
+
+def test_vehicle_follows_with_bounded_distance(scenario):
+    records = scenario.result.records
+    resumed = DROP_END_S + 2.0 if scenario.flavour == "ardupilot" else REENGAGE_S + 1.0
+    window = [r for r in records if resumed <= r.time_s < OCCLUSION_S - 1.0]
+    first, last = window[0], window[-1]
+    moved = math.hypot(last.vehicle_ne[0] - first.vehicle_ne[0], last.vehicle_ne[1] - first.vehicle_ne[1])
+    car_moved = math.hypot(last.truth.target.north - first.truth.target.north,
+                           last.truth.target.east - first.truth.target.east)
+    assert moved > 0.7 * car_moved, f"vehicle moved {moved:.1f} m while the car moved {car_moved:.1f} m"
+    assert last.target_distance_m < first.target_distance_m + 5.0, "vehicle falling behind"
+    assert max(r.target_distance_m for r in records if r.time_s < OCCLUSION_S) < 80.0
 
 
 def test_daemon_never_arms_or_changes_mode(scenario):

@@ -107,7 +107,6 @@ class JsarTracker:
             side = base_side * factor
             sample_f = self._sample_spectrum(image, self.center_xy, side)
             resp, resp_f = self.translation.response(sample_f)
-
             dy, dx, peak = dcf.subpixel_peak(resp, resp_f, p.newton_iterations)
             if best is None or peak > best.peak:
                 px_per_cell = side / self._cells

@@ -52,7 +52,9 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--published does not apply to --longterm (published boxes are for the original frames)")
     try:
         folders = dataset.select_sequences(dataset.discover_sequences(args.data_root), _csv(args.sequences))
-        sequences = [evaluate.truncated(dataset.load_sequence(f), args.max_frames) for f in folders]
+        sequences = [dataset.load_sequence(f) for f in folders]
+        if args.max_frames is not None and args.max_frames < 2:
+            raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
         factories = evaluate.tracker_factories(trackers)
     except ValueError as exc:
         raise SystemExit(f"error: {exc}") from exc
@@ -63,14 +65,15 @@ def main(argv: list[str] | None = None) -> int:
         f"{p['prefix']} {p['threads']}" for p in threads["pools"]), file=sys.stderr)
     kinds = _csv(args.kinds)
     lengths = tuple(int(v) for v in _csv(args.lengths))
-    total = sum(len(s) for s in sequences) * (len(kinds) if args.longterm else 1)
+    total = sum(min(len(s), args.max_frames or len(s)) for s in sequences) * (len(kinds) if args.longterm else 1)
     with tqdm(total=total, unit="frame", disable=args.no_progress, file=sys.stderr) as bar:
         try:
             if args.longterm:
                 result = evaluate.evaluate_longterm(sequences, trackers, kinds, lengths, args.seed,
-                                                    progress=bar.update)
+                                                    progress=bar.update, max_frames=args.max_frames)
             else:
-                result = evaluate.evaluate(sequences, trackers, args.published, progress=bar.update)
+                result = evaluate.evaluate(sequences, trackers, args.published, progress=bar.update,
+                                           max_frames=args.max_frames)
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from exc
     result["threads"] = threads

@@ -62,23 +62,30 @@ def run_entry(run: TrackerRun, groundtruth: np.ndarray) -> dict[str, object]:
 
 def evaluate(sequences: list[dataset.Sequence], tracker_names: list[str],
              published_dir: Path | None = None,
-             progress: Callable[[int], None] | None = None) -> dict[str, object]:
-    """One-pass evaluation of every tracker (and published result) on every sequence."""
+             progress: Callable[[int], None] | None = None,
+             max_frames: int | None = None) -> dict[str, object]:
+    """One-pass evaluation of every tracker (and published result) on every sequence.
+
+    max_frames: score only the first N frames (published files are checked against the full
+    sequence, then cut to the same N frames).
+    """
     factories = tracker_factories(tracker_names)
     published = dataset.published_trackers(published_dir) if published_dir else []
     clash = set(published) & set(tracker_names)
     if clash:
         raise ValueError(f"published tracker names clash with run trackers: {sorted(clash)}")
     per_sequence: dict[str, object] = {}
-    for seq in sequences:
+    for full in sequences:
+        seq = truncated(full, max_frames)
         runs = track_lockstep((seq.read_frame(i) for i in range(len(seq))), len(seq),
                               seq.groundtruth[0], factories, seq.name,
                               on_frame=(lambda: progress(1)) if progress else None)
         entries: dict[str, object] = {name: run_entry(run, seq.groundtruth) for name, run in runs.items()}
         for name in published:
-            boxes = dataset.load_published(published_dir, name, seq.name, len(seq))  # type: ignore[arg-type]
+            boxes = dataset.load_published(published_dir, name, full.name, len(full))  # type: ignore[arg-type]
             if boxes is None:
                 continue
+            boxes = boxes[:len(seq)]
             entry = metrics.score(boxes, seq.groundtruth)
             entry.update({"published": True, "boxes": boxes})
             entries[name] = entry
@@ -133,13 +140,15 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
                       kinds: list[str], lengths: tuple[int, ...], seed: int,
                       criteria: longterm.LongTermCriteria | None = None,
                       config: longterm.InjectionConfig | None = None,
-                      progress: Callable[[int], None] | None = None) -> dict[str, object]:
-    """Long-term evaluation: every tracker on every (sequence, event kind) with injected events."""
+                      progress: Callable[[int], None] | None = None,
+                      max_frames: int | None = None) -> dict[str, object]:
+    """Long-term evaluation: every tracker on every (sequence, event kind) with injected events
+    (events placed within the first max_frames frames when given)."""
     factories = tracker_factories(tracker_names)
     criteria = criteria or longterm.LongTermCriteria()
     per_sequence: dict[str, object] = {}
     lt_runs: dict[str, list[dict[str, object]]] = {n: [] for n in tracker_names}
-    for seq in sequences:
+    for seq in (truncated(full, max_frames) for full in sequences):
         for kind in kinds:
             events = longterm.inject_events(seq, kind, lengths, seed, config)
             runs = track_lockstep(events.frames(), len(events), events.groundtruth[0], factories,

@@ -1,5 +1,10 @@
 """Cost of JSAR-Re's re-detection, one thread: `python -m jsar.redetect.bench DATA_ROOT [--frames N]`.
 
+`--size-blend` instead measures which re-initialisation size is best: on every sequence, every 10th
+frame after 30, re-detection is forced at the tracker's current box (omega 5) on the next frame and,
+where the best candidate lands on the target (centre error <= 20 px), the IoU with ground truth of
+the re-initialised box is compared for size blends 0 (last confident size) .. 1 (proposal's size).
+
 Per sequence: jsar-re tracks the first N frames normally (timing its confident frames), then on the
 next N frames re-detection is forced at the last confident box (proposals + decision-filter scoring,
 omega = 5 and omega = 10, no re-initialisation); OpenCV's CSRT runs on the same frames in the same
@@ -21,7 +26,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jsar.config import JsarParams  # noqa: E402
-from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
+from jsar.redetect.jsar_re import JsarReTracker, RedetectOptions, blend_size  # noqa: E402
 from jsar.redetect.proposals import generate_proposals  # noqa: E402
 
 
@@ -42,12 +47,62 @@ def _ms(fn) -> float:  # type: ignore[no-untyped-def]
     return (time.perf_counter() - start) * 1e3
 
 
+def _groundtruth(folder: Path) -> np.ndarray:
+    rows = [line.replace("\t", ",").split(",") for line in (folder / "groundtruth_rect.txt").read_text().split("\n") if line.strip()]
+    gt = np.array([[float(v) for v in row] for row in rows])
+    gt[:, :2] -= 1.0  # MATLAB 1-based -> 0-based
+    return gt
+
+
+def _iou(a: tuple[float, ...], b: np.ndarray) -> float:
+    iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+
+
+def size_blend_study(root: Path, blends: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)) -> None:
+    """Print the mean IoU of the re-initialised box per size blend (see the module docstring)."""
+    overlaps: dict[float, list[float]] = {b: [] for b in blends}
+    forced = 0
+    for folder in _sequences(root):
+        gt = _groundtruth(folder)
+        paths = sorted((folder / "img").glob("*.jpg"))
+        tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(size_blend=1.0))
+        tracker.init(cv2.imread(str(paths[0]), cv2.IMREAD_COLOR), tuple(gt[0]))
+        for index in range(1, len(paths) - 1):
+            tracker.update(cv2.imread(str(paths[index]), cv2.IMREAD_COLOR))
+            target = gt[index + 1]
+            if index < 30 or index % 10 or np.isnan(target).any():
+                continue
+            last = tracker.core.box
+            outcome = tracker.redetect(cv2.imread(str(paths[index + 1]), cv2.IMREAD_COLOR), last, 5.0, 0.0)
+            forced += 1
+            if outcome.box is None:
+                continue
+            x, y, w, h = outcome.box  # proposal's own size (blend 1), centred on the decision peak
+            cx, cy = x + w / 2, y + h / 2
+            if np.hypot(cx - target[0] - target[2] / 2, cy - target[1] - target[3] / 2) > 20:
+                continue
+            for blend in blends:
+                bw, bh = blend_size((w, h), (last[2], last[3]), blend)
+                overlaps[blend].append(_iou((cx - bw / 2, cy - bh / 2, bw, bh), target))
+    print(f"forced re-detections: {forced}, best candidate on target: {len(overlaps[blends[0]])}")
+    for blend in blends:
+        print(f"  size_blend {blend:.2f}: re-initialised box IoU mean {np.mean(overlaps[blend]):.3f}, "
+              f"median {np.median(overlaps[blend]):.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data_root", type=Path)
     parser.add_argument("--frames", type=int, default=20, help="confident frames, then as many re-detection frames")
+    parser.add_argument("--size-blend", action="store_true", help="compare re-initialisation sizes instead")
     args = parser.parse_args()
     cv2.setNumThreads(1)
+    if args.size_blend:
+        size_blend_study(args.data_root)
+        return
     timings: dict[str, list[float]] = {k: [] for k in ("confident", "csrt", "redetect5", "proposals5", "scoring5", "redetect10")}
     for folder in _sequences(args.data_root):
         frames, box = _load(folder, 2 * args.frames + 1)

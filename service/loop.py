@@ -3,6 +3,11 @@
 `TrackingLoop.step(frame)` is the whole per-frame work and does no I/O itself: selections arrive
 through a one-slot mailbox, commands leave through an `Outputs` object, telemetry through a
 callback. Angles in radians, boxes (x, y, w, h) pixels unless named normalised.
+
+Two clocks, on purpose: the controllers run on the frames' capture clock (`Frame.capture_time_s`, see
+service.control.frame_clock), so their output depends on the frames, not on how long a frame took to
+process; detecting that frames stopped arriving (FRAME_GAP_S) and latencies use the service's
+monotonic clock, because they are about the service's own real time.
 """
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ import numpy as np
 
 from jsar.api import Tracker, TrackResult
 from service.config import ServiceConfig
+from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
 from service.control.geo import GroundTarget, camera_ray_ned, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, gimbal_step
 from service.mavlink import messages
@@ -27,7 +33,7 @@ from service.sources.base import Frame, LatestSlot
 
 log = logging.getLogger("service.loop")
 LoopState = Literal["idle", "tracking", "lost", "recovered"]
-MIN_DT_S, MAX_DT_S = 1e-3, 0.5  # controller time step bounds (a stall must not kick the integrator)
+CLOCK_LIMITS = ClockLimits()  # controller time step bounds, capture-clock seconds
 FRAME_GAP_S = 0.5  # no frame for this long while tracking: hold gimbal and vehicle
 
 
@@ -37,7 +43,10 @@ class ControlCommand:
 
     state: loop state after this frame; stopped: tracking just ended (send zeros once);
     rates: (yaw_rate, pitch_rate) rad/s or None (no gimbal command); bearing: target direction from
-    the vehicle nose (rad, + right) or None; ground: flat-ground target estimate or None.
+    the vehicle nose (rad, + right) or None; ground: flat-ground target estimate or None;
+    frame_time_s: capture time (s, source clock) of the frame the command was computed from, the
+    clock guidance is throttled on; None for commands not tied to a frame (hold after a frame gap,
+    stop while no frames arrive).
     """
 
     state: LoopState
@@ -45,12 +54,14 @@ class ControlCommand:
     rates: tuple[float, float] | None
     bearing: float | None
     ground: GroundTarget | None
+    frame_time_s: float | None = None
 
 
 class Outputs(Protocol):
     """Where commands go (MAVLink in the service, a recorder in tests)."""
 
-    def apply(self, now_s: float, command: ControlCommand) -> None: ...
+    def apply(self, now_s: float, command: ControlCommand) -> None:
+        """now_s: the service's time.monotonic(); frame-clock decisions use command.frame_time_s."""
 
 
 @dataclass(frozen=True)
@@ -103,11 +114,14 @@ class TrackingLoop:
         self.tracker: Tracker | None = None
         self.box: tuple[float, float, float, float] | None = None
         self.tracked_size: tuple[int, int] | None = None
+        # first step after a reset: one nominal frame period (the configured source rate)
+        self.nominal_dt_s = min(max(1.0 / config.source.fps, CLOCK_LIMITS.min_step_s), CLOCK_LIMITS.max_step_s)
         self.gimbal = GimbalState()
-        self.last_time: float | None = None
+        self.last_stamp: FrameStamp | None = None  # the last frame the controller stepped on
+        self.last_clock_reset: str | None = None  # reason of the last reset, to log each kind once
         self.halted = False  # zero commands already sent for the current frame gap
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
-                         "resized": 0}
+                         "resized": 0, "clock_resets": 0}
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
@@ -190,8 +204,7 @@ class TrackingLoop:
             return "stopped" if self._stop_tracking("init failed") else None
         self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
         self.state = "tracking"
-        self.gimbal = GimbalState()
-        self.last_time = None
+        self._reset_controller()
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
         return "started"
 
@@ -205,8 +218,7 @@ class TrackingLoop:
         if self.tracker is None or self.halted:
             return
         self.halted = True
-        self.gimbal = GimbalState()
-        self.last_time = None
+        self._reset_controller()
         log.warning("event=no_frames_while_tracking action=hold_gimbal_and_vehicle gap_s=%.1f", FRAME_GAP_S)
         self.outputs.apply(time.monotonic(), ControlCommand("lost", False, (0.0, 0.0), None, None))
 
@@ -227,8 +239,7 @@ class TrackingLoop:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
         self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
-        self.gimbal = GimbalState()
-        self.last_time = None
+        self._reset_controller()
         return was_active
 
     def _handle_resize(self, image: np.ndarray, size: tuple[int, int]) -> None:
@@ -246,6 +257,30 @@ class TrackingLoop:
             self._stop_tracking("re-init after resize failed")
             return
         self.tracker, self.box, self.tracked_size = tracker, box, size
+        self._reset_controller()  # the angular error is continuous, but the box was re-initialised
+
+    def _reset_controller(self) -> None:
+        """Forget the gimbal controller's memory and the frame clock: the next step starts from rest."""
+        self.gimbal = GimbalState()
+        self.last_stamp = None
+
+    def _control_dt(self, frame: Frame) -> float:
+        """Controller step (s) from the frame's capture time; resets the controller on an unusable interval."""
+        stamp = FrameStamp(frame.frame_id, frame.capture_time_s)
+        interval = control_interval(self.last_stamp, stamp, CLOCK_LIMITS)
+        unexpected_reset = interval.resets and interval.reason != "first_frame"
+        if unexpected_reset:
+            self.counters["clock_resets"] += 1
+            if interval.reason != self.last_clock_reset:  # once per kind in a row, not once per frame
+                previous = self.last_stamp
+                log.warning("event=control_clock_reset reason=%s frame_id=%d capture_time=%.6f "
+                            "previous_frame_id=%s previous_capture_time=%s", interval.reason, frame.frame_id,
+                            frame.capture_time_s, previous.frame_id if previous else None,
+                            f"{previous.capture_time_s:.6f}" if previous else None)
+            self.gimbal = GimbalState()
+        self.last_clock_reset = interval.reason if unexpected_reset else None
+        self.last_stamp = stamp
+        return self.nominal_dt_s if interval.dt_s is None else interval.dt_s
 
     def _track(self, image: np.ndarray) -> TrackResult | None:
         assert self.tracker is not None
@@ -273,17 +308,15 @@ class TrackingLoop:
 
     def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None,
                  stopped: bool) -> ControlCommand:
+        stamp = frame.capture_time_s
         if stopped or self.state == "idle":
-            return ControlCommand("idle", stopped, (0.0, 0.0) if stopped else None, None, None)
+            return ControlCommand("idle", stopped, (0.0, 0.0) if stopped else None, None, None, stamp)
         if self.state == "lost" or self.box is None:
-            self.gimbal = GimbalState()  # reset the integrator; hold the gimbal still while coasting
-            self.last_time = None
-            return ControlCommand("lost", False, (0.0, 0.0), None, None)
-        dt = 1.0 / 30.0 if self.last_time is None else frame.read_monotonic_s - self.last_time
-        self.last_time = frame.read_monotonic_s
+            self._reset_controller()  # reset the integrator; hold the gimbal still while coasting
+            return ControlCommand("lost", False, (0.0, 0.0), None, None, stamp)
+        dt = self._control_dt(frame)
         yaw_err, pitch_err = angular_error(self.box, size, self.hfov)
-        self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err,
-                                                        min(max(dt, MIN_DT_S), MAX_DT_S), self.gains)
+        self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err, dt, self.gains)
         view = self.autopilot()
         bearing: float | None = None
         ground: GroundTarget | None = None
@@ -295,7 +328,7 @@ class TrackingLoop:
                 ground = locate_on_ground(pose, camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw))
         elif self.config.gimbal.backend == "none":
             bearing = yaw_err  # fixed camera, assumed looking along the vehicle's nose
-        return ControlCommand(self.state, False, (yaw_rate, pitch_rate), bearing, ground)
+        return ControlCommand(self.state, False, (yaw_rate, pitch_rate), bearing, ground, stamp)
 
 
 def _fmt_box(box: tuple[float, float, float, float]) -> str:

@@ -1,6 +1,7 @@
 """Pure parts: command validation, selection boxes, gimbal PI(D), guidance gating, geolocation, outputs."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 
@@ -138,6 +139,26 @@ def test_integral_removes_steady_error_contribution_and_reset_clears_it() -> Non
     assert GimbalState().yaw == AxisState()  # the reset state has no memory
 
 
+def test_control_interval_from_capture_stamps() -> None:
+    from service.control.frame_clock import ClockLimits, ControlInterval, FrameStamp, control_interval
+    last = FrameStamp(10, 100.0)
+    assert control_interval(None, last) == ControlInterval(None, "first_frame")
+    assert control_interval(last, FrameStamp(11, 100.0 + 1 / 30)).dt_s == pytest.approx(1 / 30)
+    assert control_interval(last, FrameStamp(11, 100.0 + 1 / 30)).reason == "ok"
+    assert control_interval(last, FrameStamp(14, 100.8)) == ControlInterval(0.5, "clamped")  # dropped frames
+    assert control_interval(last, FrameStamp(11, 100.0001)) == ControlInterval(1e-3, "clamped")
+    assert control_interval(last, FrameStamp(11, 100.0)).reason == "time_not_increasing"  # repeated stamp
+    assert control_interval(last, FrameStamp(11, 99.0)).reason == "time_not_increasing"  # clock stepped back
+    assert control_interval(last, FrameStamp(11, 101.5)).reason == "gap"  # stalled stream
+    assert control_interval(last, FrameStamp(3, 100.1)).reason == "frame_id_not_increasing"  # publisher restarted
+    assert control_interval(last, FrameStamp(11, 102.0), ClockLimits(reset_gap_s=3.0)).dt_s == 0.5
+    assert all(control_interval(last, FrameStamp(11, t)).resets for t in (100.0, 99.0, 101.5))
+    with pytest.raises(ValueError, match="capture time must be finite"):
+        control_interval(last, FrameStamp(11, NAN))
+    with pytest.raises(ValueError, match="min_step_s <= max_step_s"):
+        ClockLimits(max_step_s=2.0, reset_gap_s=1.0)
+
+
 def test_bad_controller_inputs_raise() -> None:
     with pytest.raises(ValueError, match="dt"):
         pid_step(AxisState(), 0.1, 0.0, GAINS)
@@ -195,6 +216,11 @@ TRACKING = ControlCommand("tracking", False, (0.1, -0.1), 0.2, None)
 LOST = ControlCommand("lost", False, (0.0, 0.0), None, None)
 
 
+def at(command: ControlCommand, frame_time_s: float) -> ControlCommand:
+    """`command` as computed from a frame captured at frame_time_s (source clock)."""
+    return dataclasses.replace(command, frame_time_s=frame_time_s)
+
+
 def test_velocity_guidance_gated_on_mode_and_zero_when_lost() -> None:
     loiter = AutopilotView(system_id=1, autopilot=3, vehicle_type=2, custom_mode=5, last_heartbeat_s=100.0)
     outputs, link = _outputs({"guidance": {"mode": "velocity"}}, loiter)
@@ -213,12 +239,38 @@ def test_velocity_guidance_gated_on_mode_and_zero_when_lost() -> None:
     assert len([m for m in link.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]) == 2
 
 
-def test_guidance_throttled_to_rate() -> None:
+def _setpoint_frames(outputs: MavlinkOutputs, link: FakeLink, frames: list[tuple[float, float]]) -> list[int]:
+    """Apply TRACKING for (service time, capture time) pairs; indices of the frames that sent a setpoint."""
+    sent = []
+    for i, (now_s, capture_s) in enumerate(frames):
+        before = link.types().count("SET_POSITION_TARGET_LOCAL_NED")
+        outputs.apply(now_s, at(TRACKING, capture_s))
+        if link.types().count("SET_POSITION_TARGET_LOCAL_NED") > before:
+            sent.append(i)
+    return sent
+
+
+def test_guidance_throttled_to_rate_on_the_frame_clock() -> None:
+    guided = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
+    captures = [1000.0 + i / 30 for i in range(30)]  # 1 s of frames at 30 fps
+    even = [(10.0 + i / 30, t) for i, t in enumerate(captures)]
+    # the same frames processed in bursts: a 0.2 s stall before every 4th frame, 1 ms otherwise
+    bursty = [(10.0 + sum(0.2 if k % 4 == 0 else 0.001 for k in range(i + 1)), t) for i, t in enumerate(captures)]
+    sent = []
+    for frames in (even, bursty):
+        outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 10.0}}, guided)
+        sent.append(_setpoint_frames(outputs, link, frames))
+    assert sent[0] == sent[1] == list(range(0, 30, 3))  # 10 Hz of capture time, whatever the service did
+
+
+def test_guidance_throttle_reanchors_when_the_frame_clock_steps_back() -> None:
     guided = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
     outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 10.0}}, guided)
-    for i in range(30):  # 30 frames over 0.29 s
-        outputs.apply(10.0 + i * 0.01, TRACKING)
-    assert link.types().count("SET_POSITION_TARGET_LOCAL_NED") == 3
+    frames = [(10.0 + i / 30, 1000.0 + i / 30) for i in range(4)]
+    frames += [(10.2 + i / 30, 50.0 + i / 30) for i in range(4)]  # publisher restarted with an older clock
+    assert _setpoint_frames(outputs, link, frames) == [0, 3, 4, 7]
+    outputs.apply(10.4, TRACKING)  # not from a frame (hold / stop): always due
+    assert link.types().count("SET_POSITION_TARGET_LOCAL_NED") == 5
 
 
 def test_ardupilot_backend_sends_287_rates() -> None:
@@ -290,10 +342,10 @@ def test_follow_target_sends_the_ground_estimate_only_while_tracking() -> None:
     from service.control.geo import GroundTarget
     ground = GroundTarget(lat_deg=47.1, lon_deg=8.2, alt_amsl_m=500.0, ground_range_m=20.0, bearing_rad=0.3)
     outputs, link = _outputs({"guidance": {"mode": "follow_target", "rate_hz": 10.0}}, AutopilotView(system_id=1))
-    outputs.apply(1.0, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground))
-    outputs.apply(1.05, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground))  # throttled
-    outputs.apply(1.2, ControlCommand("lost", False, (0.0, 0.0), None, None))
-    outputs.apply(1.3, ControlCommand("tracking", False, (0.0, 0.0), 0.1, None))  # no ground estimate
+    outputs.apply(1.0, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground, 50.0))
+    outputs.apply(1.05, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground, 50.05))  # throttled
+    outputs.apply(1.2, ControlCommand("lost", False, (0.0, 0.0), None, None, 50.2))
+    outputs.apply(1.3, ControlCommand("tracking", False, (0.0, 0.0), 0.1, None, 50.3))  # no ground estimate
     follows = [m for m in link.sent if m.get_type() == "FOLLOW_TARGET"]
     assert len(follows) == 1
     assert (follows[0].lat, follows[0].lon, follows[0].est_capabilities) == (471000000, 82000000, 1)
@@ -384,7 +436,7 @@ def test_px4_outside_offboard_streams_only_zero_setpoints_so_the_pilot_can_engag
                          last_heartbeat_s=10.0)
     outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 5.0}}, hold)
     for i in range(10):  # 1 s of tracking at 10 fps in HOLD
-        outputs.apply(10.0 + i * 0.1, TRACKING)
+        outputs.apply(10.0 + i * 0.1, at(TRACKING, 70.0 + i * 0.1))
     setpoints = [m for m in link.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
     assert len(setpoints) == 5  # > 2 Hz stream
     assert all((m.vx, m.vy, m.vz, m.yaw_rate) == (0, 0, 0, 0) for m in setpoints)
@@ -393,5 +445,5 @@ def test_px4_outside_offboard_streams_only_zero_setpoints_so_the_pilot_can_engag
     assert idle_link[1].sent == []  # not tracking: nothing at all
     offboard = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
     outputs.autopilot = lambda: offboard
-    outputs.apply(11.5, TRACKING)
+    outputs.apply(11.5, at(TRACKING, 71.5))
     assert link.sent[-1].yaw_rate > 0  # in OFFBOARD: real guidance

@@ -233,6 +233,71 @@ def test_lost_gives_zero_rates_and_resets_the_integrator_then_stop_ends_commands
     assert after.state == "idle" and outputs.commands[-1].rates is None  # no more gimbal commands
 
 
+def _steady_track(captures: list[tuple[int, float, float]], size: tuple[int, int] = (160, 120),
+                  between=lambda loop, i: None) -> tuple[TrackingLoop, list[tuple[float, float]]]:
+    """Track a still, off-centre target over frames (frame_id, capture time s, service read time s);
+    between(loop, i) runs before frame i. Returns the loop and the gimbal rates of every frame."""
+    loop, selections, outputs = make_loop(lambda: ScriptedTracker(["tracking"] * len(captures)))
+    selections.put(TrackRectangle(110 / 160, 20 / 120, 130 / 160, 40 / 120))
+    image = np.zeros((size[1], size[0], 3), np.uint8)
+    for i, (frame_id, capture_s, read_s) in enumerate(captures):
+        between(loop, i)
+        loop.step(Frame(image, frame_id, capture_s, read_s))
+    return loop, [cmd.rates for cmd in outputs.commands]
+
+
+def test_gimbal_rates_follow_the_capture_clock_not_the_processing_time() -> None:
+    from service.control.gimbal import GimbalState, PidGains, angular_error, gimbal_step
+    from service.selection import rectangle_box
+    captures = [1000.0 + i / 30 for i in range(12)]  # 30 fps on the source's clock
+    even = [(i, t, 5.0 + i / 30) for i, t in enumerate(captures)]
+    # the same frames, the service stalling 0.3 s before every 3rd one (slow tracker, loaded machine)
+    stalled = [(i, t, 5.0 + i / 30 + 0.3 * (i // 3)) for i, t in enumerate(captures)]
+    loop, rates_even = _steady_track(even)
+    _, rates_stalled = _steady_track(stalled)
+    assert rates_even == rates_stalled
+    # and they are the controller's response to a steady error sampled every 1/30 s of capture time
+    box = rectangle_box(TrackRectangle(110 / 160, 20 / 120, 130 / 160, 40 / 120), (160, 120))
+    yaw_err, pitch_err = angular_error(box, (160, 120), loop.hfov)
+    state, expected = GimbalState(), []
+    for _ in captures:
+        state, yaw_rate, pitch_rate = gimbal_step(state, yaw_err, pitch_err, 1 / 30, PidGains.from_config(loop.config.gimbal))
+        expected.append((yaw_rate, pitch_rate))
+    assert [r for pair in rates_even for r in pair] == pytest.approx([r for pair in expected for r in pair], abs=1e-12)
+    assert len(set(rates_even)) == len(rates_even)  # slew limit and integrator at work: dt matters
+
+
+def test_unusable_capture_intervals_reset_the_controller_instead_of_a_spike() -> None:
+    from service.control.gimbal import gimbal_step
+    frames = [(i, 1000.0 + i / 30, 0.0) for i in range(3)]
+    frames += [(3, 1000.0 + 2 / 30, 0.0)]  # 3: same capture time as frame 2 (repeated stamp)
+    frames += [(4, 1000.0 + 3 / 30, 0.0)]  # 4: normal step after the reset
+    frames += [(5, 1005.0, 0.0)]  # 5: a 4.9 s gap (stalled stream)
+    frames += [(0, 20.0, 0.0)]  # 6: publisher restarted: frame ids and its clock start again
+    frames += [(1, 20.8, 0.0)]  # 7: 0.8 s: usable, integrated as the 0.5 s maximum step
+    before_clamped: list = []
+    loop, rates = _steady_track(frames, between=lambda loop, i: before_clamped.append(loop.gimbal) if i == 7 else None)
+    from_rest = rates[0]
+    assert rates[1] != pytest.approx(from_rest)
+    assert rates[3] == from_rest and rates[5] == from_rest and rates[6] == from_rest
+    assert rates[4] == rates[1]  # the clock restarted cleanly at frame 3
+    assert loop.counters["clock_resets"] == 3
+    from service.control.gimbal import angular_error
+    yaw_err, pitch_err = angular_error(loop.box, (160, 120), loop.hfov)
+    _, *clamped = gimbal_step(before_clamped[0], yaw_err, pitch_err, 0.5, loop.gains)
+    assert rates[7] == pytest.approx(tuple(clamped), abs=1e-12)
+
+
+def test_frame_size_change_restarts_the_controller() -> None:
+    loop, selections, outputs = make_loop(lambda: ScriptedTracker(["tracking"] * 5))
+    selections.put(TrackRectangle(110 / 160, 20 / 120, 130 / 160, 40 / 120))
+    for i, size in enumerate([(160, 120)] * 3 + [(320, 240)]):  # same view, twice the resolution
+        loop.step(Frame(np.zeros((size[1], size[0], 3), np.uint8), i, 1000.0 + i / 30, 0.0))
+    rates = [cmd.rates for cmd in outputs.commands]
+    assert loop.counters["resized"] == 1
+    assert rates[3] == pytest.approx(rates[0], abs=1e-12) and rates[2] != pytest.approx(rates[0])
+
+
 def test_bad_selection_box_is_refused_without_crash() -> None:
     def refuse() -> ScriptedTracker:
         raise ValueError("box does not overlap")
@@ -287,6 +352,9 @@ def test_zenoh_source_decodes_frames_and_counts_corrupt_ones() -> None:
         assert arrived.capture_time_s == 123.0 + arrived.frame_id
         pub.put(b"JFR1garbage")
         assert worker.health.wait_for(lambda h: h.corrupt >= 1, 5.0)
+        pub.put(encode_frame(image, 999, float("nan")))  # the controllers integrate over capture times
+        assert worker.health.wait_for(lambda h: h.corrupt >= 2, 5.0)
+        assert mailbox.take(0.0) is None
         worker.stop()
     finally:
         publisher_side.close()

@@ -37,9 +37,10 @@ class EndOfStream(Exception):
 class Frame:
     """One captured frame: HxWx3 BGR or HxW grey uint8 image.
 
-    frame_id: increasing per source; capture_time_s: the source's timestamp (seconds, wall clock, the
-    publisher's clock for zenoh); read_monotonic_s: time.monotonic() when the worker received it, the
-    start of the service's latency measurements.
+    frame_id: increasing per source; capture_time_s: the source's timestamp (seconds, wall clock: read
+    time for v4l2 / file, the publisher's header timestamp for zenoh), the clock the controllers
+    integrate over; read_monotonic_s: time.monotonic() when the worker received it, the start of the
+    service's latency measurements.
     """
 
     image: np.ndarray

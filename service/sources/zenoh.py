@@ -5,6 +5,7 @@ decoding happens on the capture thread, so a slow tracker never queues frames in
 """
 from __future__ import annotations
 
+import math
 import time
 
 from service.sources.base import CorruptFrame, Frame, LatestSlot, SourceError
@@ -50,6 +51,8 @@ class ZenohReader:
             wire = decode_frame(payload)
         except ValueError as exc:
             raise CorruptFrame(str(exc)) from exc
+        if not math.isfinite(wire.timestamp):  # the controllers integrate over capture-time intervals
+            raise CorruptFrame(f"frame {wire.frame_id}: capture timestamp {wire.timestamp} is not finite")
         return Frame(wire.image, wire.frame_id, wire.timestamp, time.monotonic())
 
     def close(self) -> None:

@@ -50,7 +50,7 @@ class RedetectOptions:
     --size-blend`): of 112 forced re-detections on the shared sequences 84 landed on the target,
     their re-initialised box IoU was 0.533 (blend 0), 0.482 (0.5), 0.411 (1, the proposal's size):
     EdgeBoxes' boxes are loose; the size filter adapts the size on the following frames.
-    inside_rule: see monitor.py.
+    inside_rule, relative_drop: see monitor.py (relative_drop 0 = the paper's absolute rule alone).
     omega_max: cap on the growing proposal square (units of sqrt(w*h)); the paper has none. With
     acceptance disabled, 44 of the 46 frames whose best proposal was the reappeared target lay
     within 5 target sides of the last confident position, while the wrong best proposals above
@@ -61,6 +61,7 @@ class RedetectOptions:
 
     size_blend: float = 0.0
     inside_rule: InsideRule = "full"
+    relative_drop: float = 0.6
     omega_max: float = 12.0
     edge_sigma_px: float = 2.0
     edge_nms_radius: int = 1
@@ -84,8 +85,12 @@ class Redetection:
     sharpness: float = math.nan  # peak-to-sidelobe ratio of the best proposal's response (diagnostic)
 
 
-def monitor_params(params: JsarParams, inside_rule: InsideRule = "full", omega_max: float = math.inf) -> MonitorParams:
-    """The failure monitor's thresholds from the one tracker config (redetect_* fields)."""
+def monitor_params(params: JsarParams, options: "RedetectOptions | None" = None) -> MonitorParams:
+    """The failure monitor's thresholds from the one tracker config (redetect_* fields) and the
+    implementation options (None: the paper's rules alone, unbounded omega)."""
+    inside_rule: InsideRule = options.inside_rule if options else "full"
+    relative_drop = options.relative_drop if options else 0.0
+    omega_max = options.omega_max if options else math.inf
     return MonitorParams(
         enable_peak=params.redetect_enable_peak,
         reliable_peak=params.redetect_reliable_peak,
@@ -98,6 +103,7 @@ def monitor_params(params: JsarParams, inside_rule: InsideRule = "full", omega_m
         min_area_px2=params.redetect_min_area,
         max_area_px2=params.redetect_max_area,
         inside_rule=inside_rule,
+        relative_drop=relative_drop,
     )
 
 
@@ -122,7 +128,7 @@ class JsarReTracker:
             sigma, radius = options.edge_sigma_px, options.edge_nms_radius
             self._edges = lambda image: edge_maps(image, sigma, radius)
         self._edgeboxes = dataclasses.replace(options.edgeboxes, max_boxes=self.params.redetect_num_proposals)
-        self.monitor = FailureMonitor(monitor_params(self.params, options.inside_rule, options.omega_max))
+        self.monitor = FailureMonitor(monitor_params(self.params, options))
         self.decision: TranslationFilter | None = None
         # True while the decision filter has seen exactly the translation filter's training history:
         # then both are the same STRCF solution and the decision filter is shared instead of solved.

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test bench clean
+.PHONY: run test eval longterm bench clean
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml jsar/features/_kernels.c
@@ -23,6 +23,18 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# Research: the tracker on the shared real sequences (DATA defaults to the shared data beside the repo).
+DATA ?= ../shared/data/uav
+eval: $(STAMP)
+	$(PY) -m jsar.eval $(DATA) --trackers jsar-re,jsar,strcf,csrt,kcf --published $(dir $(DATA))published --json out/eval.json --plots out/plots
+
+longterm: $(STAMP)
+	$(PY) -m jsar.eval $(DATA) --longterm --trackers jsar-re,jsar,csrt --json out/longterm.json
+
+bench: $(STAMP)
+	$(PY) -m jsar.tracking.bench $(DATA) --trackers jsar,csrt
+	JSAR_DATA_ROOT=$(DATA) $(PY) -m service.bench
 
 clean:
 	rm -rf $(VENV) out

@@ -263,6 +263,14 @@ def test_guidance_throttled_to_rate_on_the_frame_clock() -> None:
     assert sent[0] == sent[1] == list(range(0, 30, 3))  # 10 Hz of capture time, whatever the service did
 
 
+def test_a_frames_setpoint_goes_out_before_its_gimbal_command() -> None:
+    # a lockstep simulator steps its model once it sees the gimbal command: the setpoint must be in
+    guided = AutopilotView(system_id=1, autopilot=3, vehicle_type=2, custom_mode=4, last_heartbeat_s=10.0)
+    outputs, link = _outputs({"guidance": {"mode": "velocity"}}, guided)
+    outputs.apply(10.0, at(TRACKING, 1000.0))
+    assert link.types() == ["SET_POSITION_TARGET_LOCAL_NED", "GIMBAL_MANAGER_SET_PITCHYAW"]
+
+
 def test_guidance_throttle_reanchors_when_the_frame_clock_steps_back() -> None:
     guided = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
     outputs, link = _outputs({"guidance": {"mode": "velocity", "rate_hz": 10.0}}, guided)

@@ -41,13 +41,16 @@ class MavlinkOutputs:
         if not system_id:
             return  # no autopilot heard and none configured: nobody to command yet
         target = (system_id, MAV_COMP_ID_AUTOPILOT1)
-        if command.rates is not None:
-            self._gimbal(now_s, view, target, command.rates, tracking=command.state != "idle")
+        # guidance first, the gimbal command last: whoever sees a frame's gimbal command (a lockstep
+        # simulator stepping its model on it) has its setpoint too; on a real link the order of two
+        # messages sent microseconds apart does not matter
         mode = self.config.guidance.mode
         if mode == "velocity":
             self._velocity(now_s, view, target, command)
         elif mode == "follow_target":
             self._follow(command)
+        if command.rates is not None:
+            self._gimbal(now_s, view, target, command.rates, tracking=command.state != "idle")
 
     # --- gimbal -------------------------------------------------------------------------------
     def _gimbal(self, now_s: float, view: AutopilotView, target: tuple[int, int], rates: tuple[float, float],

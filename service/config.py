@@ -70,7 +70,7 @@ class TrackerConfig:
 
     name: str = "jsar-re"
     params: Mapping[str, Any] = field(default_factory=lambda: types.MappingProxyType({}))
-    threads: int = _checked(1, _positive)  # OpenCV threads (cv2.setNumThreads) for the tracker
+    threads: int = _checked(1, _positive)  # OpenCV and BLAS/OpenMP threads for the tracker
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ GIMBAL_DEVICE_ATTITUDE_STATUS and GIMBAL_MANAGER_STATUS from the model's state.
 Clocks: the model's clock (`model.time_s`, advanced only by `step`) stamps received commands and
 measures setpoint timeouts and link drops, so a lockstep closed loop is reproducible; heartbeats and
 telemetry streams go out on the wall clock (1 Hz / `stream_hz`) because the peers judge link health
-by wall time. Each link answers whoever sent to it last (like pymavlink `udpin:`).
+by wall time; a lockstep caller also sends them after every step (`send_state_now`). Each link answers whoever sent to it last (like pymavlink `udpin:`).
 
 Run alone: `python -m sim.autopilot --flavour px4 --service-port 14555 --gcs-port 14550`.
 """
@@ -83,6 +83,8 @@ class AutopilotStats:
     """Counters for assertions: per-type received counts, heartbeats seen per (link, sysid, compid)."""
 
     received_by_type: collections.Counter = field(default_factory=collections.Counter)
+    # (source component, type) -> count; commands as "COMMAND_LONG:<id>" (a lockstep sim waits on these)
+    received_by_source: collections.Counter = field(default_factory=collections.Counter)
     heartbeats: dict = field(default_factory=dict)  # (link, sysid, compid) -> wall time of the last one
     forwarded: int = 0
 
@@ -173,8 +175,10 @@ class MockAutopilot:
                              timeout_s)
 
     def send_state_now(self) -> None:
-        """Send the telemetry streams immediately (lockstep: after each step, so peers see the new pose)."""
+        """Send a heartbeat and the telemetry streams immediately (lockstep: after each step, so peers see
+        the new pose and flight mode on the frame after the step, not at the next wall-clock tick)."""
         with self.lock:
+            self._send_heartbeat()
             self._send_streams()
 
     # ----- network thread -----------------------------------------------------------------------
@@ -248,6 +252,8 @@ class MockAutopilot:
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         now = self.model.time_s
         self.stats.received_by_type[mtype] += 1
+        key = f"{mtype}:{msg.command}" if mtype in ("COMMAND_LONG", "COMMAND_INT") else mtype
+        self.stats.received_by_source[(src[1], key)] += 1
         if mtype == "HEARTBEAT":
             self.stats.heartbeats[(link.name, src[0], src[1])] = time.monotonic()
             return

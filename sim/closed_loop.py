@@ -5,11 +5,18 @@ wait for the daemon's telemetry of that frame and for its gimbal command, then s
 dynamics by one frame period of simulated time. The target is selected through the mavsdk ground
 station (sim.gcs) on the ground-station link, routed by the mock autopilot to the daemon.
 
+One simulated timeline stamps every frame (the daemon's controllers integrate over capture-time
+intervals): startup and selection frames advance the sim clock by 1/fps each while the scene waits at
+t = 0; the frame the selection is applied on (the init frame) is simulated time 0 of the run, and run
+frame k is (k + 1)/fps after it. In lockstep the mock steps only once the daemon's gimbal command for
+the frame has arrived (waited on by event), so a run depends on the frames, not on machine load.
+
 Centring (the tests' definition): the ground-truth centre of the car is within the central 20 % of
 the image, |dx| <= 0.1 W and |dy| <= 0.1 H, measured on frames where >= 50 % of the car is visible.
 """
 from __future__ import annotations
 
+import logging
 import math
 import tempfile
 import time
@@ -26,8 +33,17 @@ from sim.scene import CameraConfig, GroundTruth, Scene, SceneConfig, pose_from_v
 from sim.vehicle_model import VehicleConfig
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 
+log = logging.getLogger("sim.closed_loop")
 Pace = Literal["lockstep", "realtime"]
 GIMBAL_TYPES = ("GIMBAL_MANAGER_SET_PITCHYAW", "GIMBAL_MANAGER_SET_ATTITUDE")
+SERVICE_COMPONENT = 100  # the daemon's MAVLink component id (config.yaml mavlink.component_id)
+# What the daemon sends for every frame it tracks on: a gimbal rate command, or (PX4, before it is the
+# primary gimbal controller) the MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE claim.
+GIMBAL_OUTPUT_KEYS = tuple((SERVICE_COMPONENT, key) for key in (*GIMBAL_TYPES, "COMMAND_LONG:1001", "COMMAND_INT:1001"))
+# The sim's capture clock starts at 2**20 s: every stamp of a run (< 2**20 s later) then lies in one
+# binade, so a frame interval rounds the same whatever the number of startup / selection frames
+# before the run, and two runs send the daemon bit-identical intervals.
+SIM_CLOCK_EPOCH_S = float(2 ** 20)
 
 
 def free_port(kind: int) -> int:
@@ -59,9 +75,12 @@ class ClosedLoopConfig:
     startup_timeout_s: float = 60.0
     video_path: Path | None = None  # annotated video (MJPG .avi)
     rss_every_s: float = 5.0  # sample the daemon's RSS this often (simulated seconds)
-    # Lockstep never sends faster than real time: the daemon's controllers integrate over the wall-clock
-    # interval between frames (right for a camera), so a sim running 2x fast would double their gains.
+    # Lockstep never runs faster than real time. The daemon's controllers run on the frames' capture
+    # stamps (simulated time), but link health is judged on wall clocks: the daemon's autopilot
+    # heartbeat timeout (mavlink.heartbeat_timeout_s, 1 Hz heartbeats) and its no-frames hold (0.5 s).
+    # A sim faster than real time would compress a 5 s link drop below the heartbeat timeout.
     lockstep_realtime_floor: bool = True
+    gimbal_command_timeout_s: float = 2.0  # lockstep: wait this long (wall) for a frame's gimbal command
 
     def __post_init__(self) -> None:
         if self.flavour not in ("ardupilot", "px4"):
@@ -114,6 +133,7 @@ class RunResult:
     daemon_alive: bool
     daemon_exit: int | None
     selection_result: str
+    gimbal_command_timeouts: int = 0  # lockstep frames stepped without their gimbal command (see log)
 
     def centring_ratio(self, exclude: tuple[tuple[float, float], ...] = ()) -> float:
         """Fraction of visible frames with the car in the central 20 %, outside the `exclude` windows."""
@@ -205,7 +225,9 @@ class ClosedLoop:
                              f"udpout:127.0.0.1:{self.service_port}")
         self.gcs = None
         self.frame_id = 0
-        self._epoch = time.time()
+        self.clock_s = SIM_CLOCK_EPOCH_S  # capture stamp of the next startup / selection frame
+        self.init_stamp_s: float | None = None  # capture stamp of the frame the selection was applied on
+        self.gimbal_command_timeouts = 0
         self.status_line = ""
 
     # ----- lifecycle ----------------------------------------------------------------------------
@@ -257,13 +279,45 @@ class ClosedLoop:
             pose = self.camera_pose()
         return self.scene.render(pose, t)
 
-    def publish(self, frame: np.ndarray, sim_time_s: float | None = None) -> int:
-        """Send a frame. Lockstep frames carry the simulated capture time (epoch of the run + t), so a
-        daemon that integrates over capture-time intervals sees exactly 1/fps between frames."""
+    def publish(self, frame: np.ndarray, run_time_s: float | None = None) -> int:
+        """Send a frame stamped on the sim clock: run_time_s (simulated s after the init frame) for run
+        frames; otherwise (startup, selection, after the run) the next 1/fps tick of the sim clock."""
         self.frame_id += 1
-        stamp = None if sim_time_s is None or self.cfg.pace != "lockstep" else self._epoch + sim_time_s
+        if run_time_s is None:
+            stamp = self.clock_s
+        else:
+            if self.init_stamp_s is None:
+                raise ValueError("run frames need the init frame's stamp: select the target first")
+            stamp = self.init_stamp_s + run_time_s
+        self.clock_s = stamp + 1.0 / self.cfg.fps
         self.camera.publish(frame, self.frame_id, stamp)
         return self.frame_id
+
+    def gimbal_outputs(self) -> int:
+        """How many gimbal commands (or PX4 gimbal claims) the daemon's component has sent the mock."""
+        counts = self.autopilot.stats.received_by_source
+        return sum(counts[key] for key in GIMBAL_OUTPUT_KEYS)
+
+    def wait_gimbal_output(self, before: int, frame_id: int) -> bool:
+        """Lockstep: wait (event, cfg.gimbal_command_timeout_s) for the daemon's gimbal output of frame_id,
+        i.e. a count above `before` (taken just before the frame was published). A timeout is counted
+        and logged: the mock then steps without that command and the run is no longer reproducible."""
+        counts = self.autopilot.stats.received_by_source
+        arrived = self.autopilot.wait_for(lambda: sum(counts[key] for key in GIMBAL_OUTPUT_KEYS) > before,
+                                          self.cfg.gimbal_command_timeout_s)
+        if not arrived:
+            self.gimbal_command_timeouts += 1
+            log.warning("event=gimbal_command_timeout frame_id=%d timeout_s=%.1f count=%d", frame_id,
+                        self.cfg.gimbal_command_timeout_s, self.gimbal_command_timeouts)
+        return arrived
+
+    def wait_telemetry(self, frame_id: int, timeout_s: float) -> dict[str, Any]:
+        """The daemon's telemetry of exactly frame_id; RuntimeError (with the daemon's log) on timeout."""
+        sample = self.camera.telemetry.wait_frame(frame_id, timeout_s)
+        if sample is None or int(sample["frame_id"]) != frame_id:
+            raise RuntimeError(f"no telemetry for frame {frame_id} within {timeout_s} s (got "
+                               f"{None if sample is None else sample['frame_id']}); log:\n{self.daemon.log_tail()}")
+        return sample
 
     def select_target(self, timeout_s: float = 30.0) -> str:
         """Select the car through the mavsdk ground station (TRACK_RECTANGLE on its ground-truth box),
@@ -283,21 +337,23 @@ class ClosedLoop:
                 if time.monotonic() > deadline:
                     raise
         self.gcs.set_status_interval(info.component_id, 0.1)
+        # No frame in flight when the selection arrives: the init frame is then one the loop below
+        # published and waited for (its stamp and gimbal output are known exactly).
+        self.wait_telemetry(self.frame_id, self.cfg.telemetry_timeout_s)
         x, y, w, h = truth.box
         W, H = self.cfg.camera.width, self.cfg.camera.height
         result = self.gcs.track_rectangle(info.component_id, x / W, y / H, (x + w) / W, (y + h) / H)
         while True:
-            self.publish(frame)
-            sample = self.camera.telemetry.wait_frame(self.frame_id, 2.0)
-            if sample is not None and sample.get("state") == "tracking":
+            gimbal_before = self.gimbal_outputs()
+            frame_id = self.publish(frame)
+            sample = self.wait_telemetry(frame_id, self.cfg.telemetry_timeout_s)
+            if sample.get("state") == "tracking":
+                self.init_stamp_s = float(sample["capture_time"])
+                if self.cfg.pace == "lockstep":
+                    self.wait_gimbal_output(gimbal_before, frame_id)
                 return result.name
             if time.monotonic() > deadline:
                 raise TimeoutError(f"daemon did not start tracking; log:\n{self.daemon.log_tail()}")
-
-    def _wait_gimbal_command(self, before: int, timeout_s: float) -> None:
-        """Wait until the mock has received a gimbal command newer than count `before` (or timeout)."""
-        stats = self.autopilot.stats.received_by_type
-        self.autopilot.wait_for(lambda: sum(stats[t] for t in GIMBAL_TYPES) > before, timeout_s)
 
     # ----- the run ------------------------------------------------------------------------------
     def run(self, live: bool = False) -> RunResult:
@@ -317,11 +373,13 @@ class ClosedLoop:
         drops = sorted(cfg.link_drops)
         modes = sorted(cfg.operator_modes)
         next_rss = 0.0
+        # the init frame's command acts for one frame period, like every run frame's
+        self.autopilot.step(dt)
+        if cfg.pace == "lockstep":
+            self.autopilot.send_state_now()
         start_wall = time.monotonic()
-        self._epoch = time.time()
-        stats = self.autopilot.stats.received_by_type
         for k in range(frames):
-            t = k * dt
+            t = (k + 1) * dt  # simulated time after the init frame
             while drops and drops[0][0] <= t:
                 self.autopilot.drop_link(drops.pop(0)[1])
             while modes and modes[0][0] <= t:
@@ -335,7 +393,7 @@ class ClosedLoop:
                 rss.append((t, self.daemon.rss_kib()))
                 next_rss += cfg.rss_every_s
             frame, truth = self.render(t)
-            gimbal_before = sum(stats[name] for name in GIMBAL_TYPES)
+            gimbal_before = self.gimbal_outputs()
             frame_id = self.publish(frame, t)
             with self.autopilot.lock:
                 st, model = self.autopilot.model.state, self.autopilot.model
@@ -347,7 +405,7 @@ class ClosedLoop:
                 if sample is not None and int(sample["frame_id"]) == frame_id:
                     self._fill(record, sample)
                     if sample.get("state") != "idle" and not record.link_down:
-                        self._wait_gimbal_command(gimbal_before, 0.05)
+                        self.wait_gimbal_output(gimbal_before, frame_id)
                 if writer is not None:
                     writer.write(annotate(frame, record))
                 records.append(record)
@@ -384,7 +442,7 @@ class ClosedLoop:
         return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
                          int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
                          self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
-                         selection)
+                         selection, self.gimbal_command_timeouts)
 
     def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
                  final: bool) -> None:

@@ -15,7 +15,9 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from service.config import ZenohConfig
 from service.sources.zenoh_wire import encode_frame
+from service.telemetry import zenoh_config
 
 
 @dataclass(frozen=True)
@@ -35,13 +37,9 @@ class ZenohEndpoints:
             raise ValueError(f"zenoh prefix must be a non-empty key without leading/trailing '/', got {self.prefix!r}")
 
     def to_zenoh(self) -> zenoh.Config:
-        """The zenoh.Config these settings describe."""
-        config = zenoh.Config()
-        config.insert_json5("mode", json.dumps(self.mode))
-        config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
-        config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-        config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
-        return config
+        """The zenoh.Config these settings describe (built like the daemon's, service.telemetry)."""
+        return zenoh_config(ZenohConfig(mode=self.mode, listen=self.listen, connect=self.connect,  # type: ignore[arg-type]
+                                        multicast_scouting=self.multicast_scouting, prefix=self.prefix))
 
 
 @dataclass

@@ -312,3 +312,47 @@ def test_export_writes_an_otb_sequence_with_nan_rows_when_hidden(tmp_path, monke
     assert len(recording.frames) == 6 and len(recording.groundtruth) == 6
     x, y, w, h = recording.groundtruth[0]
     assert abs(x + w / 2 - 320) < 3 and abs(y + h / 2 - 240) < 3  # the camera follows the car
+
+
+def test_received_messages_counted_by_source_component_and_command(autopilot_with_peers):
+    ap, service, gcs = autopilot_with_peers
+    service.mav.gimbal_manager_set_pitchyaw_send(1, 1, 0, 0, math.nan, math.nan, 0.1, 0.2)
+    service.mav.command_long_send(1, 1, 1001, 0, 1, 100, -1, -1, 0, 0, 0)
+    gcs.mav.command_long_send(1, 1, 1001, 0, 255, 190, -1, -1, 0, 0, 0)
+    assert ap.wait_for(lambda: len(ap.record) >= 3, 5.0)
+    counts = ap.stats.received_by_source
+    assert counts[(100, "GIMBAL_MANAGER_SET_PITCHYAW")] == 1
+    assert counts[(100, "COMMAND_LONG:1001")] == 1 and counts[(190, "COMMAND_LONG:1001")] == 1
+    assert counts[(190, "GIMBAL_MANAGER_SET_PITCHYAW")] == 0
+
+
+def test_sim_clock_intervals_do_not_depend_on_the_frames_before_the_run(tmp_path):
+    """Run frames are stamped init + (k+1)/fps: the intervals the daemon integrates over must be the same
+    bits however many startup / selection frames came before (their number depends on wall time)."""
+    from sim.closed_loop import SIM_CLOCK_EPOCH_S, ClosedLoop, ClosedLoopConfig
+    loop = ClosedLoop(ClosedLoopConfig(fps=30.0), workdir=tmp_path)
+    stamps: list[float] = []
+    loop.camera.publish = lambda image, frame_id, stamp: stamps.append(stamp)
+    frame = np.zeros((4, 4, 3), np.uint8)
+    try:
+        with pytest.raises(ValueError, match="init frame"):
+            loop.publish(frame, 1 / 30)
+        intervals = {}
+        for selection_frames in (1, 2, 17, 250, 4000):
+            loop.clock_s, loop.init_stamp_s = SIM_CLOCK_EPOCH_S, None
+            stamps.clear()
+            for _ in range(selection_frames):
+                loop.publish(frame)
+            assert all(b - a == pytest.approx(1 / 30) for a, b in zip(stamps, stamps[1:]))
+            loop.init_stamp_s = stamps[-1]  # as select_target takes it from the init frame's telemetry
+            for k in range(900):
+                loop.publish(frame, (k + 1) / 30)
+            run = stamps[selection_frames - 1:]
+            intervals[selection_frames] = [b - a for a, b in zip(run, run[1:])]
+            assert intervals[selection_frames][0] == pytest.approx(1 / 30, abs=1e-6)
+            loop.publish(frame)  # e.g. the stop after the run: the next tick of the same clock
+            assert stamps[-1] - run[-1] == pytest.approx(1 / 30, abs=1e-6)
+        reference = intervals[1]
+        assert all(v == reference for v in intervals.values())
+    finally:
+        loop.close()

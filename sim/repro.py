@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         trace = run_once(cfg)
         traces.append(trace)
         print(json.dumps({"run": i + 1, "frames": len(trace.frames), "commands": len(trace.commands),
-                          "gimbal_command_timeouts": trace.gimbal_command_timeouts, **trace.summary}), flush=True)
+                          **trace.summary}), flush=True)
     differences = [first_difference(traces[0], t) for t in traces[1:]]
     for i, diff in enumerate(differences, start=2):
         print(f"run 1 vs run {i}: " + ("identical" if diff is None else f"differ at {diff}"), flush=True)

@@ -200,3 +200,16 @@ def test_soak_flat_memory_and_latency():
     report = analyse(result, duration)
     problems = report.failures(SoakCriteria())
     assert not problems, f"{problems}; rss {result.rss_kib}"
+
+
+def test_lockstep_run_is_reproducible():
+    """The same lockstep scenario twice (PX4: gimbal claim, then 282 rates; velocity guidance): every
+    frame's state, box, car position in the image and vehicle position, and every control message the
+    daemon sent, are identical. `python -m sim.repro` runs longer scenarios (link drop, occlusion)."""
+    from sim.repro import first_difference, run_once
+    cfg = ClosedLoopConfig(flavour="px4", duration_s=4.0, guidance="velocity")
+    first, second = run_once(cfg), run_once(cfg)
+    assert first.gimbal_command_timeouts == 0 and second.gimbal_command_timeouts == 0
+    assert len(first.frames) == 120 and first.commands
+    difference = first_difference(first, second)
+    assert difference is None, difference

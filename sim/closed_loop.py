@@ -9,7 +9,10 @@ One simulated timeline stamps every frame (the daemon's controllers integrate ov
 intervals): startup and selection frames advance the sim clock by 1/fps each while the scene waits at
 t = 0; the frame the selection is applied on (the init frame) is simulated time 0 of the run, and run
 frame k is (k + 1)/fps after it. In lockstep the mock steps only once the daemon's gimbal command for
-the frame has arrived (waited on by event), so a run depends on the frames, not on machine load.
+the frame has arrived (waited on by event), so a run depends on the frames, not on machine load;
+after each step the mock pushes its heartbeat (flight mode) and state at once. Not synchronised: the
+state travels over UDP and the next frame over Zenoh, so a daemon starved for longer than the sim
+takes to render a frame could track that frame with the previous pose; `python -m sim.repro` checks.
 
 Centring (the tests' definition): the ground-truth centre of the car is within the central 20 % of
 the image, |dx| <= 0.1 W and |dy| <= 0.1 H, measured on frames where >= 50 % of the car is visible.
@@ -91,6 +94,8 @@ class ClosedLoopConfig:
             raise ValueError(f"guidance must be off, velocity or follow_target, got {self.guidance!r}")
         if not (self.duration_s > 0 and self.fps > 0):
             raise ValueError("duration_s and fps must be > 0")
+        if not self.gimbal_command_timeout_s > 0:
+            raise ValueError(f"gimbal_command_timeout_s must be > 0, got {self.gimbal_command_timeout_s}")
 
 
 @dataclass

@@ -59,7 +59,7 @@ class RedetectOptions:
     edge_sigma_px / edge_nms_radius: the gradient edge map (edges.py).
     """
 
-    size_blend: float = 0.0
+    size_blend: float = 1.0
     inside_rule: InsideRule = "full"
     relative_drop: float = 0.6
     omega_max: float = 12.0
@@ -161,16 +161,17 @@ class JsarReTracker:
         loc = self.core.locate(frame)
         last_box = self.core.box
         image_wh = (frame.shape[1], frame.shape[0])
-        verdict = self.monitor.assess(loc.peak, last_box, image_wh, self.frame_index)
+        confidence = loc.peak
+        verdict = self.monitor.assess(confidence, last_box, image_wh, self.frame_index)
         if not verdict.redetect:
             self.core.commit(frame, loc)
             self._train_decision(reliable=verdict.reliable)
-            return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
+            return TrackResult(box=self.core.box, score=confidence, state="tracking")
         outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d)
         self.monitor.redetection_result(outcome.accepted)
         self.last_redetection = outcome
         if not outcome.accepted or outcome.box is None:
-            return TrackResult(box=last_box, score=loc.peak, state="lost")
+            return TrackResult(box=last_box, score=confidence, state="lost")
         self.core.reinitialise(frame, outcome.box)
         self.reinitialisations += 1
         # The core's filters restarted from one sample; the decision filter kept its memory.
@@ -181,6 +182,8 @@ class JsarReTracker:
     def redetect(self, frame: np.ndarray, last_box: Box, omega: float, eta_d: float) -> Redetection:
         """Proposals around `last_box` (px) scored by the decision filter; accepted if best > eta_d."""
         x, y, w, h = last_box
+        if math.isinf(eta_d):  # the monitor's hold-off: nothing could be accepted, skip the search
+            return Redetection(False, None, -math.inf, eta_d, omega, 0)
         proposals = generate_proposals(frame, (x + w / 2, y + h / 2), (w, h), omega, self._edgeboxes, self._edges)
         if len(proposals.boxes) == 0:
             return Redetection(False, None, -math.inf, eta_d, omega, 0)

@@ -147,3 +147,35 @@ def test_real_sequence_injected_occlusion_is_detected_and_recovered(data_root):
         return float(np.hypot(bx + bw / 2 - gx - gw / 2, by + bh / 2 - gy - gh / 2))
     assert min(centre_error(i) for i in range(52, 52 + 15)) <= 20
     assert centre_error(74) <= 20  # and kept
+
+
+def test_gradual_occlusion_is_caught_before_the_target_is_gone_and_not_followed():
+    # A cover slides over the target from the left over frames 35..49 (the closed-loop scene's canopy:
+    # the peak declines gradually instead of dropping), hides it for 50..59, and the target comes
+    # back at 60 where it was. The tracker must report "lost" while part of the target is still
+    # visible, not re-initialise onto the cover, and be on the target again soon after.
+    background = _background(seed=5)
+    origin = (120, 100)
+    tracker = JsarReTracker(JsarParams.jsar_re())
+    tracker.init(_frame(background, origin), (*map(float, origin), float(TARGET), float(TARGET)))
+    states: dict[int, str] = {}
+    boxes: dict[int, tuple[float, ...]] = {}
+    for index in range(1, 80):
+        frame = _frame(background, origin)
+        covered = 0 if index < 35 else min(TARGET + 8, round((index - 34) * (TARGET + 8) / 15))
+        if covered:
+            x, y = origin[0] - 4, origin[1] - 4
+            frame[y:y + TARGET + 8, x:x + covered] = background[y:y + TARGET + 8, x:x + covered]
+        if index >= 60:
+            frame = _frame(background, origin)
+        result = tracker.update(frame)
+        states[index], boxes[index] = result.state, result.box
+    assert all(states[i] == "tracking" for i in range(1, 35))
+    first_lost = min((i for i in range(35, 60) if states[i] == "lost"), default=None)
+    assert first_lost is not None and first_lost < 48, states  # caught with part of the target visible
+    assert all(states[i] != "recovered" for i in range(35, 60)), states  # never onto the cover
+    on_target = [i for i in range(60, 80)
+                 if abs(boxes[i][0] + boxes[i][2] / 2 - origin[0] - TARGET / 2) < 6
+                 and abs(boxes[i][1] + boxes[i][3] / 2 - origin[1] - TARGET / 2) < 6
+                 and states[i] != "lost"]
+    assert on_target and on_target[0] <= 70 and on_target[-1] == 79, states

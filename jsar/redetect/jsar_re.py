@@ -15,7 +15,7 @@ raw translation peak (MATLAB FFT convention, see jsar.config):
 
 Choices beyond the paper (stated, measured in the report): the accepted box is centred where the
 decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
-by default the last confident size (`size_blend`, measured); the decision filter is NOT
+by default the proposal's (`size_blend`, see RedetectOptions); the decision filter is NOT
 re-initialised on recovery (it is the long-term memory of reliable appearances; retraining it from
 the re-detected sample would let one false acceptance overwrite it).
 """
@@ -45,12 +45,17 @@ class RedetectOptions:
     """JSAR-Re implementation choices not in the paper's table (the paper's values live in JsarParams).
 
     size_blend: re-initialised size = proposal^size_blend * last_confident^(1 - size_blend)
-    (geometric, per side; 1 = the proposal's size as the original). 0 (keep the last confident size,
-    centred where the decision response peaks) measured best (`python -m jsar.redetect.bench DATA
-    --size-blend`): of 112 forced re-detections on the shared sequences 84 landed on the target,
-    their re-initialised box IoU was 0.533 (blend 0), 0.482 (0.5), 0.411 (1, the proposal's size):
-    EdgeBoxes' boxes are loose; the size filter adapts the size on the following frames.
-    inside_rule, relative_drop: see monitor.py (relative_drop 0 = the paper's absolute rule alone).
+    (geometric, per side; 1 = the proposal's size as the original; the centre is always where the
+    decision response peaks). Default 1. Evidence is mixed: on forced re-detections on the shared
+    sequences (`python -m jsar.redetect.bench DATA --size-blend`) the re-initialised box IoU was
+    0.533 (blend 0), 0.482 (0.5), 0.411 (1): EdgeBoxes' boxes are loose. But in the closed-loop
+    scene the car turns under the canopy: the last confident size (the diagonal car) was twice the
+    reappearing car, the re-initialised filter learned the canopy edge with it and the size filter
+    grew the box until the tracker followed the road instead of the car (both autopilot runs);
+    with the proposal's size it followed the car. A wrong size that includes the occluder is the
+    worse failure for the service.
+    inside_rule, relative_drop, accept_fraction, accept_holdoff: see monitor.py (relative_drop 0,
+    accept_fraction 0, accept_holdoff 0 = the paper's absolute rules alone).
     omega_max: cap on the growing proposal square (units of sqrt(w*h)); the paper has none. With
     acceptance disabled, 44 of the 46 frames whose best proposal was the reappeared target lay
     within 5 target sides of the last confident position, while the wrong best proposals above
@@ -62,6 +67,8 @@ class RedetectOptions:
     size_blend: float = 1.0
     inside_rule: InsideRule = "full"
     relative_drop: float = 0.6
+    accept_fraction: float = 0.5
+    accept_holdoff: int = 5
     omega_max: float = 12.0
     edge_sigma_px: float = 2.0
     edge_nms_radius: int = 1
@@ -90,6 +97,8 @@ def monitor_params(params: JsarParams, options: "RedetectOptions | None" = None)
     implementation options (None: the paper's rules alone, unbounded omega)."""
     inside_rule: InsideRule = options.inside_rule if options else "full"
     relative_drop = options.relative_drop if options else 0.0
+    accept_fraction = options.accept_fraction if options else 0.0
+    accept_holdoff = options.accept_holdoff if options else 0
     omega_max = options.omega_max if options else math.inf
     return MonitorParams(
         enable_peak=params.redetect_enable_peak,
@@ -104,6 +113,8 @@ def monitor_params(params: JsarParams, options: "RedetectOptions | None" = None)
         max_area_px2=params.redetect_max_area,
         inside_rule=inside_rule,
         relative_drop=relative_drop,
+        accept_fraction=accept_fraction,
+        accept_holdoff=accept_holdoff,
     )
 
 

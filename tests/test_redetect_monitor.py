@@ -142,13 +142,13 @@ def test_decision_filter_sample_unreliable_once_peak_leaves_the_reference_band()
     monitor = FailureMonitor(P)
     for k in range(10):
         monitor.assess(0.05, BOX, IMAGE, 31 + k)
-    inside = monitor.assess(0.041, BOX, IMAGE, 41)  # > 0.8 * 0.05: still the target's appearance
+    inside = monitor.assess(0.036, BOX, IMAGE, 41)  # > 0.7 * 0.05: still the target's appearance
     assert not inside.redetect and inside.reliable
-    partial = monitor.assess(0.038, BOX, IMAGE, 42)  # confident (> 0.6 * ref) but partly covered
+    partial = monitor.assess(0.033, BOX, IMAGE, 42)  # confident (> 0.6 * ref) but partly covered
     assert not partial.redetect and not partial.reliable
     reference = partial.reference
     for k in range(20):  # the reference is frozen while the peak stays below the band
-        assert monitor.assess(0.035, BOX, IMAGE, 43 + k).reference == reference
+        assert monitor.assess(0.032, BOX, IMAGE, 43 + k).reference == reference
 
 
 def test_slow_appearance_change_is_followed_without_redetection():

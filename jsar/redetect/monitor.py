@@ -60,7 +60,7 @@ class MonitorParams:
     relative_drop: float = 0.6  # 0 disables the relative test (paper's absolute rule only)
     reference_rate: float = 0.1  # update rate of the reference peak towards a HIGHER peak
     reference_fall_rate: float = 0.02  # ... towards a LOWER peak (slow: a gradual occlusion must not drag it down)
-    reliable_fraction: float = 0.8  # reliable also needs peak > this * reference (0: zeta_s alone)
+    reliable_fraction: float = 0.7  # reliable also needs peak > this * reference (0: zeta_s alone); 0.8 lost the deforming Gull2 bird at frame 41
     accept_fraction: float = 0.5  # eta_d is at least this * reference (decaying with eta_d); 0: absolute only
     accept_holdoff: int = 5  # no acceptance on the first this-many frames of a loss (eta_d = inf); 0: none
 

@@ -125,7 +125,7 @@ def test_stop_is_prompt_even_while_the_tracker_is_stuck_in_a_frame(frames_dir: P
     import threading
 
     from service.app import Service
-    from tests.test_service_peers import RunningService, service_config
+    from tests.service_peers import RunningService, service_config
 
     entered, release = threading.Event(), threading.Event()
 

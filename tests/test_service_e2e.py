@@ -14,7 +14,7 @@ import pytest
 
 from service.app import Service
 from tests.conftest import free_tcp_port, free_udp_port
-from tests.test_service_peers import AutopilotPeer, GroundStation, Recorder, RunningService, service_config
+from tests.service_peers import AutopilotPeer, GroundStation, Recorder, RunningService, service_config
 
 SEQUENCE = "OTB_Crossing"  # 360x240, 120 frames, a pedestrian crossing from right of centre to left
 FPS = 30.0

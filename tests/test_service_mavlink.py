@@ -11,7 +11,7 @@ import pytest
 
 from service.app import Service
 from tests.conftest import free_udp_port
-from tests.test_service_peers import AutopilotPeer, GroundStation, RunningService, service_config
+from tests.service_peers import AutopilotPeer, GroundStation, RunningService, service_config
 from tests.test_service_sources import scene
 
 AP_SYSID = 42

@@ -356,3 +356,38 @@ def test_sim_clock_intervals_do_not_depend_on_the_frames_before_the_run(tmp_path
         assert all(v == reference for v in intervals.values())
     finally:
         loop.close()
+
+
+# ----- soak criteria ----------------------------------------------------------------------------
+def test_soak_rss_one_off_step_then_flat_passes_a_steady_ramp_fails():
+    from sim.soak import SoakCriteria, SoakReport, rss_trend
+    mib = 1024
+    # the step the closed-loop soak showed: +30 MiB when re-detection first runs, then flat (slightly down)
+    step = [(0.0, 137 * mib), (5.0, 141 * mib), (10.0, 142 * mib), (15.0, 172 * mib), (20.0, 165 * mib),
+            (25.0, 165 * mib), (30.0, 165 * mib), (35.0, 165 * mib), (40.0, 165 * mib), (45.0, 165 * mib)]
+    flat = rss_trend(step, warm_s=10.0)
+    assert flat.samples == 8 and flat.reference_kib == 172 * mib and flat.growth_mib == pytest.approx(-7.0)
+    assert flat.slope_mib_h == pytest.approx(0.0)
+    # a leak: 2 MiB every 5 s keeps growing past the first half's maximum
+    ramp = [(5.0 * i, 140 * mib + 2 * mib * i) for i in range(30)]
+    leak = rss_trend(ramp, warm_s=30.0)
+    assert leak.growth_mib == pytest.approx(2.0 * (29 - (6 + 12 - 1)))
+    assert leak.slope_mib_h == pytest.approx(2.0 / 5.0 * 3600.0)
+    criteria = SoakCriteria()
+
+    def report(trend):
+        return SoakReport(900, trend, 12.0, 12.5, True, {})
+    assert report(flat).failures(criteria) == []
+    problems = report(leak).failures(criteria)
+    assert len(problems) == 1 and "RSS grew 24.0 MiB" in problems[0]
+    assert "-7.0 MiB" in report(flat).describe()
+
+
+def test_soak_needs_enough_samples():
+    from sim.soak import latency_quarters, rss_trend, warm_up_s
+    assert warm_up_s(45.0) == 10.0 and warm_up_s(3600.0) == 720.0
+    with pytest.raises(ValueError, match="RSS samples after the 10 s warm-up"):
+        rss_trend([(0.0, 1), (5.0, 1), (10.0, 1), (15.0, 1), (20.0, 1)], warm_s=10.0)
+    with pytest.raises(ValueError, match="latency samples"):
+        latency_quarters([10.0] * 39)
+    assert latency_quarters([10.0] * 20 + [30.0] * 20) == (10.0, 30.0)

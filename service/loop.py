@@ -21,6 +21,8 @@ import numpy as np
 
 from jsar.api import Tracker, TrackResult
 from service.config import ServiceConfig
+from service.control.coast import (CoastParams, CoastState, Position, TrackHistory, camera_angles, coast_step,
+                                   plan_coast, remember, start_coast)
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
 from service.control.geo import GroundTarget, camera_ray_ned, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, gimbal_step
@@ -46,7 +48,8 @@ class ControlCommand:
     the vehicle nose (rad, + right) or None; ground: flat-ground target estimate or None;
     frame_time_s: capture time (s, source clock) of the frame the command was computed from, the
     clock guidance is throttled on; None for commands not tied to a frame (hold after a frame gap,
-    stop while no frames arrive).
+    stop while no frames arrive). coasting: lost, and the rates are the coast's (service.control.coast),
+    not a hold.
     """
 
     state: LoopState
@@ -55,6 +58,7 @@ class ControlCommand:
     bearing: float | None
     ground: GroundTarget | None
     frame_time_s: float | None = None
+    coasting: bool = False
 
 
 class Outputs(Protocol):
@@ -79,13 +83,14 @@ class FrameReport:
     track_ms: float
     total_ms: float  # frame read -> commands sent
     dropped_frames: int
+    coasting: bool = False  # lost, and the gimbal turns at the target's last rate (not held)
 
     def as_json(self) -> dict[str, Any]:
         return {"frame_id": self.frame_id, "capture_time": self.capture_time_s,
                 "image_size": list(self.image_size),
                 "box_px": list(self.box) if self.box else None,
                 "box_norm": list(self.box_normalised) if self.box_normalised else None,
-                "score": self.score, "state": self.state,
+                "score": self.score, "state": self.state, "coasting": self.coasting,
                 "latency_ms": {"queue": round(self.queue_ms, 3), "track": round(self.track_ms, 3),
                                "total": round(self.total_ms, 3)},
                 "dropped_frames": self.dropped_frames}
@@ -108,6 +113,7 @@ class TrackingLoop:
         self.publish_report = publish_report
         self.dropped = dropped
         self.gains = PidGains.from_config(config.gimbal)
+        self.coast_params = CoastParams.from_config(config.gimbal)
         self.hfov = math.radians(config.camera.hfov_deg)
         self.state: LoopState = "idle"
         self.mode = messages.TRACKING_MODE_NONE
@@ -120,8 +126,11 @@ class TrackingLoop:
         self.last_stamp: FrameStamp | None = None  # the last frame the controller stepped on
         self.last_clock_reset: str | None = None  # reason of the last reset, to log each kind once
         self.halted = False  # zero commands already sent for the current frame gap
+        self.history = TrackHistory()  # recent confident pointing, for the coast's rate estimate
+        self.coast: CoastState | None = None  # the coast in progress while lost
+        self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
-                         "resized": 0, "clock_resets": 0}
+                         "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0}
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
@@ -173,7 +182,8 @@ class TrackingLoop:
             box=self.box if self.state != "idle" else None, box_normalised=box_norm,
             score=result.score if result is not None else None, state=self.state,
             queue_ms=(start - frame.read_monotonic_s) * 1e3, track_ms=(track_done - start) * 1e3,
-            total_ms=(sent - frame.read_monotonic_s) * 1e3, dropped_frames=self.dropped())
+            total_ms=(sent - frame.read_monotonic_s) * 1e3, dropped_frames=self.dropped(),
+            coasting=command.coasting)
         self.publish_report(report)
         return report
 
@@ -205,6 +215,7 @@ class TrackingLoop:
         self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
         self.state = "tracking"
         self._reset_controller()
+        self._reset_coast()
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
         return "started"
 
@@ -219,6 +230,9 @@ class TrackingLoop:
             return
         self.halted = True
         self._reset_controller()
+        if self.coast is not None:  # frames stopped: nothing measures the camera any more, hold
+            log.info("event=coast_end reason=no_frames")
+            self.coast = None
         log.warning("event=no_frames_while_tracking action=hold_gimbal_and_vehicle gap_s=%.1f", FRAME_GAP_S)
         self.outputs.apply(time.monotonic(), ControlCommand("lost", False, (0.0, 0.0), None, None))
 
@@ -240,6 +254,7 @@ class TrackingLoop:
         self.tracker, self.box, self.tracked_size = None, None, None
         self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
         self._reset_controller()
+        self._reset_coast()
         return was_active
 
     def _handle_resize(self, image: np.ndarray, size: tuple[int, int]) -> None:
@@ -258,11 +273,18 @@ class TrackingLoop:
             return
         self.tracker, self.box, self.tracked_size = tracker, box, size
         self._reset_controller()  # the angular error is continuous, but the box was re-initialised
+        self._reset_coast()
 
     def _reset_controller(self) -> None:
         """Forget the gimbal controller's memory and the frame clock: the next step starts from rest."""
         self.gimbal = GimbalState()
         self.last_stamp = None
+
+    def _reset_coast(self) -> None:
+        """Forget the pointing history and any coast (new target, stop, re-initialisation)."""
+        self.history = TrackHistory()
+        self.coast = None
+        self.coast_decided = False
 
     def _control_dt(self, frame: Frame) -> float:
         """Controller step (s) from the frame's capture time; resets the controller on an unusable interval."""
@@ -312,8 +334,8 @@ class TrackingLoop:
         if stopped or self.state == "idle":
             return ControlCommand("idle", stopped, (0.0, 0.0) if stopped else None, None, None, stamp)
         if self.state == "lost" or self.box is None:
-            self._reset_controller()  # reset the integrator; hold the gimbal still while coasting
-            return ControlCommand("lost", False, (0.0, 0.0), None, None, stamp)
+            return self._lost_command(stamp)
+        self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
         yaw_err, pitch_err = angular_error(self.box, size, self.hfov)
         self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err, dt, self.gains)
@@ -328,7 +350,45 @@ class TrackingLoop:
                 ground = locate_on_ground(pose, camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw))
         elif self.config.gimbal.backend == "none":
             bearing = yaw_err  # fixed camera, assumed looking along the vehicle's nose
+        if ground is not None and pose is not None and view.gimbal is not None:
+            camera = camera_angles(view.gimbal, pose.yaw)
+            if camera is not None:
+                self.history = remember(self.history, stamp, Position(pose.lat_deg, pose.lon_deg, pose.height_m),
+                                        Position(ground.lat_deg, ground.lon_deg), camera, self.coast_params.fit_window_s)
         return ControlCommand(self.state, False, (yaw_rate, pitch_rate), bearing, ground, stamp)
+
+    def _lost_command(self, stamp: float) -> ControlCommand:
+        """Lost: coast (service.control.coast) while the plan lasts, then hold the gimbal still.
+
+        The tracking controller is reset (integrator, slew memory) on every lost frame; the coast starts
+        from the tracking controller's last rates, so the gimbal does not jerk at the loss.
+        """
+        last_rates = (self.gimbal.yaw.last_output, self.gimbal.pitch.last_output)
+        self._reset_controller()
+        if not self.coast_decided:
+            self.coast_decided = True
+            plan = plan_coast(self.history, self.coast_params)
+            if plan is not None:
+                self.coast = start_coast(plan, last_rates)
+                self.counters["coasts"] += 1
+                log.info("event=coast_start target_velocity_ne_m_s=%.2f,%.2f samples=%d coast_s=%.1f",
+                         plan.velocity_ne[0], plan.velocity_ne[1], len(self.history.samples), self.coast_params.coast_s)
+            elif self.coast_params.coast_s > 0:
+                log.info("event=coast_unavailable reason=short_history samples=%d (needs a ground estimate on "
+                         ">= %d confident frames over %.2f s)", len(self.history.samples), self.coast_params.min_samples,
+                         self.coast_params.min_span_s)
+        if self.coast is not None:
+            view = self.autopilot()
+            pose = view.pose()
+            camera = camera_angles(view.gimbal, pose.yaw) if view.gimbal is not None and pose is not None else None
+            vehicle = Position(pose.lat_deg, pose.lon_deg, pose.height_m) if pose is not None else None
+            self.coast, rates = coast_step(self.coast, stamp, vehicle, camera, self.coast_params)
+            if rates is not None:
+                self.counters["coast_frames"] += 1
+                return ControlCommand("lost", False, rates, None, None, stamp, coasting=True)
+            log.info("event=coast_end reason=%s", "no_pose_or_gimbal_attitude" if camera is None else "coast_s_elapsed")
+            self.coast = None
+        return ControlCommand("lost", False, (0.0, 0.0), None, None, stamp)
 
 
 def _fmt_box(box: tuple[float, float, float, float]) -> str:

@@ -159,10 +159,18 @@ class RunResult:
             previous = r.state if r.state is not None else previous
         return lost, recovered
 
+    def lost_car_to_box_px(self) -> list[float]:
+        """On lost frames with the car visible: pixels from the car's centre to the reported box's centre
+        (the last confident box, around which re-detection searches; what coasting keeps small)."""
+        return [math.hypot(r.truth.centre[0] - (r.box[0] + r.box[2] / 2), r.truth.centre[1] - (r.box[1] + r.box[3] / 2))
+                for r in self.records if r.state == "lost" and r.box is not None and r.truth.visible]
+
     def summary(self) -> dict[str, Any]:
-        """Frames, fps, drops, lost / recovered counts, centring error (pixels, visible frames)."""
+        """Frames, fps, drops, lost / recovered counts, centring error (pixels, visible frames), distance
+        of the car from the box while lost."""
         errors = [math.hypot(r.truth.centre[0] - self.width / 2, r.truth.centre[1] - self.height / 2)
                   for r in self.records if r.truth.visible]
+        lost_gaps = self.lost_car_to_box_px()
         latencies = [r.latency_ms for r in self.records if r.latency_ms is not None]
         lost, recovered = self.lost_recovered()
         return {"frames": len(self.records), "answered": sum(r.state is not None for r in self.records),
@@ -174,6 +182,8 @@ class RunResult:
                 "centred_ratio": round(self.centring_ratio(), 3),
                 "centring_error_px_median": round(float(np.median(errors)), 1) if errors else None,
                 "centring_error_px_p90": round(float(np.percentile(errors, 90)), 1) if errors else None,
+                "lost_visible_frames": len(lost_gaps),
+                "lost_car_to_box_px_median": round(float(np.median(lost_gaps)), 1) if lost_gaps else None,
                 "latency_ms_p50": round(float(np.percentile(latencies, 50)), 1) if latencies else None,
                 "latency_ms_p99": round(float(np.percentile(latencies, 99)), 1) if latencies else None}
 

@@ -7,6 +7,7 @@ and writes an annotated video under out/.
     python -m sim.demo                                  # closed loop, ArduPilot flavour, real time
     python -m sim.demo --flavour px4 --guidance velocity
     python -m sim.demo --replay UAVDT_S0310             # a shared sequence from $JSAR_DATA_ROOT
+    python -m sim.demo --coast-s 0                      # hold the gimbal at once when lost (no coasting)
 """
 from __future__ import annotations
 
@@ -37,9 +38,10 @@ def print_summary(title: str, summary: dict) -> None:
 
 def run_closed_loop(args: argparse.Namespace) -> int:
     video = OUT_DIR / f"demo_closed_loop_{args.flavour}.avi"
+    overrides = {"gimbal": {"coast_s": args.coast_s}} if args.coast_s is not None else {}
     cfg = ClosedLoopConfig(flavour=args.flavour, duration_s=args.duration, pace=args.pace,
                            guidance=args.guidance, tracker=args.tracker, scene=SceneConfig(seed=args.seed),
-                           video_path=video)
+                           video_path=video, daemon_overrides=overrides)
     print(f"closed loop: mock {args.flavour} autopilot, synthetic scene (seed {args.seed}), daemon with "
           f"guidance {args.guidance}, {args.pace} pacing, {args.duration:.0f} s", flush=True)
     with ClosedLoop(cfg) as loop:
@@ -191,6 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--guidance", choices=("off", "velocity", "follow_target"), default="velocity")
     parser.add_argument("--tracker", default=None, help="override config.yaml's tracker.name")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--coast-s", type=float, default=None,
+                        help="closed loop: override config.yaml's gimbal.coast_s (0 = hold when lost)")
     parser.add_argument("--replay", default=None, help="sequence folder (or name under JSAR_DATA_ROOT) or video")
     parser.add_argument("--loop", action="store_true", help="replay: loop the sequence for the whole duration")
     args = parser.parse_args(argv)

@@ -391,3 +391,20 @@ def test_soak_needs_enough_samples():
     with pytest.raises(ValueError, match="latency samples"):
         latency_quarters([10.0] * 39)
     assert latency_quarters([10.0] * 20 + [30.0] * 20) == (10.0, 30.0)
+
+
+def test_run_summary_measures_the_car_from_the_box_while_lost():
+    from sim.closed_loop import FrameRecord, RunResult
+    from sim.scene import GroundTruth, TargetPose
+
+    def record(state, box, car_x, visible=1.0):
+        truth = GroundTruth((car_x - 10.0, 90.0, 20.0, 20.0), 1.0, visible, TargetPose(0.0, 0.0, 0.0, 5.0))
+        return FrameRecord(0, 0.0, truth, state, box, 10.0, (0.0, 0.0), 0.0, "GUIDED", False)
+
+    box = (90.0, 90.0, 20.0, 20.0)  # centred on (100, 100)
+    records = [record("tracking", box, 100.0), record("lost", box, 130.0), record("lost", box, 160.0),
+               record("lost", box, 200.0, visible=0.2), record("lost", None, 100.0)]
+    result = RunResult(records, 640, 480, [], 1.0, 0, {}, True, None, "SUCCESS")
+    assert result.lost_car_to_box_px() == [30.0, 60.0]  # hidden car and frames without a box do not count
+    summary = result.summary()
+    assert summary["lost_visible_frames"] == 2 and summary["lost_car_to_box_px_median"] == 45.0

@@ -397,14 +397,18 @@ def test_run_summary_measures_the_car_from_the_box_while_lost():
     from sim.closed_loop import FrameRecord, RunResult
     from sim.scene import GroundTruth, TargetPose
 
-    def record(state, box, car_x, visible=1.0):
+    def record(t, state, box, car_x, visible=1.0):
         truth = GroundTruth((car_x - 10.0, 90.0, 20.0, 20.0), 1.0, visible, TargetPose(0.0, 0.0, 0.0, 5.0))
-        return FrameRecord(0, 0.0, truth, state, box, 10.0, (0.0, 0.0), 0.0, "GUIDED", False)
+        return FrameRecord(0, t, truth, state, box, 10.0, (0.0, 0.0), 0.0, "GUIDED", False)
 
     box = (90.0, 90.0, 20.0, 20.0)  # centred on (100, 100)
-    records = [record("tracking", box, 100.0), record("lost", box, 130.0), record("lost", box, 160.0),
-               record("lost", box, 200.0, visible=0.2), record("lost", None, 100.0)]
+    records = [record(0.0, "tracking", box, 100.0), record(1.0, "lost", box, 130.0), record(2.0, "lost", box, 160.0),
+               record(3.0, "lost", box, 200.0, visible=0.2), record(4.0, "lost", None, 100.0),
+               record(4.5, None, None, 100.0), record(5.0, "lost", box, 220.0)]
     result = RunResult(records, 640, 480, [], 1.0, 0, {}, True, None, "SUCCESS")
-    assert result.lost_car_to_box_px() == [30.0, 60.0]  # hidden car and frames without a box do not count
+    # a hidden car, a frame without a box and an unanswered frame do not count; the loss began at 1 s
+    assert result.lost_car_to_box_px() == [30.0, 60.0, 120.0]
+    assert result.lost_car_to_box_px(within_s=3.0) == [30.0, 60.0]
     summary = result.summary()
-    assert summary["lost_visible_frames"] == 2 and summary["lost_car_to_box_px_median"] == 45.0
+    assert summary["lost_visible_frames"] == 3 and summary["lost_car_to_box_px_median"] == 60.0
+    assert summary["lost_visible_frames_first_3s"] == 2 and summary["lost_car_to_box_px_median_first_3s"] == 45.0

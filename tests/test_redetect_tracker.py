@@ -2,13 +2,15 @@
 no retraining from scratch after a recovery, and an injected occlusion on a real sequence."""
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pytest
 
 import jsar
 from jsar.config import JsarParams
-from jsar.redetect.jsar_re import JsarReTracker, blend_size
+from jsar.redetect.jsar_re import JsarReTracker, RedetectOptions, blend_size, grid_peak_offset, max_score_near
 
 TARGET = 24  # px, side of the synthetic target
 
@@ -179,3 +181,69 @@ def test_gradual_occlusion_is_caught_before_the_target_is_gone_and_not_followed(
                  and abs(boxes[i][1] + boxes[i][3] / 2 - origin[1] - TARGET / 2) < 6
                  and states[i] != "lost"]
     assert on_target and on_target[0] <= 70 and on_target[-1] == 79, states
+
+
+def _distractor() -> np.ndarray:
+    """Like the target, with other colours: the decision filter scores it well above eta_d."""
+    patch = _target()
+    patch[6:18, 6:18] = (200, 200, 60)
+    patch[10:14, :] = (60, 60, 60)
+    return patch
+
+
+def _run_with_static_distractor(change_margin: float) -> dict[int, tuple[str, tuple[float, ...]]]:
+    """The target drifts, vanishes for frames 35..109 and comes back 40 px left and 30 px down; a
+    similar object stands still 60 px away the whole time. Returns frame -> (state, box)."""
+    background = _background()
+    distractor_xy = (160, 140)
+
+    def frame(target_xy: tuple[int, int] | None) -> np.ndarray:
+        image = _frame(background, target_xy)
+        x, y = distractor_xy
+        image[y:y + TARGET, x:x + TARGET] = _distractor()
+        return image
+
+    def target_xy(index: int) -> tuple[int, int] | None:
+        x, y = 100 + index // 3, 100
+        return None if 35 <= index < 110 else ((x - 40, y + 30) if index >= 110 else (x, y))
+
+    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(change_margin=change_margin))
+    tracker.init(frame(target_xy(0)), (100.0, 100.0, TARGET, TARGET))
+    results = {}
+    for index in range(1, 125):
+        result = tracker.update(frame(target_xy(index)))
+        results[index] = (result.state, result.box)
+    return results
+
+
+def test_change_test_keeps_a_static_look_alike_out_and_still_recovers_the_target():
+    def centre(box: tuple[float, ...]) -> tuple[float, float]:
+        return box[0] + box[2] / 2, box[1] + box[3] / 2
+
+    # Without it (the paper's rule): eta_d is exceeded by the look-alike while the target is away.
+    paper = _run_with_static_distractor(change_margin=0.0)
+    early = [i for i in range(35, 110) if paper[i][0] == "recovered"]
+    assert early, "the look-alike should pass the paper's eta_d: the scenario does not test anything"
+    assert math.dist(centre(paper[early[0]][1]), (172, 152)) < 12
+    # With it: the look-alike was there during the hold-off and has not changed, so it is never
+    # accepted; the target's return is (a change), within a few frames.
+    gated = _run_with_static_distractor(change_margin=RedetectOptions().change_margin)
+    assert all(gated[i][0] == "lost" for i in range(36, 110)), [gated[i][0] for i in range(36, 110)]
+    recovered = [i for i in range(110, 125) if gated[i][0] == "recovered"]
+    assert recovered and recovered[0] <= 113
+    x, y = 100 + recovered[0] // 3 - 40 + TARGET / 2, 130 + TARGET / 2
+    assert math.dist(centre(gated[recovered[0]][1]), (x, y)) < 8
+
+
+def test_change_memory_lookup_and_grid_peak_offset():
+    seen = np.array([[10.0, 10.0, 0.02], [12.0, 10.0, 0.03], [50.0, 50.0, 0.05]])
+    found = max_score_near(np.array([[11.0, 10.0], [50.0, 53.0], [90.0, 90.0]]), seen, radius_px=4.0)
+    assert found == pytest.approx([0.03, 0.05, 0.0])
+    assert max_score_near(np.array([[0.0, 0.0]]), np.empty((0, 3)), 4.0) == pytest.approx([0.0])
+    response = np.zeros((50, 50))
+    response[47, 3] = 1.0  # zero shift at (0, 0): row 47 is -3 rows, column 3 is +3 columns
+    assert grid_peak_offset(response) == (-3.0, 3.0)
+    with pytest.raises(ValueError, match="change_margin"):
+        RedetectOptions(change_margin=-1.0)
+    with pytest.raises(ValueError, match="scoring_scales"):
+        RedetectOptions(scoring_scales=())

@@ -17,7 +17,10 @@ Choices beyond the paper (stated, measured in the report): the accepted box is c
 decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
 by default the proposal's (`size_blend`, see RedetectOptions); the decision filter is NOT
 re-initialised on recovery (it is the long-term memory of reliable appearances; retraining it from
-the re-detected sample would let one false acceptance overwrite it).
+the re-detected sample would let one false acceptance overwrite it); and a proposal above eta_d is
+only accepted where the score CHANGED since the target was hidden (RedetectOptions.change_margin):
+eta_d decays every failed frame until some background look-alike passes it, which was the commonest
+false re-initialisation on the long-term protocol.
 """
 from __future__ import annotations
 
@@ -62,6 +65,24 @@ class RedetectOptions:
     eta_d had a median distance of 13.8 sides (368 frames, 31 of them within 5 sides): beyond
     about 6 sides (omega 12) the square adds false re-initialisations and cost, not recoveries.
     edge_sigma_px / edge_nms_radius: the gradient edge map (edges.py).
+    scoring_scales: proposals are scored at these multiples of the last confident size (best counts).
+    change_margin / change_radius: acceptance needs a CHANGE at the candidate's location, not just a
+    score above eta_d (0 disables). During the monitor's hold-off (the first accept_holdoff frames of a
+    loss, when the target has just been hidden and nothing may be accepted) the proposals are searched
+    and scored anyway, and remembered (where each response peaks, and its score); afterwards a
+    candidate must score above change_margin times the highest remembered score within
+    change_radius * sqrt(w*h) of where its own response peaks. Background does not change, so a
+    background proposal that eta_d decays down to is not accepted, while a reappearing target raises
+    the score where it appears. Only hold-off frames are remembered: remembering later frames too
+    stores the reappearing target's own first, slightly-below-eta_d scores and then demands it beat
+    itself (measured: wakeboard7 lost its recovery that way). For the same reason proposals scoring
+    at or above the monitor's reference peak (how the target scored while tracked) are not
+    remembered: a loss can begin just as the target comes back (after a wrong re-initialisation,
+    wakeboard10 lost the wrong object while the rider reappeared, scoring 1.75x the reference,
+    and was then blocked for good). Proposals, not a dense map of the
+    area: the score depends on where the object sits in the scoring window (a distractor 0.25 target
+    sides off the window centre scored 0.050 instead of 0.068), and remembered proposals are scored
+    the way candidates are. Costs accept_holdoff searches per loss; dropped when the loss ends.
     """
 
     size_blend: float = 1.0
@@ -73,8 +94,16 @@ class RedetectOptions:
     edge_sigma_px: float = 2.0
     edge_nms_radius: int = 1
     edgeboxes: EdgeBoxesSettings = EdgeBoxesSettings()
+    scoring_scales: tuple[float, ...] = (1.0,)
+    change_margin: float = 1.1
+    change_radius: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.change_margin < 0 or self.change_radius <= 0:
+            raise ValueError(f"change_margin must be >= 0 and change_radius > 0, got {self.change_margin}, "
+                             f"{self.change_radius}")
+        if not self.scoring_scales or any(not (0.1 <= s <= 10.0) for s in self.scoring_scales):
+            raise ValueError(f"scoring_scales must be a non-empty tuple of factors in [0.1, 10], got {self.scoring_scales}")
         if not 0.0 <= self.size_blend <= 1.0:
             raise ValueError(f"size_blend must be in [0, 1], got {self.size_blend}")
 
@@ -147,6 +176,8 @@ class JsarReTracker:
         self.frame_index = -1
         self.last_redetection: Redetection | None = None
         self.reinitialisations = 0
+        # Proposals seen during the current loss: (K, 3) centre x, centre y (px), score.
+        self._seen = np.empty((0, 3))
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
@@ -162,6 +193,7 @@ class JsarReTracker:
         self.frame_index = 0
         self.last_redetection = None
         self.reinitialisations = 0
+        self._seen = np.empty((0, 3))
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame (Algorithm 1); see the module docstring for the three outcomes."""
@@ -175,14 +207,16 @@ class JsarReTracker:
         confidence = loc.peak
         verdict = self.monitor.assess(confidence, last_box, image_wh, self.frame_index)
         if not verdict.redetect:
+            self._seen = np.empty((0, 3))
             self.core.commit(frame, loc)
             self._train_decision(reliable=verdict.reliable)
             return TrackResult(box=self.core.box, score=confidence, state="tracking")
-        outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d)
+        outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d, verdict.reference)
         self.monitor.redetection_result(outcome.accepted)
         self.last_redetection = outcome
         if not outcome.accepted or outcome.box is None:
             return TrackResult(box=last_box, score=confidence, state="lost")
+        self._seen = np.empty((0, 3))
         self.core.reinitialise(frame, outcome.box)
         self.reinitialisations += 1
         # The core's filters restarted from one sample; the decision filter kept its memory.
@@ -190,20 +224,42 @@ class JsarReTracker:
         return TrackResult(box=self.core.box, score=outcome.score, state="recovered")
 
     # ----------------------------------------------------------------- steps
-    def redetect(self, frame: np.ndarray, last_box: Box, omega: float, eta_d: float) -> Redetection:
-        """Proposals around `last_box` (px) scored by the decision filter; accepted if best > eta_d."""
+    def redetect(self, frame: np.ndarray, last_box: Box, omega: float, eta_d: float,
+                 reference: float | None = None) -> Redetection:
+        """Proposals around `last_box` (px) scored by the decision filter; the best one that passes the
+        change test (see RedetectOptions) is accepted if its score > eta_d. With eta_d = inf (the
+        monitor's hold-off) nothing can be accepted: the search only runs to fill the change test's
+        memory (skipped when that test is off), with the proposals scoring below `reference` (the
+        monitor's running peak of the target; None: all)."""
         x, y, w, h = last_box
-        if math.isinf(eta_d):  # the monitor's hold-off: nothing could be accepted, skip the search
+        holdoff = math.isinf(eta_d)
+        if holdoff and self.options.change_margin <= 0:
             return Redetection(False, None, -math.inf, eta_d, omega, 0)
         proposals = generate_proposals(frame, (x + w / 2, y + h / 2), (w, h), omega, self._edgeboxes, self._edges)
         if len(proposals.boxes) == 0:
             return Redetection(False, None, -math.inf, eta_d, omega, 0)
         scores, boxes, sharpness = self.score_proposals(frame, proposals.boxes, (w, h))
-        best = int(np.argmax(scores))
+        # Where each proposal's response peaks (px): steadier than EdgeBoxes' jittering boxes.
+        centres = np.array([(bx + bw / 2.0, by + bh / 2.0) for bx, by, bw, bh in boxes])
+        if holdoff:
+            # A proposal scoring like the target did is the target itself (visible again, or still
+            # half visible), not background to guard against.
+            background = scores < (reference if reference is not None else math.inf)
+            self._seen = np.concatenate([self._seen, np.column_stack([centres, scores])[background]])
+        needed = np.maximum(eta_d, self._change_thresholds(centres, math.sqrt(w * h)))
+        passing = scores > needed
+        best = int(np.argmax(np.where(passing, scores, -np.inf))) if passing.any() else int(np.argmax(scores))
         score = float(scores[best])
         box = _clip_box(boxes[best], frame.shape)
-        return Redetection(score > eta_d and box is not None, box, score, eta_d, omega, len(scores),
+        return Redetection(bool(passing[best]) and box is not None, box, score, eta_d, omega, len(scores),
                            float(sharpness[best]))
+
+    def _change_thresholds(self, centres: np.ndarray, side_px: float) -> np.ndarray:
+        """Per candidate centre (N, 2) px: change_margin x the highest score remembered within
+        change_radius * side_px of it (0 where none, or with the change test off)."""
+        if self.options.change_margin <= 0:
+            return np.zeros(len(centres))
+        return self.options.change_margin * max_score_near(centres, self._seen, self.options.change_radius * side_px)
 
     def score_proposals(self, frame: np.ndarray, boxes: np.ndarray,
                         last_wh: tuple[float, float]) -> tuple[np.ndarray, list[Box], np.ndarray]:
@@ -211,40 +267,63 @@ class JsarReTracker:
         the peak-to-sidelobe ratio of its response (unitless).
 
         Each proposal is scored on the decision filter's own sample geometry: a square of side
-        search_area_factor*sqrt(w*h) of the LAST CONFIDENT size centred on the proposal, i.e. the
-        200x200-px / 50x50-cell window the filter was trained on (the target reappears at about the
-        size it vanished with; proposals' own sizes would rescale it away from the filter). The
-        windows are cut from one feature map of the region covering all of them (features extracted
-        once, proposal centres rounded to whole cells; the response peak absorbs that offset), or
-        from one patch per window when they are so spread out that this is cheaper. Scores are raw
-        response maxima (MATLAB FFT scaling, the unit of eta_d).
+        search_area_factor*sqrt(w*h) centred on the proposal, resampled to the filter's 50x50-cell
+        window, for (w, h) = s * the LAST CONFIDENT size at each s in `scoring_scales` (the best
+        scale counts). Proposals' own sizes are too loose to set the scale (see RedetectOptions),
+        while a target that changed range while hidden reappears at another size than it vanished
+        with. The windows of one scale are cut from one feature map of the region covering all of
+        them (features extracted once, proposal centres rounded to whole cells; the response peak
+        absorbs that offset), or from one patch per window when they are so spread out that this is
+        cheaper. Scores are raw response maxima (MATLAB FFT scaling, the unit of eta_d).
         """
         assert self.decision is not None
-        p = self.params
-        cells = self.decision.shape_hw[0]
-        px_per_cell = p.search_area_factor * math.sqrt(last_wh[0] * last_wh[1]) / cells
         image = self.core.prepare(frame)  # the core's grey/colour mode, so features match its samples
-        table = self.core.feature_colour_table
         centres = boxes[:, :2] + boxes[:, 2:] / 2.0
-        windows, window_centres, owner = window_features(image, table, centres, px_per_cell, cells, p.cell_size)
+        scores = np.full(len(boxes), -np.inf)
+        sharpness = np.full(len(boxes), np.nan)
+        best_at = np.zeros(len(boxes), np.int64)
+        per_scale = []
+        for index, scale in enumerate(self.options.scoring_scales):
+            scored = self._score_windows(image, centres, scale * math.sqrt(last_wh[0] * last_wh[1]))
+            per_scale.append(scored)
+            peaks = scored[0][scored[3]]
+            better = peaks > scores
+            scores[better] = peaks[better]
+            sharpness[better] = scored[4][scored[3]][better]
+            best_at[better] = index
+        refined: list[Box] = []
+        overall = int(np.argmax(scores))
+        for k, (bw, bh) in enumerate(boxes[:, 2:]):
+            index = int(best_at[k])
+            scale = self.options.scoring_scales[index]
+            peaks, responses, response_f, owner, _, window_centres, px_per_cell = per_scale[index]
+            m = int(owner[k])
+            # Newton refinement only where it matters (the best proposal); elsewhere the grid peak.
+            dy, dx = (dcf.subpixel_peak(responses[m], response_f[m], self.params.newton_iterations)[:2]
+                      if k == overall else grid_peak_offset(responses[m]))
+            cx = window_centres[m, 0] + dx * px_per_cell
+            cy = window_centres[m, 1] + dy * px_per_cell
+            new_w, new_h = blend_size((float(bw), float(bh)), (scale * last_wh[0], scale * last_wh[1]),
+                                      self.options.size_blend)
+            refined.append((cx - new_w / 2, cy - new_h / 2, new_w, new_h))
+        return scores, refined, sharpness
+
+    def _score_windows(self, image: np.ndarray, centres: np.ndarray, target_side_px: float) -> tuple:
+        """Decision responses of windows for a target of side target_side_px (sqrt(w*h), px) centred
+        on centres (N, 2) px: (peaks (M,), responses (M, H, W), their spectra, owner (N,),
+        peak-to-sidelobe (M,), window centres (M, 2) px, px per cell)."""
+        assert self.decision is not None
+        cells = self.decision.shape_hw[0]
+        px_per_cell = self.params.search_area_factor * target_side_px / cells
+        windows, window_centres, owner = window_features(image, self.core.feature_colour_table, centres,
+                                                         px_per_cell, cells, self.params.cell_size)
         stack = np.moveaxis(windows, -1, 1) * self.decision.cos_window[None, None]
         spectra = fourier.rfft2(stack.astype(np.float32, copy=False))  # (M, C, H, W//2+1)
         response_f = np.einsum("chw,mchw->mhw", self.decision.filter_f.conj(), spectra)
         responses = fourier.irfft2(response_f, self.decision.shape_hw)
         peaks = responses.reshape(len(responses), -1).max(axis=1)
-        window_sharpness = np.array([peak_to_sidelobe(r) for r in responses])
-        scores = np.empty(len(boxes), np.float64)
-        refined: list[Box] = []
-        for k, (bw, bh) in enumerate(boxes[:, 2:]):
-            m = int(owner[k])
-            scores[k] = peaks[m]
-            # Sub-cell refinement only where it can matter: the best window.
-            dy, dx, _ = dcf.subpixel_peak(responses[m], response_f[m], p.newton_iterations) if peaks[m] == peaks.max() else (0.0, 0.0, 0.0)
-            cx = window_centres[m, 0] + dx * px_per_cell
-            cy = window_centres[m, 1] + dy * px_per_cell
-            new_w, new_h = blend_size((float(bw), float(bh)), last_wh, self.options.size_blend)
-            refined.append((cx - new_w / 2, cy - new_h / 2, new_w, new_h))
-        return scores, refined, window_sharpness[owner]
+        sharpness = np.array([peak_to_sidelobe(r) for r in responses])
+        return peaks, responses, response_f, owner, sharpness, window_centres, px_per_cell
 
     def _train_decision(self, reliable: bool) -> None:
         """After a commit: train the decision filter on the core's training sample if reliable."""
@@ -262,6 +341,27 @@ class JsarReTracker:
         assert sample_f is not None
         self.decision.set_target_cells(self.core.target_cells())
         self.decision.train(sample_f)
+
+
+def grid_peak_offset(response: np.ndarray) -> tuple[float, float]:
+    """(dy, dx) cells of the maximum of a (H, W) response whose zero shift is at (0, 0), wrapped to [-H/2, H/2)."""
+    height, width = response.shape
+    row, col = divmod(int(np.argmax(response)), width)
+    return float((row + height // 2) % height - height // 2), float((col + width // 2) % width - width // 2)
+
+
+def max_score_near(centres: np.ndarray, seen: np.ndarray, radius_px: float) -> np.ndarray:
+    """For each centre (N, 2) px, the highest score of the rows seen (K, 3) [x px, y px, score] within
+    radius_px of it; 0 where there are none."""
+    if len(seen) == 0:
+        return np.zeros(len(centres))
+    out = np.zeros(len(centres))
+    for k, (cx, cy) in enumerate(centres):
+        near = np.abs(seen[:, 0] - cx) <= radius_px  # cheap pre-filter on x before the distance
+        near &= np.hypot(seen[:, 0] - cx, seen[:, 1] - cy) <= radius_px
+        if near.any():
+            out[k] = max(0.0, float(seen[near, 2].max()))
+    return out
 
 
 def peak_to_sidelobe(response: np.ndarray, exclude: int = 5) -> float:

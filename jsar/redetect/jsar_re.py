@@ -79,7 +79,10 @@ class RedetectOptions:
     at or above the monitor's reference peak (how the target scored while tracked) are not
     remembered: a loss can begin just as the target comes back (after a wrong re-initialisation,
     wakeboard10 lost the wrong object while the rider reappeared, scoring 1.75x the reference,
-    and was then blocked for good). Proposals, not a dense map of the
+    and was then blocked for good), nor proposals within change_radius of the last confident
+    centre (closed loop, PX4: the box had grown to twice the car during a link drop, the monitor
+    fired with the car in plain view next to it, and remembering the car there blocked its
+    re-detection for good). Proposals, not a dense map of the
     area: the score depends on where the object sits in the scoring window (a distractor 0.25 target
     sides off the window centre scored 0.050 instead of 0.068), and remembered proposals are scored
     the way candidates are. Costs accept_holdoff searches per loss; dropped when the loss ends.
@@ -242,9 +245,13 @@ class JsarReTracker:
         # Where each proposal's response peaks (px): steadier than EdgeBoxes' jittering boxes.
         centres = np.array([(bx + bw / 2.0, by + bh / 2.0) for bx, by, bw, bh in boxes])
         if holdoff:
-            # A proposal scoring like the target did is the target itself (visible again, or still
-            # half visible), not background to guard against.
+            # Not background to guard against: a proposal scoring like the target did (the target
+            # visible again, or still half visible), or one where the target was last seen (the
+            # monitor can fire on the tracker's own glitch, e.g. a box grown to twice the target,
+            # with the target still there).
             background = scores < (reference if reference is not None else math.inf)
+            background &= np.hypot(centres[:, 0] - (x + w / 2), centres[:, 1] - (y + h / 2)) > (
+                self.options.change_radius * math.sqrt(w * h))
             self._seen = np.concatenate([self._seen, np.column_stack([centres, scores])[background]])
         needed = np.maximum(eta_d, self._change_thresholds(centres, math.sqrt(w * h)))
         passing = scores > needed

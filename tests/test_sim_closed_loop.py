@@ -93,19 +93,6 @@ def scenario(request) -> Scenario:
     return run_scenario(request.param)
 
 
-def px4_tracker_known_failure(request, scenario: Scenario) -> None:
-    """Open defect, not a passing test: in the PX4 run the vehicle holds during the 5 s link drop, the
-    car drives away and shrinks, JSAR-Re's box leaves it (the gimbal cannot be commanded while the link is
-    down) and the track is lost. Whether the four checks pass depends on the JSAR-Re version: they passed
-    in two full runs on 2026-11-22 ~03:10 UTC and failed at ~03:45 with the tracker then in the work tree,
-    with and without coasting (gimbal.coast_s 3 / 0: centred 46.6 % / 57.3 %). Marked non-strict xfail
-    so the run stays visible in the report; see README "Known limitations"."""
-    if scenario.flavour == "px4":
-        request.applymarker(pytest.mark.xfail(
-            reason="PX4 scenario: JSAR-Re loses the shrinking car after the link drop (open tracker defect)",
-            strict=False))
-
-
 def test_daemon_survives_and_answers_every_frame(scenario):
     result = scenario.result
     assert result.daemon_alive, "daemon died"
@@ -115,15 +102,13 @@ def test_daemon_survives_and_answers_every_frame(scenario):
     assert result.dropped_frames == 0  # lockstep: nothing to drop
 
 
-def test_target_centred_on_90_percent_of_visible_frames(scenario, request):
-    px4_tracker_known_failure(request, scenario)
+def test_target_centred_on_90_percent_of_visible_frames(scenario):
     ratio = scenario.result.centring_ratio(exclude=((DROP_START_S, DROP_END_S + RECENTRE_S),))
     assert ratio >= 0.90, (f"{scenario.flavour}: car centred on only {ratio:.1%} of visible frames\n"
                            + trace(scenario.result))
 
 
-def test_recovered_after_occlusion_and_recentred(scenario, request):
-    px4_tracker_known_failure(request, scenario)
+def test_recovered_after_occlusion_and_recentred(scenario):
     records = scenario.result.records
     hidden = [r.time_s for r in records if abs(r.time_s - OCCLUSION_S) < 2.0 and not r.truth.visible]
     assert hidden, "the scenario must hide the car under the canopy"
@@ -150,8 +135,7 @@ def test_link_drop_stops_guidance_within_firmware_timeout(scenario):
     assert scenario.result.daemon_alive
 
 
-def test_link_drop_resumes_cleanly(scenario, request):
-    px4_tracker_known_failure(request, scenario)
+def test_link_drop_resumes_cleanly(scenario):
     records = scenario.result.records
     setpoints_after = [c for c in scenario.commands if c.msg_type == "SET_POSITION_TARGET_LOCAL_NED"
                        and c.time_s >= DROP_END_S]
@@ -178,8 +162,7 @@ def test_link_drop_resumes_cleanly(scenario, request):
         assert any(c.outcome == "applied" for c in setpoints_after if c.time_s >= reengaged_s)
 
 
-def test_vehicle_follows_with_bounded_distance(scenario, request):
-    px4_tracker_known_failure(request, scenario)
+def test_vehicle_follows_with_bounded_distance(scenario):
     records = scenario.result.records
     resumed = DROP_END_S + 2.0 if scenario.flavour == "ardupilot" else REENGAGE_S + 1.0
     window = [r for r in records if resumed <= r.time_s < OCCLUSION_S - 1.0]

@@ -24,6 +24,7 @@ false re-initialisation on the long-term protocol.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -80,9 +81,9 @@ class RedetectOptions:
     remembered: a loss can begin just as the target comes back (after a wrong re-initialisation,
     wakeboard10 lost the wrong object while the rider reappeared, scoring 1.75x the reference,
     and was then blocked for good), nor proposals within change_radius of the last confident
-    centre (closed loop, PX4: the box had grown to twice the car during a link drop, the monitor
-    fired with the car in plain view next to it, and remembering the car there blocked its
-    re-detection for good). Proposals, not a dense map of the
+    centre or of the path it would have taken since at up to twice its recent velocity (the
+    monitor can fire with the target in plain view: PX4 closed loop, a box grown to twice the car during a link drop; plain
+    wakeboard7, a rider moving 15 px per frame; remembering the target itself blocked it for good). Proposals, not a dense map of the
     area: the score depends on where the object sits in the scoring window (a distractor 0.25 target
     sides off the window centre scored 0.050 instead of 0.068), and remembered proposals are scored
     the way candidates are. Costs accept_holdoff searches per loss; dropped when the loss ends.
@@ -181,6 +182,8 @@ class JsarReTracker:
         self.reinitialisations = 0
         # Proposals seen during the current loss: (K, 3) centre x, centre y (px), score.
         self._seen = np.empty((0, 3))
+        # (frame index, centre x px, centre y px) of the last committed frames: the motion model.
+        self._track: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=MOTION_FRAMES)
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
@@ -197,6 +200,8 @@ class JsarReTracker:
         self.last_redetection = None
         self.reinitialisations = 0
         self._seen = np.empty((0, 3))
+        self._track.clear()
+        self._remember_position()
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame (Algorithm 1); see the module docstring for the three outcomes."""
@@ -212,6 +217,7 @@ class JsarReTracker:
         if not verdict.redetect:
             self._seen = np.empty((0, 3))
             self.core.commit(frame, loc)
+            self._remember_position()
             self._train_decision(reliable=verdict.reliable)
             return TrackResult(box=self.core.box, score=confidence, state="tracking")
         outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d, verdict.reference)
@@ -221,6 +227,8 @@ class JsarReTracker:
             return TrackResult(box=last_box, score=confidence, state="lost")
         self._seen = np.empty((0, 3))
         self.core.reinitialise(frame, outcome.box)
+        self._track.clear()
+        self._remember_position()
         self.reinitialisations += 1
         # The core's filters restarted from one sample; the decision filter kept its memory.
         self._decision_in_sync = False
@@ -250,8 +258,8 @@ class JsarReTracker:
             # monitor can fire on the tracker's own glitch, e.g. a box grown to twice the target,
             # with the target still there).
             background = scores < (reference if reference is not None else math.inf)
-            background &= np.hypot(centres[:, 0] - (x + w / 2), centres[:, 1] - (y + h / 2)) > (
-                self.options.change_radius * math.sqrt(w * h))
+            path = np.array([(x + w / 2, y + h / 2), self.predicted_centre(MOTION_SPEED_FACTOR)])
+            background &= distance_to_segment(centres, path[0], path[1]) > self.options.change_radius * math.sqrt(w * h)
             self._seen = np.concatenate([self._seen, np.column_stack([centres, scores])[background]])
         needed = np.maximum(eta_d, self._change_thresholds(centres, math.sqrt(w * h)))
         passing = scores > needed
@@ -260,6 +268,20 @@ class JsarReTracker:
         box = _clip_box(boxes[best], frame.shape)
         return Redetection(bool(passing[best]) and box is not None, box, score, eta_d, omega, len(scores),
                            float(sharpness[best]))
+
+    def predicted_centre(self, speed_factor: float = 1.0) -> tuple[float, float]:
+        """Where the target would be now (px) at speed_factor x its mean velocity over the last
+        committed frames (the last committed centre if there is no velocity yet)."""
+        index, cx, cy = self._track[-1]
+        if len(self._track) < 2:
+            return cx, cy
+        first_index, first_x, first_y = self._track[0]
+        steps = speed_factor * (self.frame_index - index) / (index - first_index)
+        return cx + (cx - first_x) * steps, cy + (cy - first_y) * steps
+
+    def _remember_position(self) -> None:
+        x, y, w, h = self.core.box
+        self._track.append((self.frame_index, x + w / 2, y + h / 2))
 
     def _change_thresholds(self, centres: np.ndarray, side_px: float) -> np.ndarray:
         """Per candidate centre (N, 2) px: change_margin x the highest score remembered within
@@ -355,6 +377,18 @@ def grid_peak_offset(response: np.ndarray) -> tuple[float, float]:
     height, width = response.shape
     row, col = divmod(int(np.argmax(response)), width)
     return float((row + height // 2) % height - height // 2), float((col + width // 2) % width - width // 2)
+
+
+MOTION_FRAMES = 5  # committed frames the constant-velocity prediction is fitted on
+MOTION_SPEED_FACTOR = 2.0  # the target may be up to this much faster than its tracked velocity
+
+
+def distance_to_segment(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """Distance (px) of each point (N, 2) px to the segment start-end (2,) px."""
+    direction = end - start
+    length2 = float(direction @ direction)
+    along = np.clip(((points - start) @ direction) / length2, 0.0, 1.0) if length2 > 0 else np.zeros(len(points))
+    return np.hypot(*(points - (start + along[:, None] * direction)).T)
 
 
 def max_score_near(centres: np.ndarray, seen: np.ndarray, radius_px: float) -> np.ndarray:

@@ -76,17 +76,17 @@ class RedetectOptions:
     background proposal that eta_d decays down to is not accepted, while a reappearing target raises
     the score where it appears. Only hold-off frames are remembered: remembering later frames too
     stores the reappearing target's own first, slightly-below-eta_d scores and then demands it beat
-    itself (measured: wakeboard7 lost its recovery that way). For the same reason proposals scoring
-    at or above the monitor's reference peak (how the target scored while tracked) are not
-    remembered: a loss can begin just as the target comes back (after a wrong re-initialisation,
-    wakeboard10 lost the wrong object while the rider reappeared, scoring 1.75x the reference,
-    and was then blocked for good), nor proposals within change_radius of the last confident
-    centre or of the path it would have taken since at up to twice its recent velocity (the
-    monitor can fire with the target in plain view: PX4 closed loop, a box grown to twice the car during a link drop; plain
-    wakeboard7, a rider moving 15 px per frame; remembering the target itself blocked it for good). Proposals, not a dense map of the
-    area: the score depends on where the object sits in the scoring window (a distractor 0.25 target
-    sides off the window centre scored 0.050 instead of 0.068), and remembered proposals are scored
-    the way candidates are. Costs accept_holdoff searches per loss; dropped when the loss ends.
+    itself (measured: wakeboard7 lost its recovery that way). For the same reason these are not
+    remembered: proposals scoring at or above the monitor's reference peak (how the target scored
+    while tracked: a loss can begin just as the target comes back; after a wrong re-initialisation,
+    wakeboard10 lost the wrong object while the rider reappeared at 1.75x the reference and was then
+    blocked for good), and proposals within change_radius of the segment from the last confident
+    centre to where twice the target's recent velocity would have taken it (the monitor can fire
+    with the target in plain view: PX4 closed loop, a box grown to twice the car during a link drop;
+    plain wakeboard7, a rider moving 15 px per frame). Proposals, not a dense map of the area: the
+    score depends on where the object sits in the scoring window (a look-alike 0.25 target sides off
+    the window centre scored 0.050 instead of 0.068), and remembered proposals are scored the way
+    candidates are. Costs accept_holdoff proposal searches per loss; dropped when the loss ends.
     """
 
     size_blend: float = 1.0
@@ -107,7 +107,8 @@ class RedetectOptions:
             raise ValueError(f"change_margin must be >= 0 and change_radius > 0, got {self.change_margin}, "
                              f"{self.change_radius}")
         if not self.scoring_scales or any(not (0.1 <= s <= 10.0) for s in self.scoring_scales):
-            raise ValueError(f"scoring_scales must be a non-empty tuple of factors in [0.1, 10], got {self.scoring_scales}")
+            raise ValueError(f"scoring_scales must be a non-empty tuple of factors in [0.1, 10], "
+                             f"got {self.scoring_scales}")
         if not 0.0 <= self.size_blend <= 1.0:
             raise ValueError(f"size_blend must be in [0, 1], got {self.size_blend}")
 
@@ -396,13 +397,8 @@ def max_score_near(centres: np.ndarray, seen: np.ndarray, radius_px: float) -> n
     radius_px of it; 0 where there are none."""
     if len(seen) == 0:
         return np.zeros(len(centres))
-    out = np.zeros(len(centres))
-    for k, (cx, cy) in enumerate(centres):
-        near = np.abs(seen[:, 0] - cx) <= radius_px  # cheap pre-filter on x before the distance
-        near &= np.hypot(seen[:, 0] - cx, seen[:, 1] - cy) <= radius_px
-        if near.any():
-            out[k] = max(0.0, float(seen[near, 2].max()))
-    return out
+    near = np.hypot(centres[:, None, 0] - seen[None, :, 0], centres[:, None, 1] - seen[None, :, 1]) <= radius_px
+    return np.maximum(np.where(near, seen[None, :, 2], 0.0).max(axis=1), 0.0)
 
 
 def peak_to_sidelobe(response: np.ndarray, exclude: int = 5) -> float:

@@ -247,3 +247,25 @@ def test_change_memory_lookup_and_grid_peak_offset():
         RedetectOptions(change_margin=-1.0)
     with pytest.raises(ValueError, match="scoring_scales"):
         RedetectOptions(scoring_scales=())
+
+
+def test_motion_gate_grows_with_the_target_speed_and_the_frames_lost():
+    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(gate_base_sides=1.5, gate_speed_factor=3.0,
+                                                                  gate_min_speed=0.05))
+    tracker.init(_frame(_background(), (100, 100)), (100.0, 100.0, TARGET, TARGET))
+    side = float(TARGET)
+    # Committed centres 0..4 moving 0.5 side per frame to the right; now 4 frames later.
+    tracker._track.clear()
+    for index in range(5):
+        tracker._track.append((index, 112.0 + index * 0.5 * side, 112.0))
+    tracker.frame_index = 8
+    radius_sides = 1.5 + 3.0 * 0.5 * 4  # 7.5 sides from the last committed centre (x = 160)
+    last_x = 112.0 + 2.0 * side
+    inside = tracker._within_motion_gate(np.array([[last_x + (radius_sides - 0.1) * side, 112.0],
+                                                   [last_x + (radius_sides + 0.1) * side, 112.0]]), side)
+    assert inside.tolist() == [True, False]
+    # A still target: the minimum speed (0.05 side per frame) sets the growth.
+    tracker._track.clear()
+    tracker._track.append((4, last_x, 112.0))
+    still = tracker._within_motion_gate(np.array([[last_x + 2.09 * side, 112.0], [last_x + 2.11 * side, 112.0]]), side)
+    assert still.tolist() == [True, False]  # 1.5 + 3 * 0.05 * 4 = 2.1 sides

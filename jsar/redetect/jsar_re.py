@@ -87,6 +87,14 @@ class RedetectOptions:
     score depends on where the object sits in the scoring window (a look-alike 0.25 target sides off
     the window centre scored 0.050 instead of 0.068), and remembered proposals are scored the way
     candidates are. Costs accept_holdoff proposal searches per loss; dropped when the loss ends.
+    gate_base_sides / gate_speed_factor / gate_min_speed: a candidate must also lie within
+    gate_base_sides + gate_speed_factor * v * (frames since the last committed frame) target sides of
+    the last committed centre, v = the target's speed over its last committed frames in sides per
+    frame, at least gate_min_speed (inf disables). Fitted on the re-detections of the long-term
+    protocol (seeds 0-2): every correct one lay inside 1.5 + 3 v t, while look-alike cars that appeared
+    3-4 sides away a few frames into a loss did not; on seed 0 false re-initialisations fell from 8 to
+    3 and re-acquisition rose from 69 % to 75 % (seed 2: 66 to 69 %; seed 1 unchanged at 91 %;
+    held-out seed 3 unchanged at 72 %). The search square (omega) still bounds where proposals come from.
     """
 
     size_blend: float = 1.0
@@ -101,6 +109,9 @@ class RedetectOptions:
     scoring_scales: tuple[float, ...] = (1.0,)
     change_margin: float = 1.1
     change_radius: float = 1.0
+    gate_base_sides: float = 1.5
+    gate_speed_factor: float = 3.0
+    gate_min_speed: float = 0.05
 
     def __post_init__(self) -> None:
         if self.change_margin < 0 or self.change_radius <= 0:
@@ -263,7 +274,7 @@ class JsarReTracker:
             background &= distance_to_segment(centres, path[0], path[1]) > self.options.change_radius * math.sqrt(w * h)
             self._seen = np.concatenate([self._seen, np.column_stack([centres, scores])[background]])
         needed = np.maximum(eta_d, self._change_thresholds(centres, math.sqrt(w * h)))
-        passing = scores > needed
+        passing = (scores > needed) & self._within_motion_gate(centres, math.sqrt(w * h))
         best = int(np.argmax(np.where(passing, scores, -np.inf))) if passing.any() else int(np.argmax(scores))
         score = float(scores[best])
         box = _clip_box(boxes[best], frame.shape)
@@ -279,6 +290,19 @@ class JsarReTracker:
         first_index, first_x, first_y = self._track[0]
         steps = speed_factor * (self.frame_index - index) / (index - first_index)
         return cx + (cx - first_x) * steps, cy + (cy - first_y) * steps
+
+    def _within_motion_gate(self, centres: np.ndarray, side_px: float) -> np.ndarray:
+        """Per candidate centre (N, 2) px: within gate_base_sides + gate_speed_factor * speed * frames
+        lost (target sides) of the last committed centre, speed in sides per frame (at least
+        gate_min_speed) from the last committed frames."""
+        index, cx, cy = self._track[-1]
+        speed = 0.0
+        if len(self._track) >= 2:
+            first_index, first_x, first_y = self._track[0]
+            speed = math.hypot(cx - first_x, cy - first_y) / (index - first_index) / side_px
+        radius = (self.options.gate_base_sides + self.options.gate_speed_factor * max(speed, self.options.gate_min_speed)
+                  * (self.frame_index - index)) * side_px
+        return np.hypot(centres[:, 0] - cx, centres[:, 1] - cy) <= radius
 
     def _remember_position(self) -> None:
         x, y, w, h = self.core.box

@@ -300,8 +300,8 @@ class JsarReTracker:
         if len(self._track) >= 2:
             first_index, first_x, first_y = self._track[0]
             speed = math.hypot(cx - first_x, cy - first_y) / (index - first_index) / side_px
-        radius = (self.options.gate_base_sides + self.options.gate_speed_factor * max(speed, self.options.gate_min_speed)
-                  * (self.frame_index - index)) * side_px
+        growth = self.options.gate_speed_factor * max(speed, self.options.gate_min_speed) * (self.frame_index - index)
+        radius = (self.options.gate_base_sides + growth) * side_px
         return np.hypot(centres[:, 0] - cx, centres[:, 1] - cy) <= radius
 
     def _remember_position(self) -> None:

@@ -73,12 +73,9 @@ def rss_trend(rss_kib: list[tuple[float, int]], warm_s: float) -> RssTrend:
 def slope_per_hour_mib(samples: list[tuple[float, int]]) -> float:
     """Least-squares slope of (time s, RSS KiB) samples in MiB per hour (needs >= 2 distinct times)."""
     times = [t for t, _ in samples]
-    mean_t = statistics.fmean(times)
-    mean_k = statistics.fmean(kib for _, kib in samples)
-    spread = sum((t - mean_t) ** 2 for t in times)
-    if spread <= 0:
+    if len(set(times)) < 2:
         raise ValueError(f"slope needs samples at >= 2 distinct times, got {samples}")
-    slope_kib_s = sum((t - mean_t) * (kib - mean_k) for t, kib in samples) / spread
+    slope_kib_s = statistics.linear_regression(times, [kib for _, kib in samples]).slope
     return slope_kib_s * 3600.0 / 1024.0
 
 

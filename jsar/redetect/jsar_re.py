@@ -227,7 +227,8 @@ class JsarReTracker:
         confidence = loc.peak
         verdict = self.monitor.assess(confidence, last_box, image_wh, self.frame_index)
         if not verdict.redetect:
-            self._seen = np.empty((0, 3))
+            if len(self._seen):  # a loss just ended (nothing to allocate on ordinary confident frames)
+                self._seen = np.empty((0, 3))
             self.core.commit(frame, loc)
             self._remember_position()
             self._train_decision(reliable=verdict.reliable)
@@ -281,25 +282,27 @@ class JsarReTracker:
         return Redetection(bool(passing[best]) and box is not None, box, score, eta_d, omega, len(scores),
                            float(sharpness[best]))
 
-    def predicted_centre(self, speed_factor: float = 1.0) -> tuple[float, float]:
-        """Where the target would be now (px) at speed_factor x its mean velocity over the last
-        committed frames (the last committed centre if there is no velocity yet)."""
-        index, cx, cy = self._track[-1]
+    def recent_velocity(self) -> tuple[float, float]:
+        """Mean velocity (px per frame, x and y) over the last committed frames; (0, 0) before two."""
         if len(self._track) < 2:
-            return cx, cy
-        first_index, first_x, first_y = self._track[0]
-        steps = speed_factor * (self.frame_index - index) / (index - first_index)
-        return cx + (cx - first_x) * steps, cy + (cy - first_y) * steps
+            return 0.0, 0.0
+        (first_index, first_x, first_y), (index, cx, cy) = self._track[0], self._track[-1]
+        return (cx - first_x) / (index - first_index), (cy - first_y) / (index - first_index)
+
+    def predicted_centre(self, speed_factor: float = 1.0) -> tuple[float, float]:
+        """Where the target would be now (px) at speed_factor x its recent velocity (the last
+        committed centre if there is no velocity yet)."""
+        index, cx, cy = self._track[-1]
+        vx, vy = self.recent_velocity()
+        steps = speed_factor * (self.frame_index - index)
+        return cx + vx * steps, cy + vy * steps
 
     def _within_motion_gate(self, centres: np.ndarray, side_px: float) -> np.ndarray:
         """Per candidate centre (N, 2) px: within gate_base_sides + gate_speed_factor * speed * frames
         lost (target sides) of the last committed centre, speed in sides per frame (at least
         gate_min_speed) from the last committed frames."""
         index, cx, cy = self._track[-1]
-        speed = 0.0
-        if len(self._track) >= 2:
-            first_index, first_x, first_y = self._track[0]
-            speed = math.hypot(cx - first_x, cy - first_y) / (index - first_index) / side_px
+        speed = math.hypot(*self.recent_velocity()) / side_px
         growth = self.options.gate_speed_factor * max(speed, self.options.gate_min_speed) * (self.frame_index - index)
         radius = (self.options.gate_base_sides + growth) * side_px
         return np.hypot(centres[:, 0] - cx, centres[:, 1] - cy) <= radius

@@ -18,6 +18,16 @@ class JsarParams:
 
     `JsarParams.jsar_re()` gives the JSAR-Re variant (lambda 1, label sigma factor 0.054,
     size-label aspect sigma sqrt(13)*1.7), as the authors' JSAR-Re release sets them.
+
+    Two size-filter defaults differ from the original, together: `size_subcell_peak` (the original
+    takes the best grid cell) and `size_learning_rate` 0.03 (original 0.014). The label is nearly
+    flat over the grid (sigma 5.4 of 13 cells), so the best cell stays the centre until the target
+    has changed by about half a step, while the model meanwhile learns the wrong size. In the PX4
+    closed loop (README "Sim harness") a car that shrank while turning kept a box of 2.8x its area
+    and was declared lost in plain view; with both changes the box follows it and the four PX4
+    tracking checks pass. The learning rate alone did not fix that run; sub-cell alone lowered
+    jsar-re's mean AUC on the shared sequences (README "Size filter" has the numbers). Costs one
+    fresh grid sample per frame: after a fractional step no cell of the old grid is reusable.
     """
 
     # --- features / search region (translation filter) ---
@@ -44,12 +54,13 @@ class JsarParams:
     num_aspects: int = 13  # A
     scale_step: float = 1.03  # gamma: size multiplied by gamma^n along the scale axis
     aspect_step: float = 1.02  # phi: (w, h) -> (w * phi^n, h / phi^n): w/h ratio step phi^2
-    size_learning_rate: float = 0.014
+    size_learning_rate: float = 0.03  # the original's 0.014: see the class docstring
     size_lambda: float = 0.01
     size_model_max_area: float = 512.0  # px^2 (16 x 32), target aspect kept
     size_model_min_side: int = 8  # px: at least 2 fHOG cells per side for tiny targets
     size_sigma_scale: float = math.sqrt(13) * 1.5  # label sigma along the scale axis (grid cells)
     size_sigma_aspect: float = math.sqrt(13) * 1.5  # along the aspect axis (JSAR-Re: *1.7)
+    size_subcell_peak: bool = True  # parabola-refined best cell (False: the original's best cell)
     size_grid_window: bool = False  # Hann window over the grid (DSST-style); off: see size_filter
     min_target_side_px: float = 3.0  # lower size clamp: a 6 px target must keep tracking
     aspect_band: float = 4.0  # w/h stays within [r0 / band, r0 * band], r0 = initial w/h

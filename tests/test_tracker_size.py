@@ -110,3 +110,71 @@ def test_shifted_sample_equals_a_fresh_sample_at_the_new_size(shift):
     shifted = sf.shifted_sample(frame, (160.0, 120.0), new_size, old, shift)
     fresh = sf.sample(frame, (160.0, 120.0), new_size)
     np.testing.assert_allclose(shifted, fresh, atol=1e-5)
+
+
+def test_parabola_offset_finds_the_vertex_and_ignores_non_maxima():
+    from jsar.tracking.size_filter import parabola_offset
+
+    assert parabola_offset(0.5, 1.0, 0.5) == 0.0
+    # y = -(x - 0.25)^2 sampled at -1, 0, 1.
+    assert parabola_offset(-1.5625, -0.0625, -0.5625) == pytest.approx(0.25)
+    assert parabola_offset(-0.5625, -0.0625, -1.5625) == pytest.approx(-0.25)
+    assert parabola_offset(1.0, 0.5, 1.0) == 0.0  # a minimum is not refined
+    assert parabola_offset(0.0, 1.0, 1.0) == 0.5  # clamped to half a cell
+
+
+def test_refined_peak_moves_continuously_where_the_best_cell_does_not():
+    """A car scaled by 1.03^e (e grid steps): the refined scale position moves the right way, further
+    for a larger change, already at one step, where the best cell is still the centre. (One frame's
+    estimate is a fraction of the change: the label is nearly flat; frames accumulate it.)"""
+    size, centre = (90.0, 40.0), (320.0, 240.0)
+    sf = SizeFilter(JsarParams.jsar_re(), size)
+    sf.train(sf.spectrum(sf.sample(_textured_scene(size), centre, size)))
+    for sign in (-1.0, 1.0):
+        moves = []
+        for steps in (1, 2, 3):
+            scaled = (size[0] * 1.03 ** (sign * steps), size[1] * 1.03 ** (sign * steps))
+            spectrum = sf.spectrum(sf.sample(_textured_scene(scaled), centre, size))
+            i, j = sf.refined_peak(spectrum)
+            moves.append(sign * (i - 6))
+            assert abs(j - 6) < 0.5, "a pure scale change must not move the aspect estimate far"
+            if steps == 1:
+                assert sf.estimate(spectrum)[0] == 6
+        assert 0 < moves[0] < moves[1] < moves[2], moves
+
+
+def _textured_scene(target_wh: tuple[float, float], angle_deg: float = 0.0) -> np.ndarray:
+    """640x480 BGR frame: a fixed random ground texture and a red 'car' with dark windows of
+    (length, width) target_wh px, turned by angle_deg about the image centre."""
+    import cv2
+
+    rng = np.random.default_rng(7)
+    ground = cv2.GaussianBlur(rng.integers(40, 140, (480, 640, 3)).astype(np.uint8), (0, 0), 3)
+    car = np.full((60, 90, 3), (40, 40, 200), np.uint8)  # a red body with two dark windows
+    car[8:52, 18:30] = car[8:52, 60:72] = (30, 30, 30)
+    length, width = target_wh
+    # car texture (90 x 60 px) -> scaled to length x width, turned, centred on (320, 240)
+    scale = np.diag([length / 90.0, width / 60.0])
+    c, s_ = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    turn = np.array([[c, s_], [-s_, c]])
+    linear = turn @ scale
+    affine = np.hstack([linear, (np.array([320.0, 240.0]) - linear @ np.array([45.0, 30.0]))[:, None]])
+    warped = cv2.warpAffine(car, affine, (640, 480), flags=cv2.INTER_AREA)
+    mask = cv2.warpAffine(np.full((60, 90), 255, np.uint8), affine, (640, 480))
+    frame = np.where(mask[..., None] > 127, warped, ground)
+    return frame
+
+
+def test_tracker_box_follows_a_shrinking_target_with_the_default_size_estimate():
+    """A car shrinking 0.5 % per frame (a sixth of a grid step) for 120 frames: the sub-cell path
+    (fractional steps, fresh grid sample for training) ends within 12 % of its size, both sides."""
+    from jsar.tracking.jsar_tracker import JsarTracker
+
+    params = JsarParams.jsar_re()
+    assert params.size_subcell_peak
+    tracker = JsarTracker(params)
+    tracker.init(_textured_scene((90.0, 40.0)), (275.0, 220.0, 90.0, 40.0))
+    for k in range(1, 121):
+        box = tracker.update(_textured_scene((90.0 * 0.995**k, 40.0 * 0.995**k))).box
+    assert box[2] / (90.0 * 0.995**120) == pytest.approx(1.0, abs=0.12)
+    assert box[3] / (40.0 * 0.995**120) == pytest.approx(1.0, abs=0.12)

@@ -185,6 +185,16 @@ class JsarTracker:
         assert self.size_filter is not None
         sample = self.size_filter.sample(image, self.center_xy, self.size_wh)
         sample_f = self.size_filter.spectrum(sample)
+        if self.params.size_subcell_peak:
+            # A fractional step: the new grid shares no cell with the old one, so sample it afresh.
+            fw, fh = self.size_filter.cell_factors(*self.size_filter.refined_peak(sample_f))
+            w, h = self.size_wh
+            new_size = self._clamp((w * fw, h * fh), image)
+            if new_size != self.size_wh:
+                self.size_wh = new_size
+                sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.center_xy, new_size))
+            self.size_filter.train(sample_f)
+            return
         i, j = self.size_filter.estimate(sample_f)
         fw, fh = self.size_filter.cell_factors(i, j)
         w, h = self.size_wh

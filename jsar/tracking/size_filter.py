@@ -167,13 +167,33 @@ class SizeFilter:
         i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
         return int(i), int(j)
 
-    def cell_factors(self, i: int, j: int) -> tuple[float, float]:
-        """(width factor, height factor) of grid cell (i, j) relative to the current size."""
+    def refined_peak(self, sample_f: np.ndarray) -> tuple[float, float]:
+        """(i, j) fractional grid position of the response maximum: argmax + a parabola per axis.
+
+        The grid is periodic (the response is an inverse DFT), so the neighbours wrap around.
+        """
+        resp = self.response(sample_f)
+        i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
+        n_s, n_a = resp.shape
+        di = parabola_offset(resp[(i - 1) % n_s, j], resp[i, j], resp[(i + 1) % n_s, j])
+        dj = parabola_offset(resp[i, (j - 1) % n_a], resp[i, j], resp[i, (j + 1) % n_a])
+        return i + di, j + dj
+
+    def cell_factors(self, i: float, j: float) -> tuple[float, float]:
+        """(width factor, height factor) of grid position (i, j) (fractional allowed) relative to the current size."""
         ns = i - (self.grid_shape[0] - 1) / 2.0
         na = j - (self.grid_shape[1] - 1) / 2.0
         scale = self.params.scale_step**ns
         aspect = self.params.aspect_step**na
         return scale * aspect, scale / aspect
+
+
+def parabola_offset(left: float, centre: float, right: float) -> float:
+    """Offset in [-0.5, 0.5] of the vertex of the parabola through (-1, left), (0, centre), (1, right)."""
+    curvature = left - 2.0 * centre + right
+    if curvature >= 0.0:  # not a maximum: keep the sample
+        return 0.0
+    return float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5))
 
 
 def clamp_size(

@@ -323,3 +323,29 @@ def test_frame_size_change_is_announced_and_tracking_continues(tmp_path: Path) -
         assert abs(x + w / 2 - 220) < 10 and abs(y + h / 2 - 80) < 10
     finally:
         rig.close()
+
+
+def test_repeated_refusals_warn_once_per_kind_and_source() -> None:
+    from service.mavlink.camera import RepeatedRefusals
+
+    refusals = RepeatedRefusals()
+    assert refusals.first(512, 260.0, (245, 190), 3)
+    assert not refusals.first(512, 260.0, (245, 190), 3)  # the same poll again
+    assert refusals.first(512, 261.0, (245, 190), 3)  # another message id is another kind
+    assert refusals.first(512, 260.0, (245, 191), 3)  # another source
+    assert refusals.first(527, 0.0, (245, 190), 3) and not refusals.first(527, 5.0, (245, 190), 3)
+    assert refusals.first(2005, 0.5, (245, 190), 2) and not refusals.first(2005, 0.7, (245, 190), 2)
+    assert refusals.first(512, NAN, (245, 190), 3) and not refusals.first(512, NAN, (245, 190), 3)
+
+
+def test_a_polled_unsupported_request_is_answered_every_time_but_warned_once(
+        rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
+    assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)
+    caplog.set_level("DEBUG", logger="service.mavlink")
+    for index in range(3):  # what mavsdk's camera plugin does with CAMERA_SETTINGS (260)
+        rig.gcs.command_long(REQUEST, [260, 0, 0, 0, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(REQUEST, index).result == 3  # UNSUPPORTED, every time
+    # The camera logs a command before it sends the ACK: all three are in by now.
+    refusals = [r for r in caplog.records if "message 260" in r.getMessage()]
+    assert [r.levelname for r in refusals] == ["WARNING", "DEBUG", "DEBUG"]
+    assert rig.service.camera.counters["rejected"] >= 3

@@ -8,6 +8,7 @@ not yet applied).
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -27,6 +28,26 @@ from service.sources.base import LatestSlot
 
 log = logging.getLogger("service.mavlink")
 RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+
+
+class RepeatedRefusals:
+    """Which refused commands were already logged at WARNING, so a ground station that polls for what this
+    camera does not offer (mavsdk's camera plugin re-requests CAMERA_SETTINGS, STORAGE_INFORMATION,
+    CAMERA_CAPTURE_STATUS, VIDEO_STREAM_INFORMATION and command 527 every few seconds) logs each kind once,
+    not five warnings every few seconds for the whole flight. Keyed by (command, requested message id for
+    511 / 512, source system, source component, result)."""
+
+    def __init__(self) -> None:
+        self._seen: set[tuple[int, int | None, int, int, int]] = set()
+
+    def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
+        """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
+        message = int(param1) if command in (511, 512) and math.isfinite(param1) else None
+        key = (command, message, source[0], source[1], result)
+        if key in self._seen:
+            return False
+        self._seen.add(key)
+        return True
 
 
 @dataclass(frozen=True)
@@ -62,6 +83,7 @@ class CameraComponent:
         self._stop = threading.Event()
         self._autopilot_alive = False
         self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "status_sent": 0}
+        self._refusals = RepeatedRefusals()
         self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
                          threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)]
 
@@ -135,10 +157,15 @@ class CameraComponent:
         decision = self._apply(decision)
         self.counters["commands"] += 1
         self.counters["accepted" if decision.result == MAV_RESULT_ACCEPTED else "rejected"] += 1
-        level = logging.INFO if decision.result == MAV_RESULT_ACCEPTED else logging.WARNING
-        log.log(level, 'event=command command=%d via=%s from=%d/%d result=%s reason="%s"', msg.command, kind,  # type: ignore[attr-defined]
-                msg.get_srcSystem(), msg.get_srcComponent(), RESULT_NAMES.get(decision.result, decision.result),  # type: ignore[attr-defined]
-                decision.reason)
+        source = (msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[attr-defined]
+        if decision.result == MAV_RESULT_ACCEPTED:
+            level, note = logging.INFO, ""
+        elif self._refusals.first(msg.command, params[0], source, decision.result):  # type: ignore[attr-defined]
+            level, note = logging.WARNING, " (repeats of this refusal are logged at DEBUG)"
+        else:
+            level, note = logging.DEBUG, ""
+        log.log(level, 'event=command command=%d via=%s from=%d/%d result=%s reason="%s"%s', msg.command, kind,  # type: ignore[attr-defined]
+                source[0], source[1], RESULT_NAMES.get(decision.result, decision.result), decision.reason, note)
         self.link.send(self.link.mav.command_ack_encode(  # type: ignore[attr-defined]
             msg.command, decision.result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))  # type: ignore[attr-defined]
         if decision.result == MAV_RESULT_ACCEPTED and isinstance(decision.intent, RequestMessage):

@@ -82,8 +82,8 @@ class RedetectOptions:
     wakeboard10 lost the wrong object while the rider reappeared at 1.75x the reference and was then
     blocked for good), and proposals within change_radius of the segment from the last confident
     centre to where twice the target's recent velocity would have taken it (the monitor can fire
-    with the target in plain view: PX4 closed loop, a box grown to twice the car during a link drop;
-    plain wakeboard7, a rider moving 15 px per frame). Proposals, not a dense map of the area: the
+    with the target in plain view: PX4 closed loop before the sub-cell size estimate, a box grown to
+    twice the car during a link drop; plain wakeboard7, a rider moving 15 px per frame). Proposals, not a dense map of the area: the
     score depends on where the object sits in the scoring window (a look-alike 0.25 target sides off
     the window centre scored 0.050 instead of 0.068), and remembered proposals are scored the way
     candidates are. Costs accept_holdoff proposal searches per loss; dropped when the loss ends.

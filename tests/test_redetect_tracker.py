@@ -269,3 +269,63 @@ def test_motion_gate_grows_with_the_target_speed_and_the_frames_lost():
     tracker._track.append((4, last_x, 112.0))
     still = tracker._within_motion_gate(np.array([[last_x + 2.09 * side, 112.0], [last_x + 2.11 * side, 112.0]]), side)
     assert still.tolist() == [True, False]  # 1.5 + 3 * 0.05 * 4 = 2.1 sides
+
+
+def test_rotated_about_maps_points_to_where_the_turned_image_shows_them_and_back():
+    from jsar.redetect.jsar_re import rotated_about
+
+    image = np.zeros((120, 160), np.uint8)
+    image[30, 110] = 255  # a dot at x=110, y=30
+    points = np.array([[110.0, 30.0], [50.0, 60.0]])
+    turned, turned_points, back = rotated_about(image, points, np.array([80.0, 60.0]), 90.0)
+    row, col = np.unravel_index(int(np.argmax(cv2.GaussianBlur(turned.astype(np.float32), (5, 5), 1.0))), turned.shape)
+    assert math.hypot(col - turned_points[0, 0], row - turned_points[0, 1]) <= 1.0
+    # cv2's positive angle turns counter-clockwise as displayed: the dot right of and above the pivot
+    # ends up above and left of it.
+    assert turned_points[0, 0] < 80 and turned_points[0, 1] < 60
+    restored = turned_points @ back[:, :2].T + back[:, 2]
+    assert np.allclose(restored, points, atol=1e-9)
+    same, same_points, identity = rotated_about(image, points, np.array([80.0, 60.0]), 0.0)
+    assert same is image and same_points is points and np.allclose(identity, [[1, 0, 0], [0, 1, 0]])
+
+
+def _bar_target(length: int = 36, width: int = 12) -> np.ndarray:
+    """An elongated two-colour object (length along x): turned by 90 degrees it looks different to HOG."""
+    patch = np.zeros((width, length, 3), np.uint8)
+    patch[:, :] = (30, 40, 200)
+    patch[:, length * 2 // 3:] = (230, 230, 30)
+    patch[width // 2 - 1:width // 2 + 1, :] = 10
+    return patch
+
+
+def test_scoring_angles_find_a_target_that_turned_while_hidden():
+    background = _background(seed=5)
+    bar = _bar_target()
+    height, width = bar.shape[:2]
+    first = background.copy()
+    first[100:100 + height, 100:100 + width] = bar
+    turned_frame = background.copy()
+    cx, cy = 190, 120  # the target comes back turned by 90 degrees counter-clockwise, elsewhere
+    upright = np.ascontiguousarray(np.rot90(bar))
+    turned_frame[cy - width // 2:cy - width // 2 + width, cx - height // 2:cx - height // 2 + height] = upright
+    scores = {}
+    for angles in ((0.0,), (0.0, -90.0)):  # -90: cv2's clockwise turn undoes it
+        tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(scoring_angles_deg=angles))
+        tracker.init(first, (100.0, 100.0, float(width), float(height)))
+        proposal = np.array([[cx - height / 2, cy - width / 2, float(height), float(width)]])
+        score, boxes, _ = tracker.score_proposals(turned_frame, proposal, (float(width), float(height)))
+        scores[angles] = float(score[0])
+        if len(angles) > 1:
+            # The box the turned variant would re-initialise at is mapped back to the frame's pixels.
+            bx, by, bw, bh = boxes[0]
+            assert math.hypot(bx + bw / 2 - cx, by + bh / 2 - cy) < 3.0, boxes[0]
+    assert scores[(0.0, -90.0)] > 3.0 * scores[(0.0,)], scores
+
+
+def test_scoring_angles_are_validated():
+    with pytest.raises(ValueError, match="scoring_angles_deg"):
+        RedetectOptions(scoring_angles_deg=(45.0,))
+    with pytest.raises(ValueError, match="scoring_angles_deg"):
+        RedetectOptions(scoring_angles_deg=(0.0, 270.0))
+    with pytest.raises(ValueError, match="turned_score_factor"):
+        RedetectOptions(turned_score_factor=1.5)

@@ -5,6 +5,8 @@ frame after 30, re-detection is forced at the tracker's current box (omega 5) on
 where the best candidate lands on the target (centre error <= 20 px), the IoU with ground truth of
 the re-initialised box is compared for size blends 0 (last confident size) .. 1 (proposal's size).
 
+`--angles 0` times upright-only scoring (RedetectOptions.scoring_angles_deg) against the default.
+
 Per sequence: jsar-re tracks the first N frames normally (timing its confident frames), then on the
 next N frames re-detection is forced at the last confident box (proposals + decision-filter scoring,
 omega = 5 and omega = 10, no re-initialisation); OpenCV's CSRT runs on the same frames in the same
@@ -98,15 +100,20 @@ def main() -> None:
     parser.add_argument("data_root", type=Path)
     parser.add_argument("--frames", type=int, default=20, help="confident frames, then as many re-detection frames")
     parser.add_argument("--size-blend", action="store_true", help="compare re-initialisation sizes instead")
+    parser.add_argument("--angles", default=None,
+                        help="comma-separated scoring angles in degrees (default: RedetectOptions' own)")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     if args.size_blend:
         size_blend_study(args.data_root)
         return
+    options = RedetectOptions() if args.angles is None else RedetectOptions(
+        scoring_angles_deg=tuple(float(a) for a in args.angles.split(",")))
+    print(f"scoring angles (degrees): {options.scoring_angles_deg}")
     timings: dict[str, list[float]] = {k: [] for k in ("confident", "csrt", "redetect5", "proposals5", "scoring5", "redetect10")}
     for folder in _sequences(args.data_root):
         frames, box = _load(folder, 2 * args.frames + 1)
-        tracker = JsarReTracker(JsarParams.jsar_re())
+        tracker = JsarReTracker(JsarParams.jsar_re(), options)
         tracker.init(frames[0], box)
         csrt = cv2.TrackerCSRT_create()
         csrt.init(frames[0], tuple(int(round(v)) for v in box))

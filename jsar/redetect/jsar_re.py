@@ -16,7 +16,7 @@ raw translation peak (MATLAB FFT convention, see jsar.config):
 Choices beyond the paper (stated, measured in the report): the accepted box is centred where the
 decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
 by default the proposal's (`size_blend`, see RedetectOptions); proposals are also scored with the
-image turned by +-45 and 90 degrees (`scoring_angles_deg`: a target that turned while hidden); the decision filter is NOT
+image turned by +-45 degrees (`scoring_angles_deg`: a target that turned while hidden); the decision filter is NOT
 re-initialised on recovery (it is the long-term memory of reliable appearances; retraining it from
 the re-detected sample would let one false acceptance overwrite it); and a proposal above eta_d is
 only accepted where the score CHANGED since the target was hidden (RedetectOptions.change_margin):
@@ -73,11 +73,13 @@ class RedetectOptions:
     positive = counter-clockwise as displayed; must include 0) about the proposals' mean centre, the
     best variant counting (for the change test's memory as for candidates). A target that turned while
     hidden (a car at a junction, under a canopy) no longer matches the decision filter's HOG
-    orientations; turned, it does. Default (0, 45, -45, 90): on the long-term protocol re-acquisition
-    rose from 75 / 88 / 69 % to 78 / 91 / 78 % (seeds 0-2) and from 72 % to 84 % on held-out seed 3,
-    with false re-initialisations at 1.0-1.3 % of absent frames (UAVDT_S1301's 40-frame events: the
-    car turns while hidden). Costs one feature extraction and correlation per angle on re-detection
-    frames only; 90 and -90 are the same for a symmetric target, so only one is scored.
+    orientations; turned, it does. Default (0, 45, -45): on the long-term protocol re-acquisition rose from
+    75 / 88 / 69 % to 78 / 91 / 81 % (seeds 0-2) and from 72 % to 81 % on held-out seed 3, false
+    re-initialisations 0.8-1.6 % of absent frames (UAVDT_S1301's 40-frame events: the car turns while
+    hidden; the sim's car turns about 60 degrees under the canopy). (0, 90) alone gained nothing
+    (75 / 91 / 69 / 72 %); adding 90 to +-45 re-acquired the same events with 2 more false
+    re-initialisations over the four seeds, at a third more cost. Costs one feature extraction and
+    correlation per angle, on re-detection frames only.
     turned_score_factor: a turned variant's score (raw peak) is multiplied by this everywhere it is
     used (against eta_d, the change test and the other proposals): a target that did not turn should
     win with its upright score. Without it (1.0), on plain wakeboard7 a turned variant of a tight
@@ -123,7 +125,7 @@ class RedetectOptions:
     edge_nms_radius: int = 1
     edgeboxes: EdgeBoxesSettings = EdgeBoxesSettings()
     scoring_scales: tuple[float, ...] = (1.0,)
-    scoring_angles_deg: tuple[float, ...] = (0.0, 45.0, -45.0, 90.0)
+    scoring_angles_deg: tuple[float, ...] = (0.0, 45.0, -45.0)
     turned_score_factor: float = 0.9
     change_margin: float = 1.1
     change_radius: float = 1.0

@@ -19,6 +19,15 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO_ROOT / "config.yaml"
 
 
+def exit_on_sigterm() -> None:
+    """Turn SIGTERM into SystemExit in the main thread, so a stopped sim command (systemd, CI timeout,
+    `kill`) unwinds its `with` blocks and stops the daemon subprocess instead of orphaning it."""
+    def _exit(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _exit)
+
+
 def deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     """A copy of `base` with `overrides` applied key by key (nested dicts merged, the rest replaced)."""
     merged = copy.deepcopy(base)

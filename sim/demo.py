@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
+from sim.daemon import exit_on_sigterm
 from sim.scene import SceneConfig
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "out"
@@ -198,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--replay", default=None, help="sequence folder (or name under JSAR_DATA_ROOT) or video")
     parser.add_argument("--loop", action="store_true", help="replay: loop the sequence for the whole duration")
     args = parser.parse_args(argv)
+    exit_on_sigterm()
     cv2.setNumThreads(1)
     if args.replay:
         return run_replay(args)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from sim.closed_loop import SERVICE_COMPONENT, ClosedLoop, ClosedLoopConfig, RunResult
+from sim.daemon import exit_on_sigterm
 from sim.scene import SceneConfig
 
 WALL_CLOCK_FIELDS = ("time_boot_ms", "timestamp")
@@ -87,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--occlusion", type=float, action="append", default=[], metavar="TIME_S")
     parser.add_argument("--runs", type=int, default=2)
     args = parser.parse_args(argv)
+    exit_on_sigterm()
     if args.runs < 2:
         parser.error("--runs must be >= 2")
     cfg = ClosedLoopConfig(flavour=args.flavour, duration_s=args.duration, guidance=args.guidance,

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, RunResult
+from sim.daemon import exit_on_sigterm
 from sim.scene import SceneConfig
 
 MIN_RSS_SAMPLES = 4  # after the warm-up: two per half
@@ -144,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pace", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    exit_on_sigterm()
     duration_s = args.minutes * 60.0
     # every 30 s for the hour; at least 20 samples in a short run (the trend needs >= 4 after warm-up)
     report = soak(duration_s, args.flavour, args.pace, args.seed, rss_every_s=min(30.0, duration_s / 20.0), live=True)

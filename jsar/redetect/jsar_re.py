@@ -16,12 +16,12 @@ raw translation peak (MATLAB FFT convention, see jsar.config):
 Choices beyond the paper (stated, measured in the report): the accepted box is centred where the
 decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
 by default the proposal's (`size_blend`, see RedetectOptions); proposals are also scored with the
-image turned by +-45 degrees (`scoring_angles_deg`: a target that turned while hidden); the decision filter is NOT
-re-initialised on recovery (it is the long-term memory of reliable appearances; retraining it from
-the re-detected sample would let one false acceptance overwrite it); and a proposal above eta_d is
-only accepted where the score CHANGED since the target was hidden (RedetectOptions.change_margin):
-eta_d decays every failed frame until some background look-alike passes it, which was the commonest
-false re-initialisation on the long-term protocol.
+image turned by +-45 degrees (`scoring_angles_deg`: a target that turned while hidden); the decision
+filter is NOT re-initialised on recovery (it is the long-term memory of reliable appearances;
+retraining it from the re-detected sample would let one false acceptance overwrite it); and a
+proposal above eta_d is only accepted where the score CHANGED since the target was hidden
+(RedetectOptions.change_margin): eta_d decays every failed frame until some background look-alike
+passes it, which was the commonest false re-initialisation on the long-term protocol.
 """
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ class RedetectOptions:
     hidden (a car at a junction, under a canopy) no longer matches the decision filter's HOG
     orientations; turned, it does. Default (0, 45, -45): on the long-term protocol re-acquisition rose from
     75 / 88 / 69 % to 78 / 91 / 81 % (seeds 0-2) and from 72 % to 81 % on held-out seed 3, false
-    re-initialisations 0.8-1.6 % of absent frames (UAVDT_S1301's 40-frame events: the car turns while
+    re-initialisations 0.8-1.4 % of absent frames (UAVDT_S1301's 40-frame events: the car turns while
     hidden; the sim's car turns about 60 degrees under the canopy). (0, 90) alone gained nothing
     (75 / 91 / 69 / 72 %); adding 90 to +-45 re-acquired the same events with 2 more false
     re-initialisations over the four seeds, at a third more cost. Costs one feature extraction and
@@ -368,7 +368,8 @@ class JsarReTracker:
         scores = np.full(len(boxes), -np.inf)
         sharpness = np.full(len(boxes), np.nan)
         best_at = np.zeros(len(boxes), np.int64)
-        variants = [(scale, angle) for scale in self.options.scoring_scales for angle in self.options.scoring_angles_deg]
+        variants = [(scale, angle) for scale in self.options.scoring_scales
+                    for angle in self.options.scoring_angles_deg]
         per_variant = []
         for index, (scale, angle) in enumerate(variants):
             turned, turned_centres, back = rotated_about(image, centres, pivot, angle)

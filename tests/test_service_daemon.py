@@ -105,7 +105,13 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
         assert status["config"]["zenoh"]["prefix"] == "daemontest" and status["config"]["source"]["kind"] == "file"
         sent = time.monotonic()
         proc.send_signal(signum)
-        code = proc.wait(timeout=10)
+        try:
+            code = proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            tail = (proc.stderr.read() if proc.stderr else "")[-3000:]
+            pytest.fail(f"daemon still running 10 s after {signal.Signals(signum).name}; its log:\n{tail}")
         elapsed = time.monotonic() - sent
         assert code == 0
         assert elapsed < 2.0, f"stopped after {elapsed:.2f} s"

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -284,20 +285,31 @@ def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
     with SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{port}",))) as camera:
         peer = zenoh.open(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{port}",)).to_zenoh())
         track = peer.declare_publisher("jsar/track")
+        # Zenoh runs callbacks on its own threads and undeclare() does not wait for one in flight: the
+        # publisher is used and undeclared under one lock (else "Already borrowed" under load).
+        publishing = threading.Lock()
+        open_for_answers = [True]
+
+        def answer(frame_id: int, **fields: str) -> None:
+            with publishing:
+                if open_for_answers[0]:
+                    track.put(json.dumps({"frame_id": frame_id, **fields}))
 
         def on_frame(sample) -> None:
             frame = decode_frame(sample.payload.to_bytes())
             in_flight.append(frame.frame_id)
-            track.put(json.dumps({"frame_id": frame.frame_id, "state": "idle"}))
+            answer(frame.frame_id, state="idle")
         sub = peer.declare_subscriber("jsar/camera/frame", on_frame)
-        probe = peer.declare_subscriber("jsar/probe", lambda s: track.put(json.dumps({"frame_id": 0})))
+        probe = peer.declare_subscriber("jsar/probe", lambda s: answer(0))
         # Wait until routes exist both ways (probe out, telemetry back) before replaying.
         while camera.telemetry.wait_frame(0, 0.1) is None:
             camera.session.put("jsar/probe", b"1")
         stats = replay(open_recording(tiny_sequence), camera, pace="lockstep", ack_timeout_s=5.0)
         sub.undeclare()
         probe.undeclare()
-        track.undeclare()
+        with publishing:
+            open_for_answers[0] = False
+            track.undeclare()
         peer.close()
     assert stats.sent == 6 and stats.acknowledged == 6 and stats.timeouts == 0
     assert in_flight == [1, 2, 3, 4, 5, 6]

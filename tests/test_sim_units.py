@@ -288,11 +288,11 @@ def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
         # Zenoh runs callbacks on its own threads and undeclare() does not wait for one in flight: the
         # publisher is used and undeclared under one lock (else "Already borrowed" under load).
         publishing = threading.Lock()
-        open_for_answers = [True]
+        closed = threading.Event()
 
         def answer(frame_id: int, **fields: str) -> None:
             with publishing:
-                if open_for_answers[0]:
+                if not closed.is_set():
                     track.put(json.dumps({"frame_id": frame_id, **fields}))
 
         def on_frame(sample) -> None:
@@ -308,7 +308,7 @@ def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
         sub.undeclare()
         probe.undeclare()
         with publishing:
-            open_for_answers[0] = False
+            closed.set()
             track.undeclare()
         peer.close()
     assert stats.sent == 6 and stats.acknowledged == 6 and stats.timeouts == 0

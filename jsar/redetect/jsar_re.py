@@ -77,8 +77,8 @@ class RedetectOptions:
     75 / 88 / 69 % to 78 / 91 / 81 % (seeds 0-2) and from 72 % to 81 % on held-out seed 3, false
     re-initialisations 0.8-1.4 % of absent frames (UAVDT_S1301's 40-frame events: the car turns while
     hidden; the sim's car turns about 60 degrees under the canopy). (0, 90) alone gained nothing
-    (75 / 91 / 69 / 72 %); adding 90 to +-45 re-acquired the same events with 2 more false
-    re-initialisations over the four seeds, at a third more cost. Costs one feature extraction and
+    (75 / 91 / 69 / 72 %); adding 90 to +-45 re-acquired as many events with 2 more false
+    re-initialisations over the four seeds, at 1.5x the cost of a re-detection frame. Costs one feature extraction and
     correlation per angle, on re-detection frames only.
     turned_score_factor: a turned variant's score (raw peak) is multiplied by this everywhere it is
     used (against eta_d, the change test and the other proposals): a target that did not turn should

@@ -150,6 +150,13 @@ class RunResult:
             return 0.0
         return sum(r.centred(self.width, self.height) for r in frames) / len(frames)
 
+    def in_view_ratio(self) -> float:
+        """Fraction of all frames with at least half of the car inside the image (occluded or not): what
+        a track that wandered off the car, and the gimbal with it, loses."""
+        if not self.records:
+            return 0.0
+        return sum(r.truth.in_view_fraction >= 0.5 for r in self.records) / len(self.records)
+
     def lost_recovered(self) -> tuple[int, int]:
         """Number of tracking->lost transitions and of lost->recovered/tracking transitions."""
         lost = recovered = 0
@@ -193,6 +200,7 @@ class RunResult:
                 "dropped_frames": self.dropped_frames, "gimbal_command_timeouts": self.gimbal_command_timeouts,
                 "lost": lost, "recovered": recovered,
                 "centred_ratio": round(self.centring_ratio(), 3),
+                "in_view_ratio": round(self.in_view_ratio(), 3),
                 "centring_error_px_median": round(float(np.median(errors)), 1) if errors else None,
                 "centring_error_px_p90": round(float(np.percentile(errors, 90)), 1) if errors else None,
                 "lost_visible_frames": len(lost_gaps),

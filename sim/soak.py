@@ -13,6 +13,9 @@ Criteria (the same for both):
   occlusion: EdgeBoxes, FFT plans, allocator arenas) lands in the first half and then stays flat, so
   it does not count. The least-squares slope of the second half (MiB/h) is reported for information
   only: over a short run a 1 MiB allocator wobble is a large slope.
+- Track integrity: the car is in the image (at least half of it, occluded or not) on at least
+  `min_in_view_ratio` of all frames. Memory and latency alone pass a run whose tracker re-initialised
+  onto background and steered the gimbal, and the vehicle, after it for the rest of the hour.
 - Latency: median end-to-end latency (daemon telemetry, frame read to commands sent) over the last
   quarter of the frames at most `max_latency_ratio` times the median of the second quarter plus
   `latency_slack_ms` (ratios, not absolute times: the machine is shared).
@@ -39,6 +42,7 @@ class SoakCriteria:
     max_rss_growth_mib: float = 20.0
     max_latency_ratio: float = 1.5
     latency_slack_ms: float = 5.0
+    min_in_view_ratio: float = 0.9
 
 
 @dataclass(frozen=True)
@@ -82,7 +86,8 @@ def slope_per_hour_mib(samples: list[tuple[float, int]]) -> float:
 
 @dataclass(frozen=True)
 class SoakReport:
-    """Memory trend, latency medians of the 2nd and 4th quarters (ms), liveness and the run summary."""
+    """Memory trend, latency medians of the 2nd and 4th quarters (ms), liveness, the run summary and the
+    fraction of frames with the car in view."""
 
     frames: int
     rss: RssTrend
@@ -90,6 +95,7 @@ class SoakReport:
     latency_q4_ms: float
     daemon_alive: bool
     summary: dict
+    in_view_ratio: float = 1.0
 
     def failures(self, criteria: SoakCriteria) -> list[str]:
         """Human-readable reasons the run fails the criteria (empty = pass)."""
@@ -102,6 +108,9 @@ class SoakReport:
         limit = criteria.max_latency_ratio * self.latency_q2_ms + criteria.latency_slack_ms
         if self.latency_q4_ms > limit:
             problems.append(f"latency grew: last quarter {self.latency_q4_ms:.1f} ms > {limit:.1f} ms")
+        if self.in_view_ratio < criteria.min_in_view_ratio:
+            problems.append(f"car in view on {100 * self.in_view_ratio:.1f} % of the frames < "
+                            f"{100 * criteria.min_in_view_ratio:.0f} %: the track left the car")
         return problems
 
     def describe(self) -> str:
@@ -110,7 +119,7 @@ class SoakReport:
                 f"{self.rss.reference_kib / 1024:.1f} MiB, end {self.rss.end_kib / 1024:.1f} MiB (growth "
                 f"{self.rss.growth_mib:+.1f} MiB; second-half slope {self.rss.slope_mib_h:+.1f} MiB/h, for "
                 f"information); latency median 2nd quarter {self.latency_q2_ms:.1f} ms, last quarter "
-                f"{self.latency_q4_ms:.1f} ms")
+                f"{self.latency_q4_ms:.1f} ms; car in view on {100 * self.in_view_ratio:.1f} % of the frames")
 
 
 def latency_quarters(latencies: list[float]) -> tuple[float, float]:
@@ -125,7 +134,8 @@ def analyse(result: RunResult, duration_s: float) -> SoakReport:
     """Reduce a run to the soak figures (ValueError when it has too little data to judge)."""
     trend = rss_trend(result.rss_kib, warm_up_s(duration_s))
     q2, q4 = latency_quarters([r.latency_ms for r in result.records if r.latency_ms is not None])
-    return SoakReport(len(result.records), trend, q2, q4, result.daemon_alive, result.summary())
+    return SoakReport(len(result.records), trend, q2, q4, result.daemon_alive, result.summary(),
+                      result.in_view_ratio())
 
 
 def soak(duration_s: float, flavour: str = "ardupilot", pace: str = "lockstep", seed: int = 0,

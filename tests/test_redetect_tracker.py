@@ -329,3 +329,84 @@ def test_scoring_angles_are_validated():
         RedetectOptions(scoring_angles_deg=(0.0, 270.0))
     with pytest.raises(ValueError, match="turned_score_factor"):
         RedetectOptions(turned_score_factor=1.5)
+    with pytest.raises(ValueError, match="probation_frames"):
+        RedetectOptions(probation_frames=-1)
+    with pytest.raises(ValueError, match="switch_margin"):
+        RedetectOptions(switch_margin=0.9)
+
+
+def _plain_decoy() -> np.ndarray:
+    """The target without its yellow centre: scores just above eta_d, well below the target itself."""
+    patch = _target()
+    patch[6:18, 6:18] = (40, 60, 220)
+    return patch
+
+
+def _run_decoy_accepted_before_the_target_returns(probation_frames: int):
+    """The target drifts, vanishes at frame 35 and comes back at frame 50 at (140, 128); a plain
+    look-alike appears at (160, 100) at frame 44 (a change: it is accepted as the target). Returns
+    frame -> (state, box) and frame -> the decision filter after that frame."""
+    background = _background()
+    decoy_xy, return_xy = (160, 100), (140, 128)
+
+    def frame(index: int) -> np.ndarray:
+        image = background.copy()
+        if index < 35:
+            x, y = 100 + index // 3, 100
+            image[y:y + TARGET, x:x + TARGET] = _target()
+        if index >= 50:
+            x, y = return_xy
+            image[y:y + TARGET, x:x + TARGET] = _target()
+        if index >= 44:
+            x, y = decoy_xy
+            image[y:y + TARGET, x:x + TARGET] = _plain_decoy()
+        return image
+
+    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(probation_frames=probation_frames))
+    tracker.init(frame(0), (100.0, 100.0, TARGET, TARGET))
+    results, decision = {}, {}
+    for index in range(1, 75):
+        result = tracker.update(frame(index))
+        results[index] = (result.state, result.box)
+        assert tracker.decision is not None
+        decision[index] = tracker.decision.filter_f.copy()
+    return results, decision
+
+
+def test_probation_switches_from_a_look_alike_to_the_returning_target_and_shields_the_memory():
+    def centre(box: tuple[float, ...]) -> tuple[float, float]:
+        return box[0] + box[2] / 2, box[1] + box[3] / 2
+
+    decoy_centre, target_centre = (172.0, 112.0), (152.0, 140.0)
+    # Without probation the look-alike, accepted while the target was away, is tracked for good.
+    plain, _ = _run_decoy_accepted_before_the_target_returns(probation_frames=0)
+    accepted = [i for i in range(35, 75) if plain[i][0] == "recovered"]
+    assert accepted and accepted[0] < 50, "the look-alike must be accepted first: the scenario tests nothing"
+    assert math.dist(centre(plain[accepted[0]][1]), decoy_centre) < 6
+    assert math.dist(centre(plain[74][1]), decoy_centre) < 6
+    # With it: the returning target out-scores the track during the probation and the track switches.
+    results, decision = _run_decoy_accepted_before_the_target_returns(probation_frames=10)
+    switches = [i for i in range(accepted[0] + 1, 75) if results[i][0] == "recovered"]
+    assert switches and 50 <= switches[0] <= accepted[0] + 10, switches
+    assert math.dist(centre(results[switches[0]][1]), target_centre) < 6
+    assert all(math.dist(centre(results[i][1]), target_centre) < 6 for i in range(switches[0], 75))
+    # The decision filter (the long-term memory) learns nothing from a track on probation, and
+    # resumes learning once the track is confirmed (10 committed frames without a switch).
+    probation = range(accepted[0], switches[0] + 10)
+    assert all(np.array_equal(decision[i], decision[accepted[0] - 1]) for i in probation)
+    assert any(not np.array_equal(decision[i], decision[accepted[0] - 1]) for i in range(switches[0] + 11, 75))
+
+
+def test_probation_does_not_switch_away_from_the_target_to_a_weaker_look_alike():
+    background = _background()
+    image = background.copy()
+    image[100:100 + TARGET, 100:100 + TARGET] = _target()
+    image[100:100 + TARGET, 150:150 + TARGET] = _plain_decoy()
+    tracker = JsarReTracker(JsarParams.jsar_re())
+    tracker.init(image, (100.0, 100.0, TARGET, TARGET))
+    for _ in range(5):
+        tracker.update(image)
+    challenger = tracker.challenge(image, bar=0.0)
+    assert not challenger.accepted
+    assert challenger.box is not None and math.dist(
+        (challenger.box[0] + challenger.box[2] / 2, challenger.box[1] + challenger.box[3] / 2), (162, 112)) < 8

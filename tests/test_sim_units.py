@@ -393,6 +393,10 @@ def test_soak_rss_one_off_step_then_flat_passes_a_steady_ramp_fails():
     problems = report(leak).failures(criteria)
     assert len(problems) == 1 and "RSS grew 24.0 MiB" in problems[0]
     assert "-7.0 MiB" in report(flat).describe()
+    # memory and latency flat, but the car left the image for good (a track that went onto background)
+    wandered = SoakReport(900, flat, 12.0, 12.5, True, {}, in_view_ratio=0.17)
+    problems = wandered.failures(criteria)
+    assert len(problems) == 1 and "car in view on 17.0 %" in problems[0]
 
 
 def test_soak_needs_enough_samples():
@@ -409,8 +413,8 @@ def test_run_summary_measures_the_car_from_the_box_while_lost():
     from sim.closed_loop import FrameRecord, RunResult
     from sim.scene import GroundTruth, TargetPose
 
-    def record(t, state, box, car_x, visible=1.0):
-        truth = GroundTruth((car_x - 10.0, 90.0, 20.0, 20.0), 1.0, visible, TargetPose(0.0, 0.0, 0.0, 5.0))
+    def record(t, state, box, car_x, visible=1.0, in_view=1.0):
+        truth = GroundTruth((car_x - 10.0, 90.0, 20.0, 20.0), in_view, visible, TargetPose(0.0, 0.0, 0.0, 5.0))
         return FrameRecord(0, t, truth, state, box, 10.0, (0.0, 0.0), 0.0, "GUIDED", False)
 
     box = (90.0, 90.0, 20.0, 20.0)  # centred on (100, 100)
@@ -418,6 +422,10 @@ def test_run_summary_measures_the_car_from_the_box_while_lost():
                record(3.0, "lost", box, 200.0, visible=0.2), record(4.0, "lost", None, 100.0),
                record(4.5, None, None, 100.0), record(5.0, "lost", box, 220.0)]
     result = RunResult(records, 640, 480, [], 1.0, 0, {}, True, None, "SUCCESS")
+    # in view: at least half of the car inside the image, occluded (frame 3 s) or not
+    left = RunResult(records + [record(6.0, "tracking", box, 900.0, visible=0.0, in_view=0.3)], 640, 480, [], 1.0, 0,
+                     {}, True, None, "SUCCESS")
+    assert result.in_view_ratio() == 1.0 and left.in_view_ratio() == pytest.approx(7 / 8)
     # a hidden car, a frame without a box and an unanswered frame do not count; the loss began at 1 s
     assert result.lost_car_to_box_px() == [30.0, 60.0, 120.0]
     assert result.lost_car_to_box_px(within_s=3.0) == [30.0, 60.0]

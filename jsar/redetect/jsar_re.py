@@ -132,6 +132,8 @@ class RedetectOptions:
     gate_base_sides: float = 1.5
     gate_speed_factor: float = 3.0
     gate_min_speed: float = 0.05
+    probation_frames: int = 10
+    switch_margin: float = 1.2
 
     def __post_init__(self) -> None:
         if self.change_margin < 0 or self.change_radius <= 0:
@@ -148,6 +150,9 @@ class RedetectOptions:
             raise ValueError(f"turned_score_factor must be in (0, 1], got {self.turned_score_factor}")
         if not 0.0 <= self.size_blend <= 1.0:
             raise ValueError(f"size_blend must be in [0, 1], got {self.size_blend}")
+        if self.probation_frames < 0 or self.switch_margin < 1.0:
+            raise ValueError(f"need probation_frames >= 0 and switch_margin >= 1, got {self.probation_frames}, "
+                             f"{self.switch_margin}")
 
 
 @dataclass(frozen=True)
@@ -222,6 +227,10 @@ class JsarReTracker:
         self._seen = np.empty((0, 3))
         # (frame index, centre x px, centre y px) of the last committed frames: the motion model.
         self._track: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=MOTION_FRAMES)
+        # Committed frames left in the probation after a re-initialisation, and the acceptance bar
+        # (eta_d) the re-initialisation passed: a challenger must pass it too.
+        self._probation_left = 0
+        self._probation_bar = math.inf
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
@@ -240,6 +249,7 @@ class JsarReTracker:
         self._seen = np.empty((0, 3))
         self._track.clear()
         self._remember_position()
+        self._probation_left = 0
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame (Algorithm 1); see the module docstring for the three outcomes."""
@@ -257,23 +267,64 @@ class JsarReTracker:
                 self._seen = np.empty((0, 3))
             self.core.commit(frame, loc)
             self._remember_position()
-            self._train_decision(reliable=verdict.reliable)
+            if self._probation_left == 0:
+                self._train_decision(reliable=verdict.reliable)
+                return TrackResult(box=self.core.box, score=confidence, state="tracking")
+            self._probation_left -= 1
+            self._train_decision(reliable=False)  # the long-term memory waits until the track is confirmed
+            challenger = self.challenge(frame, self._probation_bar)
+            self.last_redetection = challenger
+            if challenger.accepted and challenger.box is not None:
+                self.monitor.reinitialised()
+                self._reinitialise(frame, challenger.box, self._probation_bar)
+                return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
             return TrackResult(box=self.core.box, score=confidence, state="tracking")
+        self._probation_left = 0  # lost again: the normal search takes over
         outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d, verdict.reference)
         self.monitor.redetection_result(outcome.accepted)
         self.last_redetection = outcome
         if not outcome.accepted or outcome.box is None:
             return TrackResult(box=last_box, score=confidence, state="lost")
+        self._reinitialise(frame, outcome.box, outcome.eta_d)
+        return TrackResult(box=self.core.box, score=outcome.score, state="recovered")
+
+    # ----------------------------------------------------------------- steps
+    def _reinitialise(self, frame: np.ndarray, box: Box, bar: float) -> None:
+        """Restart the core at `box` (px) and open a probation whose challengers must score above `bar`."""
         self._seen = np.empty((0, 3))
-        self.core.reinitialise(frame, outcome.box)
+        self.core.reinitialise(frame, box)
         self._track.clear()
         self._remember_position()
         self.reinitialisations += 1
         # The core's filters restarted from one sample; the decision filter kept its memory.
         self._decision_in_sync = False
-        return TrackResult(box=self.core.box, score=outcome.score, state="recovered")
+        self._probation_left = self.options.probation_frames
+        self._probation_bar = bar
 
-    # ----------------------------------------------------------------- steps
+    def challenge(self, frame: np.ndarray, bar: float) -> Redetection:
+        """Probation check after a re-initialisation: proposals around the committed box (px), scored
+        by the decision filter like re-detection candidates; the best one farther than change_radius
+        target sides from the track is accepted (a switch) if it scores above `bar` (raw peak: the
+        re-initialisation's eta_d) and switch_margin x the best score near the track. A
+        re-initialisation onto a look-alike or background is then undone while the target is close by."""
+        x, y, w, h = self.core.box
+        centre = np.array([x + w / 2, y + h / 2])
+        omega = self.monitor.params.omega
+        proposals = generate_proposals(frame, (float(centre[0]), float(centre[1])), (w, h), omega,
+                                       self._edgeboxes, self._edges)
+        candidates = np.vstack([proposals.boxes.reshape(-1, 4), [[x, y, w, h]]])
+        scores, boxes, sharpness = self.score_proposals(frame, candidates, (w, h))
+        centres = np.array([(bx + bw / 2.0, by + bh / 2.0) for bx, by, bw, bh in boxes])
+        near = np.hypot(*(centres - centre).T) <= self.options.change_radius * math.sqrt(w * h)
+        own = float(scores[near].max()) if near.any() else 0.0
+        if near.all():
+            return Redetection(False, None, own, bar, omega, len(candidates) - 1)
+        best = int(np.argmax(np.where(near, -np.inf, scores)))
+        needed = max(bar, self.options.switch_margin * own)
+        box = _clip_box(boxes[best], frame.shape)
+        return Redetection(bool(scores[best] > needed) and box is not None, box, float(scores[best]), needed, omega,
+                           len(candidates) - 1, float(sharpness[best]))
+
     def redetect(self, frame: np.ndarray, last_box: Box, omega: float, eta_d: float,
                  reference: float | None = None) -> Redetection:
         """Proposals around `last_box` (px) scored by the decision filter; the best one that passes the

@@ -185,13 +185,17 @@ class FailureMonitor:
             raise RuntimeError("redetection_result() without a re-detection verdict from assess()")
         self._awaiting_result = False
         if accepted:
-            self._reset()
-            # The re-initialised filter starts a new peak history (one training sample so far).
-            self._reference = None
+            self.reinitialised()
         else:
             self._failed_frames += 1
             self._omega = min(self._omega * self.params.omega_growth, self.params.omega_max)
             self._eta_d /= self.params.accept_decay
+
+    def reinitialised(self) -> None:
+        """The tracker restarted its filter (an accepted proposal, or a switch during probation)."""
+        self._reset()
+        # The re-initialised filter starts a new peak history (one training sample so far).
+        self._reference = None
 
     def _reset(self) -> None:
         self._omega = self.params.omega

@@ -285,6 +285,13 @@ def test_rotated_about_maps_points_to_where_the_turned_image_shows_them_and_back
     assert turned_points[0, 0] < 80 and turned_points[0, 1] < 60
     restored = turned_points @ back[:, :2].T + back[:, 2]
     assert np.allclose(restored, points, atol=1e-9)
+    # Rendering only around the points gives the same pixels there, at the points' new coordinates.
+    part, part_points, part_back = rotated_about(image, points, np.array([80.0, 60.0]), 90.0, margin_px=10.0)
+    assert part.shape[0] * part.shape[1] < turned.size / 2
+    for (x, y), (u, v) in zip(turned_points, part_points):
+        assert np.array_equal(turned[int(y) - 8:int(y) + 9, int(x) - 8:int(x) + 9],
+                              part[int(v) - 8:int(v) + 9, int(u) - 8:int(u) + 9])
+    assert np.allclose(part_points @ part_back[:, :2].T + part_back[:, 2], points, atol=1e-9)
     same, same_points, identity = rotated_about(image, points, np.array([80.0, 60.0]), 0.0)
     assert same is image and same_points is points and np.allclose(identity, [[1, 0, 0], [0, 1, 0]])
 

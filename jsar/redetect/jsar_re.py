@@ -42,6 +42,7 @@ from jsar.features import translation as translation_features
 from jsar.redetect.edges import StructuredEdges, edge_maps
 from jsar.redetect.monitor import FailureMonitor, InsideRule, MonitorParams
 from jsar.redetect.proposals import EdgeBoxesSettings, EdgeFunction, generate_proposals
+from jsar.redetect.verifier import TrackVerifier, VerifierParams
 from jsar.tracking.jsar_tracker import JsarTracker
 from jsar.tracking.translation import TranslationFilter
 
@@ -134,6 +135,8 @@ class RedetectOptions:
     gate_min_speed: float = 0.05
     probation_frames: int = 10
     switch_margin: float = 1.2
+    verifier: VerifierParams = VerifierParams()
+    doubt_bar_fraction: float = 0.5
 
     def __post_init__(self) -> None:
         if self.change_margin < 0 or self.change_radius <= 0:
@@ -166,6 +169,7 @@ class Redetection:
     omega: float
     n_proposals: int
     sharpness: float = math.nan  # peak-to-sidelobe ratio of the best proposal's response (diagnostic)
+    track_score: float = math.nan  # probation challenges: best score within change_radius of the track
 
 
 def monitor_params(params: JsarParams, options: "RedetectOptions | None" = None) -> MonitorParams:
@@ -231,6 +235,7 @@ class JsarReTracker:
         # (eta_d) the re-initialisation passed: a challenger must pass it too.
         self._probation_left = 0
         self._probation_bar = math.inf
+        self.verifier = TrackVerifier(options.verifier)
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
@@ -250,6 +255,7 @@ class JsarReTracker:
         self._track.clear()
         self._remember_position()
         self._probation_left = 0
+        self.verifier = TrackVerifier(self.options.verifier)
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame (Algorithm 1); see the module docstring for the three outcomes."""
@@ -262,23 +268,16 @@ class JsarReTracker:
         image_wh = (frame.shape[1], frame.shape[0])
         confidence = loc.peak
         verdict = self.monitor.assess(confidence, last_box, image_wh, self.frame_index)
+        if not verdict.redetect and self.monitor.distrusted:
+            # Given up (verification) where re-detection is not eligible (box at the border, too small or
+            # too large): the core's track is not committed, nor reported as the target.
+            return TrackResult(box=last_box, score=confidence, state="lost")
         if not verdict.redetect:
             if len(self._seen):  # a loss just ended (nothing to allocate on ordinary confident frames)
                 self._seen = np.empty((0, 3))
             self.core.commit(frame, loc)
             self._remember_position()
-            if self._probation_left == 0:
-                self._train_decision(reliable=verdict.reliable)
-                return TrackResult(box=self.core.box, score=confidence, state="tracking")
-            self._probation_left -= 1
-            self._train_decision(reliable=False)  # the long-term memory waits until the track is confirmed
-            challenger = self.challenge(frame, self._probation_bar)
-            self.last_redetection = challenger
-            if challenger.accepted and challenger.box is not None:
-                self.monitor.reinitialised()
-                self._reinitialise(frame, challenger.box, self._probation_bar)
-                return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
-            return TrackResult(box=self.core.box, score=confidence, state="tracking")
+            return self._after_commit(frame, confidence, verdict.reliable)
         self._probation_left = 0  # lost again: the normal search takes over
         outcome = self.redetect(frame, last_box, verdict.omega, verdict.eta_d, verdict.reference)
         self.monitor.redetection_result(outcome.accepted)
@@ -289,6 +288,53 @@ class JsarReTracker:
         return TrackResult(box=self.core.box, score=outcome.score, state="recovered")
 
     # ----------------------------------------------------------------- steps
+    def _after_commit(self, frame: np.ndarray, confidence: float, reliable: bool) -> TrackResult:
+        """A committed frame: probation challenge, verification check, decision-filter training."""
+        check_due = self.verifier.committed()
+        own: float | None = None
+        if self._probation_left > 0:
+            self._probation_left -= 1
+            challenger = self.challenge(frame, self._probation_bar)
+            self.last_redetection = challenger
+            if challenger.accepted and challenger.box is not None:
+                self.monitor.reinitialised()
+                self._reinitialise(frame, challenger.box, self._probation_bar)
+                return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
+            own = challenger.track_score
+        if check_due:
+            if own is None:
+                own = self.score_track(frame)
+            if self.verifier.check(own):
+                # The long-term memory has not recognised what the core follows for `failures` checks
+                # in a row: give the track up and search for the target.
+                self.monitor.distrust()
+                self._probation_left = 0
+                self._decision_in_sync = False
+                return TrackResult(box=self.core.box, score=confidence, state="lost")
+            if self.verifier.doubtful and self._probation_left == 0:
+                # In doubt: is something nearby more like the target than the track? It must also score
+                # like the target did (doubt_bar_fraction x the verification reference).
+                assert self.verifier.reference is not None
+                bar = self.options.doubt_bar_fraction * self.verifier.reference
+                challenger = self.challenge(frame, bar)
+                self.last_redetection = challenger
+                if challenger.accepted and challenger.box is not None:
+                    self.monitor.reinitialised()
+                    self._reinitialise(frame, challenger.box, bar)
+                    return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
+        # The long-term memory learns only from confirmed tracks with no doubt pending.
+        self._train_decision(reliable=reliable and self._probation_left == 0 and self.verifier.trusted)
+        return TrackResult(box=self.core.box, score=confidence, state="tracking")
+
+    def score_track(self, frame: np.ndarray) -> float:
+        """Decision-filter score (raw peak, best scoring variant) of the committed box; 0 when the
+        response peaks farther than change_radius target sides from the box centre."""
+        x, y, w, h = self.core.box
+        scores, boxes, _ = self.score_proposals(frame, np.array([[x, y, w, h]]), (w, h))
+        bx, by, bw, bh = boxes[0]
+        offset = math.hypot(bx + bw / 2 - x - w / 2, by + bh / 2 - y - h / 2)
+        return float(scores[0]) if offset <= self.options.change_radius * math.sqrt(w * h) else 0.0
+
     def _reinitialise(self, frame: np.ndarray, box: Box, bar: float) -> None:
         """Restart the core at `box` (px) and open a probation whose challengers must score above `bar`."""
         self._seen = np.empty((0, 3))
@@ -318,12 +364,12 @@ class JsarReTracker:
         near = np.hypot(*(centres - centre).T) <= self.options.change_radius * math.sqrt(w * h)
         own = float(scores[near].max()) if near.any() else 0.0
         if near.all():
-            return Redetection(False, None, own, bar, omega, len(candidates) - 1)
+            return Redetection(False, None, own, bar, omega, len(candidates) - 1, track_score=own)
         best = int(np.argmax(np.where(near, -np.inf, scores)))
         needed = max(bar, self.options.switch_margin * own)
         box = _clip_box(boxes[best], frame.shape)
         return Redetection(bool(scores[best] > needed) and box is not None, box, float(scores[best]), needed, omega,
-                           len(candidates) - 1, float(sharpness[best]))
+                           len(candidates) - 1, float(sharpness[best]), track_score=own)
 
     def redetect(self, frame: np.ndarray, last_box: Box, omega: float, eta_d: float,
                  reference: float | None = None) -> Redetection:
@@ -423,8 +469,11 @@ class JsarReTracker:
                     for angle in self.options.scoring_angles_deg]
         per_variant = []
         for index, (scale, angle) in enumerate(variants):
-            turned, turned_centres, back = rotated_about(image, centres, pivot, angle)
-            scored = self._score_windows(turned, turned_centres, scale * math.sqrt(last_wh[0] * last_wh[1]))
+            side = scale * math.sqrt(last_wh[0] * last_wh[1])
+            # margin: half a window plus the rounding of window centres to whole cells
+            margin = (0.5 + 1.5 / self.decision.shape_hw[0]) * self.params.search_area_factor * side + 2.0
+            turned, turned_centres, back = rotated_about(image, centres, pivot, angle, margin)
+            scored = self._score_windows(turned, turned_centres, side)
             per_variant.append((scored, back))
             peaks = scored[0][scored[3]] * (1.0 if angle == 0.0 else self.options.turned_score_factor)
             better = peaks > scores
@@ -483,17 +532,27 @@ class JsarReTracker:
         self.decision.train(sample_f)
 
 
-def rotated_about(image: np.ndarray, points_xy: np.ndarray, pivot_xy: np.ndarray,
-                  degrees: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`image` turned by `degrees` (counter-clockwise as displayed, cv2's sign) about pivot_xy px, same
-    size, border replicated; the points (N, 2) px in the turned image; and the 2x3 affine map from
-    turned back to original pixels. 0 degrees returns the image itself and the identity."""
+def rotated_about(image: np.ndarray, points_xy: np.ndarray, pivot_xy: np.ndarray, degrees: float,
+                  margin_px: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`image` turned by `degrees` (counter-clockwise as displayed, cv2's sign) about pivot_xy px, border
+    replicated; the points (N, 2) px in the turned image; and the 2x3 affine map from turned back to
+    original pixels. margin_px None: the turned image has the input's size; else only the part within
+    margin_px of the turned points is rendered (its own origin; the points and the map account for
+    it): warpAffine's cost is per output pixel, and a few scoring windows need a fraction of the frame.
+    0 degrees returns the image itself and the identity."""
     if degrees == 0.0:
         return image, points_xy, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     forward = cv2.getRotationMatrix2D((float(pivot_xy[0]), float(pivot_xy[1])), float(degrees), 1.0)
-    turned = cv2.warpAffine(image, forward, (image.shape[1], image.shape[0]), flags=cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
-    return turned, points_xy @ forward[:, :2].T + forward[:, 2], cv2.invertAffineTransform(forward)
+    turned_points = points_xy @ forward[:, :2].T + forward[:, 2]
+    size = (image.shape[1], image.shape[0])
+    if margin_px is not None:
+        low = np.floor(turned_points.min(axis=0) - margin_px)
+        high = np.ceil(turned_points.max(axis=0) + margin_px)
+        forward[:, 2] -= low
+        turned_points = turned_points - low
+        size = (int(high[0] - low[0]) + 1, int(high[1] - low[1]) + 1)
+    turned = cv2.warpAffine(image, forward, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return turned, turned_points, cv2.invertAffineTransform(forward)
 
 
 def grid_peak_offset(response: np.ndarray) -> tuple[float, float]:

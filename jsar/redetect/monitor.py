@@ -132,6 +132,7 @@ class FailureMonitor:
         self._failed_frames = 0
         self._awaiting_result = False
         self._reference: float | None = None
+        self._distrusted = False
 
     @property
     def searching(self) -> bool:
@@ -154,7 +155,8 @@ class FailureMonitor:
             raise RuntimeError("assess() called again before redetection_result() of the last re-detection")
         p = self.params
         reference = self._reference
-        confident = peak > p.enable_peak and (reference is None or peak > p.relative_drop * reference)
+        confident = (not self._distrusted and peak > p.enable_peak
+                     and (reference is None or peak > p.relative_drop * reference))
         if confident or not self.eligible(box, image_wh, frame_index):
             if confident:
                 self._reset()
@@ -191,8 +193,19 @@ class FailureMonitor:
             self._omega = min(self._omega * self.params.omega_growth, self.params.omega_max)
             self._eta_d /= self.params.accept_decay
 
+    @property
+    def distrusted(self) -> bool:
+        """The track failed verification and no re-initialisation has happened since."""
+        return self._distrusted
+
+    def distrust(self) -> None:
+        """The track failed verification (verifier.py): no frame counts as confident until a
+        re-initialisation, however high the translation peak (the filter follows the wrong thing)."""
+        self._distrusted = True
+
     def reinitialised(self) -> None:
         """The tracker restarted its filter (an accepted proposal, or a switch during probation)."""
+        self._distrusted = False
         self._reset()
         # The re-initialised filter starts a new peak history (one training sample so far).
         self._reference = None

@@ -9,7 +9,8 @@ the re-initialised box is compared for size blends 0 (last confident size) .. 1 
 
 Per sequence: jsar-re tracks the first N frames normally (timing its confident frames), then on the
 next N frames re-detection is forced at the last confident box (proposals + decision-filter scoring,
-omega = 5 and omega = 10, no re-initialisation); OpenCV's CSRT runs on the same frames in the same
+omega = 5 and omega = 10, no re-initialisation), and the track's verification check (one window) and
+a probation challenge (proposals around the track) are timed on the same frames; OpenCV's CSRT runs on the same frames in the same
 process for scale. Prints milliseconds per frame (median over frames, pooled over sequences) and
 the split between EdgeBoxes proposals and decision-filter scoring.
 """
@@ -110,7 +111,8 @@ def main() -> None:
     options = RedetectOptions() if args.angles is None else RedetectOptions(
         scoring_angles_deg=tuple(float(a) for a in args.angles.split(",")))
     print(f"scoring angles (degrees): {options.scoring_angles_deg}")
-    timings: dict[str, list[float]] = {k: [] for k in ("confident", "csrt", "redetect5", "proposals5", "scoring5", "redetect10")}
+    timings: dict[str, list[float]] = {k: [] for k in ("confident", "csrt", "redetect5", "proposals5", "scoring5",
+                                                       "redetect10", "verify", "challenge")}
     for folder in _sequences(args.data_root):
         frames, box = _load(folder, 2 * args.frames + 1)
         tracker = JsarReTracker(JsarParams.jsar_re(), options)
@@ -128,6 +130,10 @@ def main() -> None:
             holder: list = []
             timings["proposals5"].append(_ms(lambda: holder.append(generate_proposals(
                 frame, centre, size, 5.0, tracker._edgeboxes, tracker._edges))))
+            # the track's periodic verification check (every 10th committed frame) and a probation frame's
+            # challenge (after re-initialisations, or on a doubtful check)
+            timings["verify"].append(_ms(lambda: tracker.score_track(frame)))
+            timings["challenge"].append(_ms(lambda: tracker.challenge(frame, float("inf"))))
             boxes = holder[0].boxes
             if len(boxes):
                 timings["scoring5"].append(_ms(lambda: tracker.score_proposals(frame, boxes, size)))

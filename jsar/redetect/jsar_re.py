@@ -5,7 +5,8 @@ raw translation peak (MATLAB FFT convention, see jsar.config):
 - confident (peak > zeta_e and not dropped below 0.6 x its running level, see monitor.py), or
   re-detection not eligible: commit as plain JSAR; if also reliable
   (peak > zeta_s) the decision filter is trained on the tracker's own training sample (no second
-  feature extraction). Nothing else runs, so re-detection costs nothing on these frames.
+  feature extraction). No re-detection runs on these frames; every 10th committed frame the track is
+  verified (below), which scores one window.
 - otherwise the frame is NOT committed (no drift onto the occluder, no training on it): EdgeBoxes
   proposals are generated in a square of side omega*sqrt(w*h) around the last confident position,
   each is scored by the decision filter on a 5x-context patch at its centre (score = raw response
@@ -22,6 +23,16 @@ retraining it from the re-detected sample would let one false acceptance overwri
 proposal above eta_d is only accepted where the score CHANGED since the target was hidden
 (RedetectOptions.change_margin): eta_d decays every failed frame until some background look-alike
 passes it, which was the commonest false re-initialisation on the long-term protocol.
+
+Track integrity (beyond the paper): a re-initialisation opens a probation (`probation_frames`
+committed frames): the decision filter is not trained, and each frame the proposals around the new
+track are scored again; one that beats the track (by `switch_margin`, and above the acceptance's
+eta_d) takes over ("recovered" again). A look-alike or background accepted just before the target
+reappears nearby is then undone (the one-hour closed-loop soak had tracked background for 50 minutes
+after such a re-initialisation). Outside probation, every `verifier.every_frames` committed frames the
+decision filter scores the committed box (verifier.py); a score below 0.35 x its running level is a
+doubt: the decision filter is not trained while in doubt, and a challenge (as in probation, against
+`doubt_bar_fraction` x that level) may move the track to a better candidate nearby.
 """
 from __future__ import annotations
 
@@ -86,6 +97,14 @@ class RedetectOptions:
     win with its upright score. Without it (1.0), on plain wakeboard7 a turned variant of a tight
     13x29 px proposal beat the upright 41x49 px one around the rider by 4 % and the re-initialised
     tracker lost the rider (AUC 0.466 against 0.628 for jsar).
+    probation_frames / switch_margin: after a re-initialisation, for this many committed frames the
+    proposals around the track are scored each frame (as candidates) and the best one farther than
+    change_radius sides from the track takes over if it scores above the re-initialisation's eta_d and
+    switch_margin x the best score near the track (0 frames: no probation). The decision filter is not
+    trained meanwhile. Costs one proposal search per probation frame (after re-initialisations only).
+    verifier / doubt_bar_fraction: the periodic check of the committed track (verifier.py); a doubtful
+    check runs the same challenge, the challenger needing doubt_bar_fraction x the verifier's running
+    reference (raw peak) besides switch_margin x the track's score.
     change_margin / change_radius: acceptance needs a CHANGE at the candidate's location, not just a
     score above eta_d (0 disables). During the monitor's hold-off (the first accept_holdoff frames of a
     loss, when the target has just been hidden and nothing may be accepted) the proposals are searched
@@ -153,6 +172,8 @@ class RedetectOptions:
             raise ValueError(f"turned_score_factor must be in (0, 1], got {self.turned_score_factor}")
         if not 0.0 <= self.size_blend <= 1.0:
             raise ValueError(f"size_blend must be in [0, 1], got {self.size_blend}")
+        if not 0.0 < self.doubt_bar_fraction <= 1.0:
+            raise ValueError(f"doubt_bar_fraction must be in (0, 1], got {self.doubt_bar_fraction}")
         if self.probation_frames < 0 or self.switch_margin < 1.0:
             raise ValueError(f"need probation_frames >= 0 and switch_margin >= 1, got {self.probation_frames}, "
                              f"{self.switch_margin}")

@@ -32,6 +32,8 @@ Rules (paper, Algorithm 1, and the original's gating, with the choices stated he
   with a target whose peak level is 0.057, background under the canopy scored 0.023 > eta_d 0.02
   and was accepted; a proposal must score like the target did. The monitor never asks for a re-initialisation other than on the frame a
   proposal is accepted (the original's never-cleared flag retrained from scratch on every later frame).
+- distrust(): the tracker's verification (verifier.py) gave the track up; no frame is confident until
+  the next re-initialisation (reinitialised()), however high the peak.
 """
 from __future__ import annotations
 

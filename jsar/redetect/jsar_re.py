@@ -316,11 +316,8 @@ class JsarReTracker:
         if self._probation_left > 0:
             self._probation_left -= 1
             challenger = self.challenge(frame, self._probation_bar)
-            self.last_redetection = challenger
-            if challenger.accepted and challenger.box is not None:
-                self.monitor.reinitialised()
-                self._reinitialise(frame, challenger.box, self._probation_bar)
-                return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
+            if (switched := self._switch_if_better(frame, challenger, self._probation_bar)) is not None:
+                return switched
             own = challenger.track_score
         if check_due:
             if own is None:
@@ -337,15 +334,20 @@ class JsarReTracker:
                 # like the target did (doubt_bar_fraction x the verification reference).
                 assert self.verifier.reference is not None
                 bar = self.options.doubt_bar_fraction * self.verifier.reference
-                challenger = self.challenge(frame, bar)
-                self.last_redetection = challenger
-                if challenger.accepted and challenger.box is not None:
-                    self.monitor.reinitialised()
-                    self._reinitialise(frame, challenger.box, bar)
-                    return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
+                if (switched := self._switch_if_better(frame, self.challenge(frame, bar), bar)) is not None:
+                    return switched
         # The long-term memory learns only from confirmed tracks with no doubt pending.
         self._train_decision(reliable=reliable and self._probation_left == 0 and self.verifier.trusted)
         return TrackResult(box=self.core.box, score=confidence, state="tracking")
+
+    def _switch_if_better(self, frame: np.ndarray, challenger: Redetection, bar: float) -> TrackResult | None:
+        """Re-initialise on an accepted challenger (a new probation against `bar`); None if it was not."""
+        self.last_redetection = challenger
+        if not challenger.accepted or challenger.box is None:
+            return None
+        self.monitor.reinitialised()
+        self._reinitialise(frame, challenger.box, bar)
+        return TrackResult(box=self.core.box, score=challenger.score, state="recovered")
 
     def score_track(self, frame: np.ndarray) -> float:
         """Decision-filter score (raw peak, best scoring variant) of the committed box; 0 when the

@@ -29,6 +29,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from jsar.redetect.monitor import updated_reference
+
 
 @dataclass(frozen=True)
 class VerifierParams:
@@ -82,12 +84,13 @@ class TrackVerifier:
             raise ValueError(f"verification score must be finite, got {score}")
         self._since_check = 0
         p = self.params
-        if self.reference is None or self.reference <= 0.0:
-            self.reference = max(score, 0.0) or None
+        if self.reference is None:
+            # the first positive score starts the reference (0: the response peaked off the box)
+            self.reference = score if score > 0.0 else None
             return False
         ratio = score / self.reference
         if ratio >= p.band:
-            self.reference += (p.rise_rate if score > self.reference else p.fall_rate) * (score - self.reference)
+            self.reference = updated_reference(self.reference, score, p.rise_rate, p.fall_rate)
         self.doubts = self.doubts + 1 if ratio < p.min_fraction else 0
         if p.failures and self.doubts >= p.failures:
             self.doubts = 0

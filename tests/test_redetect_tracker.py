@@ -10,7 +10,8 @@ import pytest
 
 import jsar
 from jsar.config import JsarParams
-from jsar.redetect.jsar_re import JsarReTracker, RedetectOptions, blend_size, grid_peak_offset, max_score_near
+from jsar.redetect.jsar_re import (JsarReTracker, RedetectOptions, blend_size, clamp_side_ratio, grid_peak_offset,
+                                   max_score_near)
 
 TARGET = 24  # px, side of the synthetic target
 
@@ -106,6 +107,37 @@ def test_registry_and_parameter_errors():
     with pytest.raises(RuntimeError, match="before init"):
         JsarReTracker().update(np.zeros((10, 10, 3), np.uint8))
     assert blend_size((40.0, 10.0), (10.0, 40.0), 0.5) == pytest.approx((20.0, 20.0))
+    with pytest.raises(ValueError, match="size_change_max"):
+        RedetectOptions(size_change_max=0.9)
+
+
+def test_clamp_side_ratio_keeps_aspect_and_bounds_the_side():
+    # a 12x9 px proposal (a part of a 33x58 px target) comes back at 1/1.5 of the target's side
+    w, h = clamp_side_ratio((12.0, 9.0), (33.0, 58.0), 1.5)
+    assert math.sqrt(w * h) == pytest.approx(math.sqrt(33 * 58) / 1.5) and w / h == pytest.approx(12 / 9)
+    w, h = clamp_side_ratio((100.0, 100.0), (33.0, 58.0), 1.5)
+    assert math.sqrt(w * h) == pytest.approx(math.sqrt(33 * 58) * 1.5) and w == pytest.approx(h)
+    assert clamp_side_ratio((30.0, 50.0), (33.0, 58.0), 1.5) == (30.0, 50.0)
+    assert clamp_side_ratio((12.0, 9.0), (33.0, 58.0), math.inf) == pytest.approx((12.0, 9.0))
+
+
+def test_reinitialised_size_stays_near_the_size_the_proposal_was_scored_at():
+    # EdgeBoxes can propose a part of the target (a window stripe of the sim's car): the decision
+    # filter matched it at the last confident size, so the box it would re-initialise at keeps that
+    # side within size_change_max (default 1.5) and the proposal's aspect ratio.
+    background = _background()
+    tracker = JsarReTracker(JsarParams.jsar_re())
+    tracker.init(_frame(background, (100, 100)), (100.0, 100.0, TARGET, TARGET))
+    frame = _frame(background, (160, 120))
+    part = np.array([[166.0, 126.0, 6.0, 4.0]])  # inside the target
+    scores, boxes, _ = tracker.score_proposals(frame, part, (TARGET, TARGET))
+    x, y, w, h = boxes[0]
+    assert math.sqrt(w * h) == pytest.approx(TARGET / 1.5) and w / h == pytest.approx(1.5)
+    assert abs(x + w / 2 - 172) < 4 and abs(y + h / 2 - 132) < 4  # centred where the response peaks
+    unclamped = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(size_change_max=math.inf))
+    unclamped.init(_frame(background, (100, 100)), (100.0, 100.0, TARGET, TARGET))
+    _, boxes, _ = unclamped.score_proposals(frame, part, (TARGET, TARGET))
+    assert boxes[0][2:] == pytest.approx((6.0, 4.0))
 
 
 def _load_real(root, name: str, count: int) -> tuple[list[np.ndarray], np.ndarray]:

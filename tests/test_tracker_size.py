@@ -143,6 +143,23 @@ def test_refined_peak_moves_continuously_where_the_best_cell_does_not():
         assert 0 < moves[0] < moves[1] < moves[2], moves
 
 
+def test_refined_peak_deadband_ignores_offsets_below_it_per_axis():
+    """size_deadband_cells: a refined offset from the grid centre below the band counts as none (the
+    centre cell); a larger one is kept, fractional; 0 (the default) keeps every offset."""
+    size, centre = (90.0, 40.0), (320.0, 240.0)
+    sf = SizeFilter(JsarParams.jsar_re(), size)
+    sf.train(sf.spectrum(sf.sample(_textured_scene(size), centre, size)))
+    scaled = (size[0] * 1.03 ** 2, size[1] * 1.03 ** 2)
+    spectrum = sf.spectrum(sf.sample(_textured_scene(scaled), centre, size))
+    i, j = sf.refined_peak(spectrum)
+    assert abs(j - 6) < 0.5 < abs(i - 6)  # two scale steps: the best cell has moved; aspect has not
+    band_i, band_j = sf.refined_peak(spectrum, deadband_cells=0.5)
+    assert band_j == 6.0 and band_i == pytest.approx(i)  # the scale offset is beyond the band, kept
+    assert sf.refined_peak(spectrum, deadband_cells=abs(i - 6) + 0.01) == (6.0, 6.0)
+    with pytest.raises(ValueError, match="size_deadband_cells"):
+        JsarParams(size_deadband_cells=-0.1).validate()
+
+
 def _textured_scene(target_wh: tuple[float, float], angle_deg: float = 0.0) -> np.ndarray:
     """640x480 BGR frame: a fixed random ground texture and a red 'car' with dark windows of
     (length, width) target_wh px, turned by angle_deg about the image centre."""

@@ -187,7 +187,8 @@ class JsarTracker:
         sample_f = self.size_filter.spectrum(sample)
         if self.params.size_subcell_peak:
             # A fractional step: the new grid shares no cell with the old one, so sample it afresh.
-            fw, fh = self.size_filter.cell_factors(*self.size_filter.refined_peak(sample_f))
+            fw, fh = self.size_filter.cell_factors(*self.size_filter.refined_peak(
+                sample_f, self.params.size_deadband_cells))
             w, h = self.size_wh
             new_size = self._clamp((w * fw, h * fh), image)
             if new_size != self.size_wh:

@@ -167,8 +167,9 @@ class SizeFilter:
         i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
         return int(i), int(j)
 
-    def refined_peak(self, sample_f: np.ndarray) -> tuple[float, float]:
-        """(i, j) fractional grid position of the response maximum: argmax + a parabola per axis.
+    def refined_peak(self, sample_f: np.ndarray, deadband_cells: float = 0.0) -> tuple[float, float]:
+        """(i, j) fractional grid position of the response maximum: argmax + a parabola per axis, each
+        axis's offset from the grid centre set to 0 when below deadband_cells (grid cells).
 
         The grid is periodic (the response is an inverse DFT), so the neighbours wrap around.
         """
@@ -177,7 +178,10 @@ class SizeFilter:
         n_s, n_a = resp.shape
         di = parabola_offset(resp[(i - 1) % n_s, j], resp[i, j], resp[(i + 1) % n_s, j])
         dj = parabola_offset(resp[i, (j - 1) % n_a], resp[i, j], resp[i, (j + 1) % n_a])
-        return i + di, j + dj
+        centre_i, centre_j = (n_s - 1) / 2.0, (n_a - 1) / 2.0
+        fi, fj = i + di, j + dj
+        return (centre_i if abs(fi - centre_i) < deadband_cells else fi,
+                centre_j if abs(fj - centre_j) < deadband_cells else fj)
 
     def cell_factors(self, i: float, j: float) -> tuple[float, float]:
         """(width factor, height factor) of grid position (i, j) (fractional allowed) relative to the current size."""

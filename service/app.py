@@ -20,6 +20,8 @@ from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
 
+SIGNAL_POLL_S = 0.1  # s: how often the main thread wakes to run pending signal handlers
+
 log = logging.getLogger("service")
 
 
@@ -132,7 +134,12 @@ class Service:
         runner = threading.Thread(target=run_loop, name="tracking-loop", daemon=True)
         runner.start()
         try:
-            stop.wait()
+            # Timed waits, not one blocking wait: a process signal can land on any thread (zenoh's, the
+            # workers'), and Python runs its handler only once the main thread runs bytecode again; an
+            # untimed wait may then never return. The likely cause of one CI failure: the daemon still
+            # running 10 s after SIGINT, no `event=signal` in its log.
+            while not stop.wait(SIGNAL_POLL_S):
+                pass
         finally:
             runner.join(timeout=0.8)
             if runner.is_alive():

@@ -112,7 +112,7 @@ def test_registry_and_parameter_errors():
 
 
 def test_clamp_side_ratio_keeps_aspect_and_bounds_the_side():
-    # a 12x9 px proposal (a part of a 33x58 px target) comes back at 1/1.5 of the target's side
+    # a 12x9 px proposal scored at a 33x58 px size comes back at 1/1.5 of that side
     w, h = clamp_side_ratio((12.0, 9.0), (33.0, 58.0), 1.5)
     assert math.sqrt(w * h) == pytest.approx(math.sqrt(33 * 58) / 1.5) and w / h == pytest.approx(12 / 9)
     w, h = clamp_side_ratio((100.0, 100.0), (33.0, 58.0), 1.5)
@@ -122,9 +122,9 @@ def test_clamp_side_ratio_keeps_aspect_and_bounds_the_side():
 
 
 def test_reinitialised_size_stays_near_the_size_the_proposal_was_scored_at():
-    # EdgeBoxes can propose a part of the target (a window stripe of the sim's car): the decision
-    # filter matched it at the last confident size, so the box it would re-initialise at keeps that
-    # side within size_change_max (default 1.5) and the proposal's aspect ratio.
+    # A proposal on a part of the target: the decision filter matched it at the last confident size,
+    # so the box it would re-initialise at keeps that side within size_change_max (default 1.5) and
+    # the proposal's aspect ratio.
     background = _background()
     tracker = JsarReTracker(JsarParams.jsar_re())
     tracker.init(_frame(background, (100, 100)), (100.0, 100.0, TARGET, TARGET))

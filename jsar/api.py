@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -30,6 +30,13 @@ class Tracker(Protocol):
     def init(self, frame: np.ndarray, box: Box) -> None: ...
 
     def update(self, frame: np.ndarray) -> TrackResult: ...
+
+
+@runtime_checkable
+class SideBoundedTracker(Tracker, Protocol):
+    """A tracker whose box side sqrt(w*h) can be bounded from outside the image (jsar, jsar-re, strcf)."""
+
+    def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None: ...
 
 
 def validate_frame(frame: object) -> np.ndarray:

@@ -10,6 +10,7 @@ import cv2
 from threadpoolctl import threadpool_limits
 
 import jsar
+from jsar.api import SideBoundedTracker
 from service.config import ConfigError, ServiceConfig, as_plain
 from service.loop import FrameReport, TrackingLoop
 from service.mavlink.camera import CameraComponent
@@ -38,9 +39,12 @@ class Service:
         cv2.setNumThreads(tracker_cfg.threads)
         threadpool_limits(limits=tracker_cfg.threads)
         try:
-            jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
+            probe = jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"tracker.params: {exc}") from exc
+        if tracker_cfg.range_size_band != 0 and not isinstance(probe, SideBoundedTracker):
+            raise ConfigError(f"tracker.range_size_band: tracker {tracker_cfg.name!r} cannot bound its box size; "
+                              "set 0 to run it without the range size bound")
         self._session = open_session(config.zenoh) if config.zenoh.enabled else None
         try:
             self.mailbox: LatestSlot[Frame] = LatestSlot()

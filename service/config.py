@@ -71,6 +71,9 @@ class TrackerConfig:
     name: str = "jsar-re"
     params: Mapping[str, Any] = field(default_factory=lambda: types.MappingProxyType({}))
     threads: int = _checked(1, _positive)  # OpenCV and BLAS/OpenMP threads for the tracker
+    # Box side held within [1/band, band] x the side the target's ground size gives at its range
+    # (flat ground, vehicle pose and gimbal attitude from the autopilot); 0 = off. See loop._bound_size.
+    range_size_band: float = _checked(1.6, lambda v: None if v == 0 or v >= 1 else f"must be 0 (off) or >= 1, got {v}")
 
 
 @dataclass(frozen=True)

@@ -19,13 +19,13 @@ from typing import Any, Callable, Literal, Protocol
 
 import numpy as np
 
-from jsar.api import Tracker, TrackResult
+from jsar.api import SideBoundedTracker, Tracker, TrackResult
 from service.config import ServiceConfig
 from service.control.coast import (CoastParams, CoastState, Position, TrackHistory, camera_angles, coast_step,
                                    plan_coast, remember, start_coast)
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
-from service.control.geo import GroundTarget, camera_ray_ned, locate_on_ground, relative_gimbal_yaw
-from service.control.gimbal import GimbalState, PidGains, angular_error, gimbal_step
+from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
+from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.camera import TrackSnapshot
@@ -129,8 +129,12 @@ class TrackingLoop:
         self.history = TrackHistory()  # recent confident pointing, for the coast's rate estimate
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
+        # The target's size on the ground (m, side of its projected-area square), measured on the first
+        # tracking frame with a fresh pose and gimbal attitude: the range size bound's reference.
+        self.target_side_m: float | None = None
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
-                         "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0}
+                         "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0,
+                         "size_bounded_frames": 0}
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
@@ -216,7 +220,9 @@ class TrackingLoop:
         self.state = "tracking"
         self._reset_controller()
         self._reset_coast()
+        self.target_side_m = None
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
+        self._measure_target_size(box, size)
         return "started"
 
     def _hold_without_frames(self) -> None:
@@ -252,6 +258,7 @@ class TrackingLoop:
         if was_active:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
+        self.target_side_m = None
         self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
         self._reset_controller()
         self._reset_coast()
@@ -304,9 +311,58 @@ class TrackingLoop:
         self.last_stamp = stamp
         return self.nominal_dt_s if interval.dt_s is None else interval.dt_s
 
+    def _ground_px_per_m(self, box: tuple[float, float, float, float], size: tuple[int, int]) -> float | None:
+        """Pixels per metre of ground-target side where `box` (px) is, from the autopilot's pose and gimbal
+        attitude (flat ground, see geo.ground_px_per_m); None without them or with the autopilot silent."""
+        view = self.autopilot()
+        pose = view.pose()
+        if (pose is None or view.gimbal is None
+                or not view.alive(time.monotonic(), self.config.mavlink.heartbeat_timeout_s)):
+            return None
+        yaw_err, pitch_err = angular_error(box, size, self.hfov)
+        ray = camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw)
+        return ground_px_per_m(pose, ray, yaw_err, pitch_err, focal_length_px(size[0], self.hfov))
+
+    def _measure_target_size(self, box: tuple[float, float, float, float], size: tuple[int, int]) -> None:
+        """Set target_side_m from a box (px) the tracker is confident of, if the geometry is known."""
+        if self.config.tracker.range_size_band == 0:
+            return
+        px_per_m = self._ground_px_per_m(box, size)
+        if px_per_m is None:
+            return
+        self.target_side_m = math.sqrt(box[2] * box[3]) / px_per_m
+        log.info("event=target_size side_m=%.2f px_per_m=%.2f", self.target_side_m, px_per_m)
+
+    def _bound_size(self, size: tuple[int, int]) -> None:
+        """Hold the tracker's box side within range_size_band x the side the target's ground size gives at
+        its current range (no bound while the geometry is unknown).
+
+        The size filter models scale and aspect ratio, not in-plane rotation: in the closed-loop soak the
+        box of a car that kept turning shrank ~0.25 % per frame to a tenth of the car's side, then
+        followed the background. A ground target's pixel size follows from its range, which the service
+        knows; the band leaves room for what the range does not give (the box of a 2:1 car turned by 45
+        degrees has a 1.5x larger side, the ground is not flat, the selection was loose).
+        """
+        assert self.tracker is not None and self.box is not None
+        band = self.config.tracker.range_size_band
+        if band == 0:
+            return
+        if not isinstance(self.tracker, SideBoundedTracker):  # the service checks this at start
+            raise TypeError(f"tracker {type(self.tracker).__name__} takes no side bounds (tracker.range_size_band)")
+        if self.target_side_m is None and self.state == "tracking":
+            self._measure_target_size(self.box, size)
+        px_per_m = self._ground_px_per_m(self.box, size) if self.target_side_m is not None else None
+        if px_per_m is None or self.target_side_m is None:
+            self.tracker.set_side_bounds(None)
+            return
+        side_px = self.target_side_m * px_per_m
+        self.tracker.set_side_bounds((side_px / band, side_px * band))
+        self.counters["size_bounded_frames"] += 1
+
     def _track(self, image: np.ndarray) -> TrackResult | None:
         assert self.tracker is not None
         try:
+            self._bound_size((image.shape[1], image.shape[0]))
             result = self.tracker.update(image)
         except Exception as exc:  # noqa: BLE001 - a tracker failure is a lost track, not a crash
             self.counters["tracker_errors"] += 1

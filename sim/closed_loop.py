@@ -30,6 +30,8 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+import jsar
+from jsar.api import SideBoundedTracker
 from sim.autopilot import MockAutopilot
 from sim.daemon import Daemon, deep_merge
 from sim.scene import CameraConfig, GroundTruth, Scene, SceneConfig, pose_from_vehicle
@@ -223,6 +225,8 @@ def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
     }
     if cfg.tracker is not None:
         overrides["tracker"] = {"name": cfg.tracker, "params": {}}
+        if not isinstance(jsar.create(cfg.tracker), SideBoundedTracker):
+            overrides["tracker"]["range_size_band"] = 0  # e.g. csrt: the daemon refuses the bound for it
     return deep_merge(overrides, cfg.daemon_overrides)
 
 

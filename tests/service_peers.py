@@ -224,7 +224,7 @@ def service_config(service_port: int, overrides: dict | None = None) -> ServiceC
     """A test config: file source (path from overrides), csrt, zenoh off, mavlink to service_port."""
     base: dict = {
         "source": {"kind": "file", "path": "unset", "retry_initial_s": 0.05, "retry_max_s": 0.2},
-        "tracker": {"name": "csrt"},
+        "tracker": {"name": "csrt", "range_size_band": 0},  # csrt takes no side bounds
         "mavlink": {"url": f"udpout:127.0.0.1:{service_port}", "heartbeat_timeout_s": 1.0},
         "zenoh": {"enabled": False},
         "logging": {"level": "DEBUG"},

@@ -180,12 +180,12 @@ def test_history_window_restart_and_bad_input() -> None:
 
 
 def test_coast_config_keys_are_validated_naming_the_key() -> None:
-    assert config_from_mapping({"tracker": {"name": "csrt"}}).gimbal.coast_s == 3.0
+    assert config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}}).gimbal.coast_s == 3.0
     for raw, message in [({"coast_s": -1}, "gimbal.coast_s: must be in [0.0, 10.0], got -1"),
                          ({"coast_s": "long"}, "gimbal.coast_s: must be a number"),
                          ({"coast_fit_s": 0}, "gimbal.coast_fit_s: must be in [0.1, 5.0], got 0")]:
         with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")):
-            config_from_mapping({"tracker": {"name": "csrt"}, "gimbal": raw})
+            config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "gimbal": raw})
 
 
 @pytest.mark.parametrize("coast_s", [3.0, 0.0])
@@ -200,7 +200,7 @@ def test_loop_coasts_while_lost_then_holds(coast_s: float) -> None:
     from service.mavlink.autopilot import AutopilotView
     from service.sources.base import Frame, LatestSlot
 
-    config = config_from_mapping({"tracker": {"name": "csrt"}, "camera": {"hfov_deg": 90.0},
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "camera": {"hfov_deg": 90.0},
                                   "gimbal": {"coast_s": coast_s}})
     view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
                          gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))

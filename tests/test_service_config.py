@@ -60,7 +60,7 @@ def test_bad_values_are_rejected_naming_the_key(raw: object, message: str) -> No
 
 
 def test_command_line_overrides_pick_the_source_kind() -> None:
-    base = config_from_mapping({"tracker": {"name": "csrt"}})
+    base = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
     assert with_overrides(base, source="/dev/video2").source.device == "/dev/video2"
     assert with_overrides(base, source="zenoh").source.kind == "zenoh"
     as_file = with_overrides(base, source="clip.avi", mavlink_url="tcp:10.0.0.1:5760")
@@ -87,7 +87,15 @@ def test_missing_or_malformed_file(tmp_path: Path) -> None:
 
 def test_bad_tracker_params_stop_the_service_naming_the_key() -> None:
     from service.app import Service
-    config = config_from_mapping({"tracker": {"name": "csrt", "params": {"no_such_param": 1}},
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0, "params": {"no_such_param": 1}},
                                   "zenoh": {"enabled": False}})
     with pytest.raises(ConfigError, match="tracker.params: .*no_such_param"):
         Service(config)
+
+
+@pytest.mark.parametrize("name, band, error", [("csrt", 1.6, "tracker.range_size_band: tracker 'csrt' cannot"),
+                                               ("jsar-re", 0.5, "tracker.range_size_band: must be 0 .off. or >= 1")])
+def test_range_size_band_is_refused_where_it_cannot_work(name, band, error) -> None:
+    from service.app import Service
+    with pytest.raises(ConfigError, match=error):
+        Service(config_from_mapping({"tracker": {"name": name, "range_size_band": band}, "zenoh": {"enabled": False}}))

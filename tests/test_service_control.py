@@ -7,12 +7,15 @@ import os
 
 os.environ.setdefault("MAVLINK20", "1")
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from service.config import GimbalConfig, GuidanceConfig, config_from_mapping
-from service.control.geo import GimbalAttitude, VehiclePose, camera_ray_ned, locate_on_ground, quaternion_to_euler
-from service.control.gimbal import AxisState, GimbalState, PidGains, angular_error, gimbal_step, pid_step
+from service.control.geo import (GimbalAttitude, VehiclePose, camera_ray_ned, ground_px_per_m, locate_on_ground,
+                                 quaternion_to_euler)
+from service.control.gimbal import (AxisState, GimbalState, PidGains, angular_error, focal_length_px, gimbal_step,
+                                    pid_step)
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
 from service.loop import ControlCommand
 from service.mavlink import commands as c
@@ -79,7 +82,7 @@ def test_who_answers_a_command() -> None:
 
 # --- selection ------------------------------------------------------------------------------------
 def test_selection_boxes_in_pixels() -> None:
-    camera = config_from_mapping({"tracker": {"name": "csrt"}}).camera
+    camera = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}}).camera
     assert rectangle_box(c.TrackRectangle(0.25, 0.5, 0.75, 1.0), (640, 480)) == (160.0, 240.0, 320.0, 240.0)
     assert point_box(c.TrackPoint(0.5, 0.5, 0.05), (640, 480), camera) == (288.0, 208.0, 64.0, 64.0)
     # radius 0 -> the default fraction of the width
@@ -207,7 +210,7 @@ class FakeLink:
 
 
 def _outputs(overrides: dict, view: AutopilotView) -> tuple[MavlinkOutputs, FakeLink]:
-    config = config_from_mapping({"tracker": {"name": "csrt"}, **overrides})
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, **overrides})
     link = FakeLink()
     return MavlinkOutputs(config, link, lambda: view, lambda: 1234), link
 
@@ -377,7 +380,7 @@ def test_loop_places_the_target_on_the_ground_from_vehicle_and_gimbal_attitude()
     from service.loop import TrackingLoop
     from service.sources.base import Frame, LatestSlot
 
-    config = config_from_mapping({"tracker": {"name": "csrt"}, "camera": {"hfov_deg": 90.0}})
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "camera": {"hfov_deg": 90.0}})
     # vehicle 30 m above home facing north, gimbal pitched 45 degrees down
     view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
                          gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))
@@ -455,3 +458,88 @@ def test_px4_outside_offboard_streams_only_zero_setpoints_so_the_pilot_can_engag
     outputs.autopilot = lambda: offboard
     outputs.apply(11.5, at(TRACKING, 71.5))
     assert link.sent[-1].yaw_rate > 0  # in OFFBOARD: real guidance
+
+
+def _project_ned(point: np.ndarray, camera: np.ndarray, pitch: float, yaw: float, focal: float,
+                 size: tuple[int, int]) -> np.ndarray:
+    """Pinhole projection (px) of an NED point for a camera at `camera` (NED m), pitch (rad, - = down), yaw."""
+    forward = np.array([math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), -math.sin(pitch)])
+    right = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    down = np.cross(forward, right)
+    d = point - camera
+    return np.array([size[0] / 2 + focal * (d @ right) / (d @ forward), size[1] / 2 + focal * (d @ down) / (d @ forward)])
+
+
+@pytest.mark.parametrize("centre_px, pitch_deg, yaw_deg", [((320, 240), -45.0, 0.0), ((520, 400), -30.0, 20.0),
+                                                           ((90, 60), -60.0, -50.0)])
+def test_ground_px_per_m_matches_the_projected_area_of_a_small_ground_square(centre_px, pitch_deg, yaw_deg):
+    """A 0.4 m ground square where the ray through `centre_px` meets flat ground 25 m below, projected
+    corner by corner with an independent pinhole model: sqrt(its area in px^2) / 0.4 m."""
+    size, hfov = (640, 480), math.radians(70.0)
+    focal = focal_length_px(size[0], hfov)
+    vehicle = VehiclePose(47.0, 8.0, 525.0, 25.0, 0.0, 0.0, 0.0)
+    gimbal = GimbalAttitude(math.radians(pitch_deg), math.radians(yaw_deg), yaw_in_earth_frame=True)
+    yaw_err, pitch_err = angular_error((centre_px[0] - 1, centre_px[1] - 1, 2, 2), size, hfov)
+    ray = camera_ray_ned(yaw_err, pitch_err, gimbal, vehicle.yaw)
+    camera = np.array([0.0, 0.0, -25.0])
+    ground = camera + ray * (25.0 / ray[2])
+    half = 0.2
+    corners = [ground + np.array([dn, de, 0.0]) for dn, de in ((-half, -half), (-half, half), (half, half), (half, -half))]
+    px = np.array([_project_ned(q, camera, gimbal.pitch, gimbal.yaw, focal, size) for q in corners])
+    np.testing.assert_allclose(_project_ned(ground, camera, gimbal.pitch, gimbal.yaw, focal, size), centre_px, atol=1e-6)
+    area = 0.5 * abs(np.dot(px[:, 0], np.roll(px[:, 1], -1)) - np.dot(px[:, 1], np.roll(px[:, 0], -1)))
+    expected = math.sqrt(area) / (2 * half)
+    assert ground_px_per_m(vehicle, ray, yaw_err, pitch_err, focal) == pytest.approx(expected, rel=0.01)
+
+
+def test_ground_px_per_m_is_none_above_the_horizon_or_without_height():
+    vehicle = VehiclePose(47.0, 8.0, 525.0, 25.0, 0.0, 0.0, 0.0)
+    assert ground_px_per_m(vehicle, np.array([1.0, 0.0, -0.1]), 0.0, 0.0, 500.0) is None
+    assert ground_px_per_m(dataclasses.replace(vehicle, height_m=0.0), np.array([0.6, 0.0, 0.8]), 0.0, 0.0, 500.0) is None
+
+
+def test_loop_bounds_the_box_side_from_the_target_ground_size_at_its_range() -> None:
+    """The selection's side (px) becomes a ground size (m) at the selection's range; each update gets
+    (side / band, side * band) at the current range; no bounds while the autopilot is silent."""
+    import time
+
+    from jsar.api import TrackResult
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "jsar-re", "range_size_band": 1.5}, "camera": {"hfov_deg": 90.0}})
+    gimbal = GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False)
+    views = [AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0), gimbal=gimbal,
+                           last_heartbeat_s=time.monotonic())]
+    bounds: list = []
+
+    class Bounded:
+        def init(self, image, box):
+            self.box = box
+
+        def set_side_bounds(self, side_bounds_px):
+            bounds.append(side_bounds_px)
+
+        def update(self, image):
+            return TrackResult(self.box, 1.0, "tracking")
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            pass
+
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Bounded, Record(), lambda: views[-1])
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))  # a 20 px centred box in a 200 px frame
+    image = np.zeros((200, 200, 3), np.uint8)
+    loop.step(Frame(image, 0, 0.0, 0.0))
+    # 45 degrees down from 30 m: slant range 42.4 m, focal 100 px -> px/m = 100 * sqrt(sin 45) / 42.4
+    px_per_m = 100.0 * math.sqrt(math.sin(math.pi / 4)) / (30.0 * math.sqrt(2.0))
+    assert loop.target_side_m == pytest.approx(20.0 / px_per_m)
+    loop.step(Frame(image, 1, 0.0, 0.033))
+    assert bounds[-1] == pytest.approx((20.0 / 1.5, 20.0 * 1.5))
+    views.append(dataclasses.replace(views[-1], position=(47.0, 8.0, 560.0, 60.0)))  # twice as high: half the side
+    loop.step(Frame(image, 2, 0.0, 0.066))
+    assert bounds[-1] == pytest.approx((10.0 / 1.5, 10.0 * 1.5))
+    views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # autopilot silent
+    loop.step(Frame(image, 3, 0.0, 0.1))
+    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 2

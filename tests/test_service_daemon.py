@@ -73,6 +73,7 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
     zenoh_port = free_tcp_port()
     config = yaml.safe_load((REPO / "config.yaml").read_text())
     config["tracker"]["name"] = "csrt"
+    config["tracker"]["range_size_band"] = 0  # csrt has no side bounds
     config["zenoh"].update({"listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "daemontest"})
     config["source"].update({"loop": True})
     config_file = tmp_path / "config.yaml"

@@ -170,7 +170,7 @@ class RecordingOutputs:
 
 def make_loop(make_tracker=None) -> tuple[TrackingLoop, LatestSlot, RecordingOutputs]:
     import jsar
-    config = config_from_mapping({"tracker": {"name": "csrt"}, "camera": {"hfov_deg": 60.0}})
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "camera": {"hfov_deg": 60.0}})
     selections: LatestSlot = LatestSlot()
     outputs = RecordingOutputs()
     loop = TrackingLoop(config, selections, make_tracker or (lambda: jsar.create("csrt")), outputs,

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jsar.config import JsarParams
-from jsar.tracking.size_filter import SizeFilter, clamp_size, grid_label, grid_sizes, model_size
+from jsar.tracking.size_filter import SizeFilter, bound_side, clamp_size, grid_label, grid_sizes, model_size
 
 
 def test_grid_is_symmetric_and_its_centre_is_the_current_size():
@@ -195,3 +195,54 @@ def test_tracker_box_follows_a_shrinking_target_with_the_default_size_estimate()
         box = tracker.update(_textured_scene((90.0 * 0.995**k, 40.0 * 0.995**k))).box
     assert box[2] / (90.0 * 0.995**120) == pytest.approx(1.0, abs=0.12)
     assert box[3] / (40.0 * 0.995**120) == pytest.approx(1.0, abs=0.12)
+
+
+def test_bound_side_scales_about_the_aspect_ratio_into_the_bounds():
+    assert bound_side((40.0, 10.0), None) == (40.0, 10.0)
+    assert bound_side((40.0, 10.0), (10.0, 30.0)) == (40.0, 10.0)  # side 20: inside
+    w, h = bound_side((40.0, 10.0), (30.0, 60.0))  # side 20 -> 30, w/h 4 kept
+    assert np.sqrt(w * h) == pytest.approx(30.0) and w / h == pytest.approx(4.0)
+    w, h = bound_side((40.0, 10.0), (5.0, 10.0))  # side 20 -> 10
+    assert np.sqrt(w * h) == pytest.approx(10.0) and w / h == pytest.approx(4.0)
+
+
+def test_side_bounds_hold_the_box_of_a_shrinking_target_and_init_clears_them():
+    """The same car shrinking 0.5 % per frame to 0.55x: bounded at 0.8x its first side, the box
+    stops there (aspect ratio still estimated); unbounded it follows the car down (test above)."""
+    from jsar.tracking.jsar_tracker import JsarTracker
+
+    tracker = JsarTracker(JsarParams.jsar_re())
+    first = _textured_scene((90.0, 40.0))
+    tracker.init(first, (275.0, 220.0, 90.0, 40.0))
+    side0 = 60.0  # sqrt(90 * 40)
+    tracker.set_side_bounds((0.8 * side0, 2.0 * side0))
+    sides = []
+    for k in range(1, 121):
+        box = tracker.update(_textured_scene((90.0 * 0.995**k, 40.0 * 0.995**k))).box
+        sides.append(np.sqrt(box[2] * box[3]))
+    assert min(sides) >= 0.8 * side0 - 1e-6
+    assert sides[-1] == pytest.approx(0.8 * side0, rel=1e-6)  # held at the bound, not somewhere above it
+    assert tracker.side_bounds == (0.8 * side0, 2.0 * side0)
+    tracker.init(first, (275.0, 220.0, 90.0, 40.0))
+    assert tracker.side_bounds is None
+
+
+@pytest.mark.parametrize("bounds", [(0.0, 10.0), (20.0, 10.0), (float("nan"), 10.0), (1.0, float("inf"))])
+def test_side_bounds_reject_empty_or_non_finite_ranges(bounds):
+    from jsar.tracking.jsar_tracker import JsarTracker
+
+    with pytest.raises(ValueError, match="side bounds"):
+        JsarTracker().set_side_bounds(bounds)
+
+
+def test_jsar_re_reinitialises_within_the_side_bounds_about_the_proposal_centre():
+    from jsar.redetect.jsar_re import JsarReTracker
+
+    tracker = JsarReTracker()
+    frame = _textured_scene((90.0, 40.0))
+    tracker.init(frame, (275.0, 220.0, 90.0, 40.0))
+    tracker.set_side_bounds((50.0, 70.0))
+    tracker._reinitialise(frame, (300.0, 230.0, 20.0, 10.0), bar=0.0)  # a 20x10 proposal: side 14
+    x, y, w, h = tracker.core.box
+    assert np.sqrt(w * h) == pytest.approx(50.0) and w / h == pytest.approx(2.0)
+    assert (x + w / 2, y + h / 2) == pytest.approx((310.0, 235.0))

@@ -55,6 +55,7 @@ from jsar.redetect.monitor import FailureMonitor, InsideRule, MonitorParams
 from jsar.redetect.proposals import EdgeBoxesSettings, EdgeFunction, generate_proposals
 from jsar.redetect.verifier import TrackVerifier, VerifierParams
 from jsar.tracking.jsar_tracker import JsarTracker
+from jsar.tracking.size_filter import bound_side
 from jsar.tracking.translation import TranslationFilter
 
 
@@ -302,6 +303,11 @@ class JsarReTracker:
         self._probation_left = 0
         self.verifier = TrackVerifier(self.options.verifier)
 
+    def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None:
+        """Bound the box side sqrt(w*h) to (lo, hi) px (None: unbounded), for the core's size estimate
+        and for re-initialised boxes; see JsarTracker.set_side_bounds. init() clears it."""
+        self.core.set_side_bounds(side_bounds_px)
+
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame (Algorithm 1); see the module docstring for the three outcomes."""
         if self.decision is None:
@@ -384,9 +390,12 @@ class JsarReTracker:
         return float(scores[0]) if offset <= self.options.change_radius * math.sqrt(w * h) else 0.0
 
     def _reinitialise(self, frame: np.ndarray, box: Box, bar: float) -> None:
-        """Restart the core at `box` (px) and open a probation whose challengers must score above `bar`."""
+        """Restart the core at `box` (px, its side held within the core's side bounds about its centre)
+        and open a probation whose challengers must score above `bar`."""
         self._seen = np.empty((0, 3))
-        self.core.reinitialise(frame, box)
+        x, y, w, h = box
+        bw, bh = bound_side((w, h), self.core.side_bounds)
+        self.core.reinitialise(frame, (x + (w - bw) / 2, y + (h - bh) / 2, bw, bh))
         self._track.clear()
         self._remember_position()
         self.reinitialisations += 1

@@ -22,7 +22,7 @@ from jsar.api import Box, TrackResult, validate_box, validate_frame
 from jsar.config import JsarParams
 from jsar.features import colour, patches
 from jsar.features import translation as translation_features
-from jsar.tracking.size_filter import SizeFilter, clamp_size
+from jsar.tracking.size_filter import SizeFilter, bound_side, clamp_size
 from jsar.tracking.translation import TranslationFilter
 
 
@@ -66,6 +66,7 @@ class JsarTracker:
         self.frame_index = -1  # frames seen since init (0 = the init frame)
         self.last_training_sample_f: np.ndarray | None = None  # (C, H, W//2+1), see class doc
         self.last_localisation: Localisation | None = None
+        self._side_bounds: tuple[float, float] | None = None
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
@@ -75,7 +76,28 @@ class JsarTracker:
         self._grey = frame.ndim == 2 or _is_grey(frame) or self._colour_table is None
         self.frame_index = 0
         self._initial_ratio = box[2] / box[3]
+        self._side_bounds = None
         self._setup(self._prepare(frame), box)
+
+    def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None:
+        """Bound the box side sqrt(w*h) to (lo, hi) px from the next size estimate on (None: unbounded).
+
+        For a size known from outside the image, e.g. a ground target's range from the vehicle's
+        altitude and the camera's pointing (the service does this): the size filter models scale and
+        aspect, not in-plane rotation, and shrinks the box of a target that keeps turning. The bound
+        holds until changed; init() clears it (a new target).
+        """
+        if side_bounds_px is not None:
+            lo, hi = (float(v) for v in side_bounds_px)
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo <= hi):
+                raise ValueError(f"side bounds must be finite with 0 < lo <= hi px, got {side_bounds_px}")
+            side_bounds_px = (lo, hi)
+        self._side_bounds = side_bounds_px
+
+    @property
+    def side_bounds(self) -> tuple[float, float] | None:
+        """The current (lo, hi) px bounds on sqrt(w*h), or None."""
+        return self._side_bounds
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame: locate, then commit; returns the new box and the response peak."""
@@ -217,7 +239,7 @@ class JsarTracker:
 
     def _clamp(self, size_wh: tuple[float, float], image: np.ndarray) -> tuple[float, float]:
         band = self.params.aspect_band
-        return clamp_size(size_wh, self._min_side, (image.shape[1], image.shape[0]),
+        return clamp_size(bound_side(size_wh, self._side_bounds), self._min_side, (image.shape[1], image.shape[0]),
                           (self._initial_ratio / band, self._initial_ratio * band))
 
     def _search_side(self) -> float:

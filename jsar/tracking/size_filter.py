@@ -219,6 +219,17 @@ def clamp_size(
     return w, h
 
 
+def bound_side(size_wh: tuple[float, float], side_bounds_px: tuple[float, float] | None) -> tuple[float, float]:
+    """(w, h) px scaled about its aspect ratio so that sqrt(w*h) lies in side_bounds_px = (lo, hi) px (None: as is)."""
+    if side_bounds_px is None:
+        return size_wh
+    w, h = size_wh
+    lo, hi = side_bounds_px
+    side = math.sqrt(w * h)
+    factor = min(max(side, lo), hi) / side
+    return w * factor, h * factor
+
+
 def grey_region(
     frame: np.ndarray, center_xy: tuple[float, float], extent_wh: np.ndarray
 ) -> tuple[np.ndarray, tuple[float, float]]:

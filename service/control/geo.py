@@ -101,3 +101,22 @@ def locate_on_ground(vehicle: VehiclePose, ray_ned: np.ndarray) -> GroundTarget 
     lon = vehicle.lon_deg + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(vehicle.lat_deg))))
     return GroundTarget(lat, lon, vehicle.alt_amsl_m - vehicle.height_m, math.hypot(north, east),
                         math.atan2(east, north))
+
+
+def ground_px_per_m(vehicle: VehiclePose, ray_ned: np.ndarray, yaw_error: float, pitch_error: float,
+                    focal_px: float) -> float | None:
+    """Image pixels per metre of side of a flat ground patch seen along `ray_ned` (unit NED), its side
+    taken as sqrt(projected area); None if the ray misses the ground.
+
+    A patch of area A m^2 at slant range R, the ray meeting the ground at grazing angle delta, covers
+    the solid angle A sin(delta) / R^2; off the optical axis by theta (the angular errors, as in
+    camera_ray_ned) a pixel covers cos(theta)^3 / focal_px^2 of solid angle. So the side in pixels
+    is sqrt(A) * focal_px * sqrt(sin(delta)) / R / cos(theta)^1.5, with sin(delta) = the ray's down
+    component and R = height / sin(delta) (flat ground, as locate_on_ground).
+    """
+    sin_grazing = float(ray_ned[2])
+    if vehicle.height_m <= 0 or sin_grazing <= 1e-6 or focal_px <= 0:
+        return None
+    slant_m = vehicle.height_m / sin_grazing
+    cos_off_axis = 1.0 / math.sqrt(1.0 + math.tan(yaw_error) ** 2 + math.tan(pitch_error) ** 2)
+    return focal_px * math.sqrt(sin_grazing) / slant_m / cos_off_axis**1.5

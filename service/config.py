@@ -71,9 +71,11 @@ class TrackerConfig:
     name: str = "jsar-re"
     params: Mapping[str, Any] = field(default_factory=lambda: types.MappingProxyType({}))
     threads: int = _checked(1, _positive)  # OpenCV and BLAS/OpenMP threads for the tracker
-    # Box side held within [1/band, band] x the side the target's ground size gives at its range
-    # (flat ground, vehicle pose and gimbal attitude from the autopilot); 0 = off. See loop._bound_size.
+    # Box side held within [1/band, band] x the track's median ground size at the current range (flat
+    # ground, pose and gimbal attitude from the autopilot); 0 = off. See service.control.size_bound.
     range_size_band: float = _checked(1.6, lambda v: None if v == 0 or v >= 1 else f"must be 0 (off) or >= 1, got {v}")
+    range_size_sample_s: float = _checked(1.0, _positive)  # one ground-size sample per this many seconds ...
+    range_size_samples: int = _checked(600, _positive)  # ... the median of the last this many is the reference
 
 
 @dataclass(frozen=True)

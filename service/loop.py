@@ -26,6 +26,7 @@ from service.control.coast import (CoastParams, CoastState, Position, TrackHisto
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
 from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
+from service.control.size_bound import SizeMemory, reference_side_m, remember_side, side_bounds_px
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.camera import TrackSnapshot
@@ -129,9 +130,7 @@ class TrackingLoop:
         self.history = TrackHistory()  # recent confident pointing, for the coast's rate estimate
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
-        # The target's size on the ground (m, side of its projected-area square), measured on the first
-        # tracking frame with a fresh pose and gimbal attitude: the range size bound's reference.
-        self.target_side_m: float | None = None
+        self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0,
                          "size_bounded_frames": 0}
@@ -163,13 +162,13 @@ class TrackingLoop:
         image = frame.image
         size = (image.shape[1], image.shape[0])
         self.counters["frames"] += 1
-        change = self._apply_selection(image, size)
+        change = self._apply_selection(image, size, frame.capture_time_s)
         stopped = change == "stopped"
         if self.tracker is not None and self.tracked_size != size:
             self._handle_resize(image, size)
         result: TrackResult | None = None
         if self.tracker is not None and change != "started":  # the init frame's box is the selection
-            result = self._track(image)
+            result = self._track(image, frame.capture_time_s)
         track_done = time.monotonic()
         command = self._control(frame, size, result, stopped)
         self.outputs.apply(time.monotonic(), command)
@@ -192,7 +191,8 @@ class TrackingLoop:
         return report
 
     # --- pieces -------------------------------------------------------------------------------
-    def _apply_selection(self, image: np.ndarray, size: tuple[int, int]) -> Literal["started", "stopped"] | None:
+    def _apply_selection(self, image: np.ndarray, size: tuple[int, int],
+                         capture_time_s: float) -> Literal["started", "stopped"] | None:
         """Apply a pending selection: "started" (tracker initialised on this frame), "stopped", or None."""
         selection = self.selections.take(timeout_s=0.0)
         if selection is None:
@@ -220,9 +220,11 @@ class TrackingLoop:
         self.state = "tracking"
         self._reset_controller()
         self._reset_coast()
-        self.target_side_m = None
+        self.size_memory = SizeMemory()
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
-        self._measure_target_size(box, size)
+        self._remember_size(box, size, capture_time_s)
+        if self.size_memory.samples:
+            log.info("event=target_size side_m=%.2f", self.size_memory.samples[0])
         return "started"
 
     def _hold_without_frames(self) -> None:
@@ -258,7 +260,7 @@ class TrackingLoop:
         if was_active:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
-        self.target_side_m = None
+        self.size_memory = SizeMemory()
         self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
         self._reset_controller()
         self._reset_coast()
@@ -323,46 +325,39 @@ class TrackingLoop:
         ray = camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw)
         return ground_px_per_m(pose, ray, yaw_err, pitch_err, focal_length_px(size[0], self.hfov))
 
-    def _measure_target_size(self, box: tuple[float, float, float, float], size: tuple[int, int]) -> None:
-        """Set target_side_m from a box (px) the tracker is confident of, if the geometry is known."""
-        if self.config.tracker.range_size_band == 0:
+    def _remember_size(self, box: tuple[float, float, float, float], size: tuple[int, int], time_s: float) -> None:
+        """Add the ground side (m) of a box (px) the tracker is confident of to the size memory, if the
+        geometry is known (one sample per range_size_sample_s of capture time)."""
+        cfg = self.config.tracker
+        if cfg.range_size_band == 0:
             return
         px_per_m = self._ground_px_per_m(box, size)
-        if px_per_m is None:
-            return
-        self.target_side_m = math.sqrt(box[2] * box[3]) / px_per_m
-        log.info("event=target_size side_m=%.2f px_per_m=%.2f", self.target_side_m, px_per_m)
+        if px_per_m is not None:
+            self.size_memory = remember_side(self.size_memory, time_s, math.sqrt(box[2] * box[3]) / px_per_m,
+                                             cfg.range_size_sample_s, cfg.range_size_samples)
 
     def _bound_size(self, size: tuple[int, int]) -> None:
-        """Hold the tracker's box side within range_size_band x the side the target's ground size gives at
-        its current range (no bound while the geometry is unknown).
-
-        The size filter models scale and aspect ratio, not in-plane rotation: in the closed-loop soak the
-        box of a car that kept turning shrank ~0.25 % per frame to a tenth of the car's side, then
-        followed the background. A ground target's pixel size follows from its range, which the service
-        knows; the band leaves room for what the range does not give (the box of a 2:1 car turned by 45
-        degrees has a 1.5x larger side, the ground is not flat, the selection was loose).
-        """
+        """Bound the tracker's box side to [1/band, band] x the remembered ground size at the current
+        range (service.control.size_bound); unbounded while the geometry or the memory is missing."""
         assert self.tracker is not None and self.box is not None
         band = self.config.tracker.range_size_band
         if band == 0:
             return
         if not isinstance(self.tracker, SideBoundedTracker):  # the service checks this at start
             raise TypeError(f"tracker {type(self.tracker).__name__} takes no side bounds (tracker.range_size_band)")
-        if self.target_side_m is None and self.state == "tracking":
-            self._measure_target_size(self.box, size)
-        px_per_m = self._ground_px_per_m(self.box, size) if self.target_side_m is not None else None
-        if px_per_m is None or self.target_side_m is None:
+        reference_m = reference_side_m(self.size_memory)
+        px_per_m = self._ground_px_per_m(self.box, size) if reference_m is not None else None
+        if px_per_m is None or reference_m is None:
             self.tracker.set_side_bounds(None)
             return
-        side_px = self.target_side_m * px_per_m
-        self.tracker.set_side_bounds((side_px / band, side_px * band))
+        self.tracker.set_side_bounds(side_bounds_px(reference_m, px_per_m, band))
         self.counters["size_bounded_frames"] += 1
 
-    def _track(self, image: np.ndarray) -> TrackResult | None:
+    def _track(self, image: np.ndarray, capture_time_s: float) -> TrackResult | None:
         assert self.tracker is not None
+        size = (image.shape[1], image.shape[0])
         try:
-            self._bound_size((image.shape[1], image.shape[0]))
+            self._bound_size(size)
             result = self.tracker.update(image)
         except Exception as exc:  # noqa: BLE001 - a tracker failure is a lost track, not a crash
             self.counters["tracker_errors"] += 1
@@ -372,6 +367,8 @@ class TrackingLoop:
         if all(math.isfinite(v) for v in result.box):
             self.box = result.box
         self._set_state("lost" if result.state == "lost" else result.state)
+        if result.state == "tracking" and self.box is not None:
+            self._remember_size(self.box, size, capture_time_s)
         return result
 
     def _set_state(self, state: LoopState) -> None:

@@ -17,6 +17,7 @@ from service.control.geo import (GimbalAttitude, VehiclePose, camera_ray_ned, gr
 from service.control.gimbal import (AxisState, GimbalState, PidGains, angular_error, focal_length_px, gimbal_step,
                                     pid_step)
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
+from service.control.size_bound import SizeMemory, reference_side_m, remember_side, side_bounds_px
 from service.loop import ControlCommand
 from service.mavlink import commands as c
 from service.mavlink.autopilot import AutopilotView
@@ -498,9 +499,21 @@ def test_ground_px_per_m_is_none_above_the_horizon_or_without_height():
     assert ground_px_per_m(dataclasses.replace(vehicle, height_m=0.0), np.array([0.6, 0.0, 0.8]), 0.0, 0.0, 500.0) is None
 
 
-def test_loop_bounds_the_box_side_from_the_target_ground_size_at_its_range() -> None:
-    """The selection's side (px) becomes a ground size (m) at the selection's range; each update gets
-    (side / band, side * band) at the current range; no bounds while the autopilot is silent."""
+def test_size_memory_samples_once_per_interval_and_keeps_the_newest():
+    memory = SizeMemory()
+    assert reference_side_m(memory) is None
+    for t, side in [(0.0, 3.0), (0.5, 9.0), (1.0, 4.0), (2.5, 5.0), (3.0, 100.0), (3.6, 6.0)]:
+        memory = remember_side(memory, t, side, every_s=1.0, max_samples=3)
+    assert memory.samples == (4.0, 5.0, 6.0)  # 0.5 and 3.0 too soon after a sample; 3.0 m dropped as oldest
+    assert reference_side_m(memory) == 5.0
+    assert remember_side(memory, 1.0, 7.0, 1.0, 3).samples[-1] == 7.0  # the clock went back: sample again
+    assert side_bounds_px(2.0, 10.0, 1.6) == pytest.approx((12.5, 32.0))
+
+
+def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current_range() -> None:
+    """The selection's side (px) becomes a ground size (m) at its range; each update gets (side / band,
+    side * band) at the current range, side = the median remembered ground size; confident boxes add a
+    sample once per range_size_sample_s; no bounds while the autopilot is silent."""
     import time
 
     from jsar.api import TrackResult
@@ -534,12 +547,17 @@ def test_loop_bounds_the_box_side_from_the_target_ground_size_at_its_range() -> 
     loop.step(Frame(image, 0, 0.0, 0.0))
     # 45 degrees down from 30 m: slant range 42.4 m, focal 100 px -> px/m = 100 * sqrt(sin 45) / 42.4
     px_per_m = 100.0 * math.sqrt(math.sin(math.pi / 4)) / (30.0 * math.sqrt(2.0))
-    assert loop.target_side_m == pytest.approx(20.0 / px_per_m)
-    loop.step(Frame(image, 1, 0.0, 0.033))
+    assert loop.size_memory.samples == pytest.approx((20.0 / px_per_m,))
+    loop.step(Frame(image, 1, 0.033, 0.0))
     assert bounds[-1] == pytest.approx((20.0 / 1.5, 20.0 * 1.5))
     views.append(dataclasses.replace(views[-1], position=(47.0, 8.0, 560.0, 60.0)))  # twice as high: half the side
-    loop.step(Frame(image, 2, 0.0, 0.066))
+    loop.step(Frame(image, 2, 0.066, 0.0))
     assert bounds[-1] == pytest.approx((10.0 / 1.5, 10.0 * 1.5))
+    assert len(loop.size_memory.samples) == 1  # under a second since the last sample
+    loop.step(Frame(image, 3, 1.1, 0.0))  # the same 20 px box from twice as high: twice the ground size
+    assert loop.size_memory.samples == pytest.approx((20.0 / px_per_m, 40.0 / px_per_m))
+    loop.step(Frame(image, 4, 1.2, 0.0))  # median 30 px at the first range, 15 px at this one
+    assert bounds[-1] == pytest.approx((15.0 / 1.5, 15.0 * 1.5))
     views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # autopilot silent
-    loop.step(Frame(image, 3, 0.0, 0.1))
-    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 2
+    loop.step(Frame(image, 5, 1.3, 0.0))
+    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 4

@@ -1,0 +1,44 @@
+"""Range size bound (pure): the target's ground size, remembered from the track, bounds the box size.
+
+The size filter models scale and aspect ratio, not in-plane rotation: in the closed-loop soak the box
+of a car that kept turning shrank ~0.25 % per frame to a tenth of the car's side, then followed the
+background; after a re-initialisation on a half-hidden car the box grew to three times the car. A
+ground target's pixel size follows from its range (geo.ground_px_per_m), which the service knows.
+
+Sizes: `side` = sqrt(w * h) of the box, in pixels, or in metres on the ground (pixels / px_per_m).
+The memory holds the box's ground side on confident frames, one sample every `every_s` seconds of
+capture time, at most `max_samples`; its median is the reference. A median of the track's own boxes,
+not the selection alone: the operator's rectangle is looser than the tracker's box (the sim's
+selection, the car's outline at 30 degrees, had a 1.5x larger side than the tracker's box once it
+settled), and a slow drift of the box moves a median over minutes of samples only slowly.
+"""
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SizeMemory:
+    """Ground-side samples (m) of the current track and the capture time (s) of the last one."""
+
+    samples: tuple[float, ...] = ()
+    last_sample_s: float | None = None
+
+
+def remember_side(memory: SizeMemory, time_s: float, side_m: float, every_s: float, max_samples: int) -> SizeMemory:
+    """`memory` with `side_m` added if `every_s` has passed since the last sample (oldest dropped beyond max_samples)."""
+    if memory.last_sample_s is not None and 0.0 <= time_s - memory.last_sample_s < every_s:
+        return memory
+    return SizeMemory((memory.samples + (side_m,))[-max_samples:], time_s)
+
+
+def reference_side_m(memory: SizeMemory) -> float | None:
+    """Median ground side (m) of the remembered samples; None before the first."""
+    return statistics.median(memory.samples) if memory.samples else None
+
+
+def side_bounds_px(reference_m: float, px_per_m: float, band: float) -> tuple[float, float]:
+    """(lo, hi) px bounds on the box side: the reference side at px_per_m, divided / multiplied by band."""
+    side_px = reference_m * px_per_m
+    return side_px / band, side_px * band

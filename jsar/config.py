@@ -37,7 +37,8 @@ class JsarParams:
     (2026-12-02): mean AUC on the shared sequences 0.567 (jsar-re) / 0.560 (jsar) against 0.556 / 0.554;
     the open-loop synthetic scene (`sim.export`, 180 s, seed 0) kept the car where the default lost it
     after 110 s; but the PX4 closed-loop centring test fails again (60.8 % centred, the lag above), so it
-    is not the default.
+    is not the default. Where the target's range is known, the service bounds the box side instead
+    (`set_side_bounds`, service.control.size_bound).
     """
 
     # --- features / search region (translation filter) ---

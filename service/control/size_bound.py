@@ -2,7 +2,7 @@
 
 The size filter models scale and aspect ratio, not in-plane rotation: in the closed-loop soak the box
 of a car that kept turning shrank ~0.25 % per frame to a tenth of the car's side, then followed the
-background; after a re-initialisation on a half-hidden car the box grew to three times the car. A
+background; after a re-initialisation on a half-hidden car its side grew to more than twice the car's. A
 ground target's pixel size follows from its range (geo.ground_px_per_m), which the service knows.
 
 Sizes: `side` = sqrt(w * h) of the box, in pixels, or in metres on the ground (pixels / px_per_m).

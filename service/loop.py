@@ -26,7 +26,7 @@ from service.control.coast import (CoastParams, CoastState, Position, TrackHisto
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
 from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
-from service.control.size_bound import SizeMemory, reference_side_m, remember_side, side_bounds_px
+from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.camera import TrackSnapshot
@@ -329,8 +329,8 @@ class TrackingLoop:
         """Add the ground side (m) of a box (px) the tracker is confident of to the size memory, if the
         geometry is known (one sample per range_size_sample_s of capture time)."""
         cfg = self.config.tracker
-        if cfg.range_size_band == 0:
-            return
+        if cfg.range_size_band == 0 or not sample_due(self.size_memory, time_s, cfg.range_size_sample_s):
+            return  # the geometry is only worked out when a sample is due (once a second), not every frame
         px_per_m = self._ground_px_per_m(box, size)
         if px_per_m is not None:
             self.size_memory = remember_side(self.size_memory, time_s, math.sqrt(box[2] * box[3]) / px_per_m,
@@ -345,7 +345,7 @@ class TrackingLoop:
             return
         if not isinstance(self.tracker, SideBoundedTracker):  # the service checks this at start
             raise TypeError(f"tracker {type(self.tracker).__name__} takes no side bounds (tracker.range_size_band)")
-        reference_m = reference_side_m(self.size_memory)
+        reference_m = self.size_memory.reference_m
         px_per_m = self._ground_px_per_m(self.box, size) if reference_m is not None else None
         if px_per_m is None or reference_m is None:
             self.tracker.set_side_bounds(None)

@@ -17,7 +17,7 @@ from service.control.geo import (GimbalAttitude, VehiclePose, camera_ray_ned, gr
 from service.control.gimbal import (AxisState, GimbalState, PidGains, angular_error, focal_length_px, gimbal_step,
                                     pid_step)
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
-from service.control.size_bound import SizeMemory, reference_side_m, remember_side, side_bounds_px
+from service.control.size_bound import SizeMemory, remember_side, side_bounds_px
 from service.loop import ControlCommand
 from service.mavlink import commands as c
 from service.mavlink.autopilot import AutopilotView
@@ -501,11 +501,11 @@ def test_ground_px_per_m_is_none_above_the_horizon_or_without_height():
 
 def test_size_memory_samples_once_per_interval_and_keeps_the_newest():
     memory = SizeMemory()
-    assert reference_side_m(memory) is None
+    assert memory.reference_m is None
     for t, side in [(0.0, 3.0), (0.5, 9.0), (1.0, 4.0), (2.5, 5.0), (3.0, 100.0), (3.6, 6.0)]:
         memory = remember_side(memory, t, side, every_s=1.0, max_samples=3)
     assert memory.samples == (4.0, 5.0, 6.0)  # 0.5 and 3.0 too soon after a sample; 3.0 m dropped as oldest
-    assert reference_side_m(memory) == 5.0
+    assert memory.reference_m == 5.0
     assert remember_side(memory, 1.0, 7.0, 1.0, 3).samples[-1] == 7.0  # the clock went back: sample again
     assert side_bounds_px(2.0, 10.0, 1.6) == pytest.approx((12.5, 32.0))
 

@@ -245,9 +245,8 @@ def clamp_side_ratio(wh: tuple[float, float], reference_wh: tuple[float, float],
                      max_ratio: float) -> tuple[float, float]:
     """(w, h) px rescaled, aspect kept, so that sqrt(w*h) lies within [1/max_ratio, max_ratio] x
     sqrt(reference w*h); unchanged when it already does (max_ratio = inf: always)."""
-    side, reference_side = math.sqrt(wh[0] * wh[1]), math.sqrt(reference_wh[0] * reference_wh[1])
-    factor = min(max(side, reference_side / max_ratio), reference_side * max_ratio) / side
-    return wh[0] * factor, wh[1] * factor
+    reference_side = math.sqrt(reference_wh[0] * reference_wh[1])
+    return bound_side(wh, (reference_side / max_ratio, reference_side * max_ratio))
 
 
 class JsarReTracker:

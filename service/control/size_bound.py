@@ -7,7 +7,8 @@ ground target's pixel size follows from its range (geo.ground_px_per_m), which t
 
 Sizes: `side` = sqrt(w * h) of the box, in pixels, or in metres on the ground (pixels / px_per_m).
 The memory holds the box's ground side on confident frames, one sample every `every_s` seconds of
-capture time, at most `max_samples`; its median is the reference. A median of the track's own boxes,
+capture time, at most `max_samples`; its median (`reference_m`, computed when a sample is added, not per
+frame) is the reference. A median of the track's own boxes,
 not the selection alone: the operator's rectangle is looser than the tracker's box (the sim's
 selection, the car's outline at 30 degrees, had a 1.5x larger side than the tracker's box once it
 settled), and a slow drift of the box moves a median over minutes of samples only slowly.
@@ -20,22 +21,25 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class SizeMemory:
-    """Ground-side samples (m) of the current track and the capture time (s) of the last one."""
+    """Ground-side samples (m) of the current track, their median (m; None before the first sample) and
+    the capture time (s) of the last one."""
 
     samples: tuple[float, ...] = ()
+    reference_m: float | None = None
     last_sample_s: float | None = None
 
 
+def sample_due(memory: SizeMemory, time_s: float, every_s: float) -> bool:
+    """Whether a sample at capture time `time_s` is taken: none yet, `every_s` passed, or the clock went back."""
+    return memory.last_sample_s is None or not 0.0 <= time_s - memory.last_sample_s < every_s
+
+
 def remember_side(memory: SizeMemory, time_s: float, side_m: float, every_s: float, max_samples: int) -> SizeMemory:
-    """`memory` with `side_m` added if `every_s` has passed since the last sample (oldest dropped beyond max_samples)."""
-    if memory.last_sample_s is not None and 0.0 <= time_s - memory.last_sample_s < every_s:
+    """`memory` with `side_m` added if a sample is due (oldest dropped beyond max_samples)."""
+    if not sample_due(memory, time_s, every_s):
         return memory
-    return SizeMemory((memory.samples + (side_m,))[-max_samples:], time_s)
-
-
-def reference_side_m(memory: SizeMemory) -> float | None:
-    """Median ground side (m) of the remembered samples; None before the first."""
-    return statistics.median(memory.samples) if memory.samples else None
+    samples = (memory.samples + (side_m,))[-max_samples:]
+    return SizeMemory(samples, statistics.median(samples), time_s)
 
 
 def side_bounds_px(reference_m: float, px_per_m: float, band: float) -> tuple[float, float]:

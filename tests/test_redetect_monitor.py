@@ -195,3 +195,29 @@ def test_no_acceptance_during_the_holdoff_at_the_start_of_a_loss():
     assert monitor.assess(0.001, BOX, IMAGE, 49).eta_d == float("inf")
     with pytest.raises(ValueError, match="accept_holdoff"):
         MonitorParams(accept_holdoff=-1)
+
+
+def test_acceptance_threshold_has_a_ceiling_at_a_fraction_of_a_weak_targets_level():
+    params = MonitorParams(accept_holdoff=0, accept_ceiling_fraction=0.8)
+    monitor = FailureMonitor(params)
+    for k in range(5):
+        monitor.assess(0.018, BOX, IMAGE, 31 + k)  # a weak target: its level is below the absolute 0.02
+    first = monitor.assess(0.005, BOX, IMAGE, 36)
+    assert first.eta_d == pytest.approx(0.8 * 0.018)
+    monitor.redetection_result(False)
+    for k in range(200):  # the decay goes on below the ceiling
+        verdict = monitor.assess(0.005, BOX, IMAGE, 37 + k)
+        monitor.redetection_result(False)
+    assert verdict.eta_d == pytest.approx(0.02 / 1.005 ** 200)
+    # A strong target: the relative floor (0.5 x 0.06) is below the ceiling (0.8 x 0.06) and wins.
+    strong = FailureMonitor(params)
+    for k in range(5):
+        strong.assess(0.06, BOX, IMAGE, 31 + k)
+    assert strong.assess(0.005, BOX, IMAGE, 36).eta_d == pytest.approx(0.5 * 0.06)
+    # No ceiling without a reference, nor with the fraction 0 (the paper's absolute eta_d).
+    assert FailureMonitor(params).assess(0.001, BOX, IMAGE, 36).eta_d == pytest.approx(0.02)
+    assert FailureMonitor(P).assess(0.001, BOX, IMAGE, 36).eta_d == pytest.approx(0.02)
+    with pytest.raises(ValueError, match="accept_ceiling_fraction"):
+        MonitorParams(accept_ceiling_fraction=0.4)  # not above accept_fraction
+    with pytest.raises(ValueError, match="accept_ceiling_fraction"):
+        MonitorParams(accept_ceiling_fraction=1.5)

@@ -10,7 +10,7 @@ import pytest
 
 import jsar
 from jsar.config import JsarParams
-from jsar.redetect.jsar_re import (JsarReTracker, RedetectOptions, blend_size, clamp_side_ratio, grid_peak_offset,
+from jsar.redetect.jsar_re import (JsarReTracker, RedetectOptions, blend_size, clamp_side_ratio, grid_boxes, grid_peak_offset,
                                    max_score_near)
 
 TARGET = 24  # px, side of the synthetic target
@@ -449,3 +449,65 @@ def test_probation_does_not_switch_away_from_the_target_to_a_weaker_look_alike()
     assert not challenger.accepted
     assert challenger.box is not None and math.dist(
         (challenger.box[0] + challenger.box[2] / 2, challenger.box[1] + challenger.box[3] / 2), (162, 112)) < 8
+
+
+def _run_flash_decoy(resume_refuted: bool):
+    """The target drifts and vanishes at frame 35; a plain look-alike flashes at (150, 130) on frames 44
+    and 47 only (each flash a change: the first is accepted as the target); the target comes back
+    where it was at frame 52. Returns frame -> (state, box) and the tracker."""
+    background = _background()
+
+    def frame(index: int) -> np.ndarray:
+        image = background.copy()
+        if index < 35 or index >= 52:
+            x, y = 100 + min(index, 34) // 3, 100
+            image[y:y + TARGET, x:x + TARGET] = _target()
+        if index in (44, 47):
+            image[130:130 + TARGET, 150:150 + TARGET] = _plain_decoy()
+        return image
+
+    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(resume_refuted=resume_refuted))
+    tracker.init(frame(0), (100.0, 100.0, TARGET, TARGET))
+    results = {}
+    for index in range(1, 60):
+        result = tracker.update(frame(index))
+        results[index] = (result.state, result.box)
+    return results, tracker
+
+
+def test_a_refuted_reinitialisation_resumes_the_search_it_ended():
+    def centre(box: tuple[float, ...]) -> tuple[float, float]:
+        return box[0] + box[2] / 2, box[1] + box[3] / 2
+
+    decoy_centre, target_centre = (162.0, 142.0), (123.0, 112.0)
+    results, tracker = _run_flash_decoy(resume_refuted=True)
+    assert results[44][0] == "recovered" and math.dist(centre(results[44][1]), decoy_centre) < 6, \
+        "the flash must be accepted first: the scenario tests nothing"
+    # Frame 45: the decoy is gone and the new track with it; the search resumes where it was: the
+    # last confident box before the flash, not the decoy's.
+    assert results[45][0] == "lost"
+    assert results[45][1] == results[43][1]
+    # The refuted candidate is remembered: its second flash (a repeat, not a change) is not accepted.
+    assert results[47][0] == "lost" and results[47][1] == results[43][1]
+    # The target comes back where the restored core last saw it: that core is confident on it again.
+    assert all(results[i][0] == "tracking" and math.dist(centre(results[i][1]), target_centre) < 6
+               for i in range(53, 60)), [results[i] for i in range(52, 60)]
+    # Without it the search restarts around the decoy's place.
+    plain, _ = _run_flash_decoy(resume_refuted=False)
+    assert plain[44][0] == "recovered"
+    assert plain[45][0] == "lost" and math.dist(centre(plain[45][1]), decoy_centre) < 6
+
+
+def test_grid_boxes_span_the_search_square_at_the_stride_inside_the_frame():
+    boxes = grid_boxes((200.0, 150.0), (20.0, 20.0), omega=12.0, stride_sides=2.0, frame_shape=(480, 640, 3))
+    assert boxes.shape == (36, 4) and np.all(boxes[:, 2:] == 20.0)
+    centres = boxes[:, :2] + 10.0
+    xs, ys = np.unique(centres[:, 0]), np.unique(centres[:, 1])
+    assert np.allclose(np.diff(xs), 40.0) and np.allclose(np.diff(ys), 40.0)  # 2 sides apart
+    assert np.allclose(xs.mean(), 200.0) and np.allclose(ys.mean(), 150.0)  # centred on the last position
+    assert xs.max() - xs.min() == pytest.approx(200.0)  # 5 strides: within the 240-px square
+    near_corner = grid_boxes((15.0, 15.0), (20.0, 10.0), omega=12.0, stride_sides=2.0, frame_shape=(480, 640))
+    assert near_corner[:, 0].min() >= 0.0 and near_corner[:, 1].min() >= 0.0  # clamped inside
+    assert len(grid_boxes((200.0, 150.0), (20.0, 20.0), 1.0, 2.0, (480, 640))) == 1
+    with pytest.raises(ValueError, match="grid_stride_sides"):
+        RedetectOptions(grid_stride_sides=-1.0)

@@ -30,7 +30,8 @@ Rules (paper, Algorithm 1, and the original's gating, with the choices stated he
   frame; an accepted proposal or a confident frame resets omega and eta_d to their initial values.
   The eta_d handed out is at least accept_fraction * reference (decaying with eta_d), an addition:
   with a target whose peak level is 0.057, background under the canopy scored 0.023 > eta_d 0.02
-  and was accepted; a proposal must score like the target did. The monitor never asks for a re-initialisation other than on the frame a
+  and was accepted; a proposal must score like the target did. It is also at most
+  accept_ceiling_fraction * reference: the absolute eta_d can lie above a weak target's own level. The monitor never asks for a re-initialisation other than on the frame a
   proposal is accepted (the original's never-cleared flag retrained from scratch on every later frame).
 - distrust(): the tracker's verification (verifier.py) gave the track up; no frame is confident until
   the next re-initialisation (reinitialised()), however high the peak.
@@ -65,6 +66,7 @@ class MonitorParams:
     reliable_fraction: float = 0.7  # reliable also needs peak > this * reference (0: zeta_s alone); 0.8 lost the deforming Gull2 bird at frame 41
     accept_fraction: float = 0.5  # eta_d is at least this * reference (decaying with eta_d); 0: absolute only
     accept_holdoff: int = 5  # no acceptance on the first this-many frames of a loss (eta_d = inf); 0: none
+    accept_ceiling_fraction: float = 0.0  # eta_d is at most this * reference (0: no ceiling); see assess()
 
     def __post_init__(self) -> None:
         if not 0 < self.enable_peak <= self.reliable_peak:
@@ -87,6 +89,9 @@ class MonitorParams:
             raise ValueError(f"need accept_holdoff >= 0, got {self.accept_holdoff}")
         if not 0 <= self.accept_fraction < 1:
             raise ValueError(f"need 0 <= accept_fraction < 1, got {self.accept_fraction}")
+        if self.accept_ceiling_fraction and not self.accept_fraction < self.accept_ceiling_fraction <= 1:
+            raise ValueError(f"need accept_ceiling_fraction 0 or in (accept_fraction, 1], got "
+                             f"{self.accept_ceiling_fraction}")
         if not 0 < self.reference_fall_rate <= 1 or not 0 <= self.reliable_fraction < 1:
             raise ValueError(
                 f"need 0 < reference_fall_rate <= 1 and 0 <= reliable_fraction < 1, got "
@@ -175,6 +180,10 @@ class FailureMonitor:
             # eta_d (background under a filter with a high peak level can exceed eta_d); it decays
             # with eta_d, so a long absence still lowers the bar.
             eta_d = max(eta_d, p.accept_fraction * reference * self._eta_d / p.accept_peak)
+            if p.accept_ceiling_fraction > 0:
+                # Ceiling: the paper's absolute eta_d (0.02) can lie above a weak target's own level
+                # (the Gull2 bird tracked at 0.018 and reappeared at 0.014-0.015 with eta_d at 0.016).
+                eta_d = min(eta_d, p.accept_ceiling_fraction * reference)
         if self._failed_frames < p.accept_holdoff:
             # The first frames of a loss are a target sliding under cover: a proposal there is the
             # half-hidden target next to its occluder, and re-initialising on it teaches the new

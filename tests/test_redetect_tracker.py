@@ -511,3 +511,33 @@ def test_grid_boxes_span_the_search_square_at_the_stride_inside_the_frame():
     assert len(grid_boxes((200.0, 150.0), (20.0, 20.0), 1.0, 2.0, (480, 640))) == 1
     with pytest.raises(ValueError, match="grid_stride_sides"):
         RedetectOptions(grid_stride_sides=-1.0)
+
+
+def _run_without_proposals(monkeypatch, grid_stride_sides: float) -> dict[int, tuple[str, tuple[float, ...]]]:
+    """The synthetic occlusion of _path (back 75 px = 3.1 sides to the right after 10 frames) with
+    EdgeBoxes returning nothing: only the lattice can find the target."""
+    import jsar.redetect.jsar_re as jsar_re
+    from jsar.redetect.proposals import Proposals
+
+    monkeypatch.setattr(jsar_re, "generate_proposals", lambda *args, **kwargs: Proposals(
+        np.zeros((0, 4)), np.zeros((0,), np.float32), (0, 0, 1, 1)))
+    background = _background()
+    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(grid_stride_sides=grid_stride_sides))
+    tracker.init(_frame(background, _path(0)), (*map(float, _path(0)), float(TARGET), float(TARGET)))
+    results = {}
+    for index in range(1, 70):
+        visible = not 35 <= index < 45
+        result = tracker.update(_frame(background, _path(index) if visible else None))
+        results[index] = (result.state, result.box)
+    return results
+
+
+def test_the_lattice_finds_a_target_no_proposal_covers(monkeypatch):
+    results = _run_without_proposals(monkeypatch, grid_stride_sides=2.0)
+    recovered = [i for i in range(45, 70) if results[i][0] == "recovered"]
+    assert recovered and recovered[0] <= 50, [results[i][0] for i in range(45, 70)]
+    x, y, w, h = results[69][1]
+    tx, ty = _path(69)
+    assert abs(x + w / 2 - (tx + TARGET / 2)) < 6 and abs(y + h / 2 - (ty + TARGET / 2)) < 6
+    without = _run_without_proposals(monkeypatch, grid_stride_sides=0.0)
+    assert all(without[i][0] == "lost" for i in range(45, 70))

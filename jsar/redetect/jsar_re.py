@@ -150,18 +150,19 @@ class RedetectOptions:
     3 and re-acquisition rose from 69 % to 75 % (seed 2: 66 to 69 %; seed 1 unchanged at 91 %;
     held-out seed 3 unchanged at 72 %). The search square (omega) still bounds where proposals come from.
     grid_stride_sides: besides EdgeBoxes' proposals, re-detection scores windows at the last confident
-    size on a square lattice of this stride (target sides) over the omega square (0: none; 2 = 36
-    windows at omega 12, 4 at omega 5). EdgeBoxes' 30 boxes need not cover a small target far from
-    where it was lost: on DTB70_Gull2 the bird came back 4.9 sides away and no proposal's window held
-    it, while a lattice window did (scored 0.0148 against the best proposal's 0.0140). The decision
+    size on a square lattice of this stride (target sides) over the omega square, those outside the
+    initial square (omega_0 = 5 sides) only, where the proposals are dense anyway (0: no lattice; at
+    omega 12, 32 windows; at omega 10, 16; none below omega 8). EdgeBoxes' 30 boxes need not cover a small target far
+    from where it was lost: on DTB70_Gull2 the bird came back 4.9 sides away and no proposal's window
+    held it, while a lattice window did (0.0148 against the best proposal's 0.0140). The decision
     response of each window still says where in it the target is. Lattice windows are scored at every
-    scoring angle like proposals (upright only, seed 0 stayed at 78 %). Cost (`python -m
-    jsar.redetect.bench`, median): 64.7 ms per re-detection frame at omega 5 (58.0 without), 155.7 ms at
-    omega 10 (81.5 without). Not scored during the hold-off (not remembered by the change test): with
-    lattice windows remembered, in the closed-loop test scene (ardupilot) a window over the canopy
-    held the emerging car back, the tracker re-initialised on it half hidden and slid off it (centred
-    on 77 % of the visible frames instead of 100 %); candidates only, the long-term protocol gains
-    the same events.
+    scoring angle like proposals (upright only, seed 0 stayed at 78 %), but apart from them: turned
+    scoring pivots on the mean centre of the boxes scored together, and scored together the lattice
+    shifted the proposals' own scores (in the closed-loop test scene that flipped which proposal was
+    accepted as the car emerged, to a box the tracker then slid off: ardupilot run centred 77 %). Not
+    scored during the hold-off, so not remembered by the change test. Cost (`python -m
+    jsar.redetect.bench`, median, 2026-12-02): 126 ms per re-detection frame at omega 10 against 87 ms
+    without the lattice; nothing at omega 5 (55 ms).
     accept_ceiling_fraction: eta_d is at most this x the monitor's reference (the target's peak level;
     0: no ceiling), see monitor.py: the paper's absolute 0.02 lies above a weak target's own level
     (Gull2: tracked at 0.018, reappearing at 0.014-0.015, eta_d 0.016 by then).
@@ -174,8 +175,9 @@ class RedetectOptions:
     from the new track, stayed blocked by the motion gate and by the change memory of its own first
     scores for 15 frames. Restored, the old core was confident on the car the next frame.
     The three together (long-term protocol, seeds 0-3, re-acquired): 84 / 91 / 81 / 84 % instead of
-    78 / 91 / 81 / 81 %; on seed 0 any two of them without the third gave 78-81 % (the lattice and
-    ceiling without resume: 81 %, losing that S1301 event and with 1.8 % false re-initialisations).
+    78 / 91 / 81 / 81 %, false re-initialisations 1.6 / 1.8 / 2.2 / 1.4 % of the absent frames instead
+    of 1.0 / 1.2 / 0.8 / 0.8 %; on seed 0 any two of them without the third gave 78-81 % (the lattice
+    and ceiling without resume: 81 %, losing that S1301 event, 1.8 % false re-initialisations).
     """
 
     size_blend: float = 1.0
@@ -525,15 +527,21 @@ class JsarReTracker:
         if holdoff and self.options.change_margin <= 0:
             return Redetection(False, None, -math.inf, eta_d, omega, 0)
         proposals = generate_proposals(frame, (x + w / 2, y + h / 2), (w, h), omega, self._edgeboxes, self._edges)
-        candidates = proposals.boxes.reshape(-1, 4)
+        groups = [proposals.boxes.reshape(-1, 4)]
         if self.options.grid_stride_sides > 0 and not holdoff:
-            # Candidates only, not the change test's memory: remembered lattice windows over the
-            # closed-loop scene's canopy held back the emerging car (ardupilot run centred 77 %).
+            # Candidates only, not the change test's memory, and scored apart: the proposals' scores
+            # stay what they are without the lattice (turned scoring pivots on the mean centre of
+            # the boxes scored together). See RedetectOptions.grid_stride_sides.
             lattice = grid_boxes((x + w / 2, y + h / 2), (w, h), omega, self.options.grid_stride_sides, frame.shape)
-            candidates = np.vstack([candidates, lattice])
-        if len(candidates) == 0:
+            # Only outside the initial square (omega_0 sides), where the proposals are dense anyway.
+            offset = np.abs(lattice[:, :2] + lattice[:, 2:] / 2.0 - (x + w / 2, y + h / 2)).max(axis=1)
+            groups.append(lattice[offset > self.monitor.params.omega / 2.0 * math.sqrt(w * h)])
+        scored = [self.score_proposals(frame, group, (w, h)) for group in groups if len(group)]
+        if not scored:
             return Redetection(False, None, -math.inf, eta_d, omega, 0)
-        scores, boxes, sharpness = self.score_proposals(frame, candidates, (w, h))
+        scores = np.concatenate([part[0] for part in scored])
+        boxes = [box for part in scored for box in part[1]]
+        sharpness = np.concatenate([part[2] for part in scored])
         # Where each proposal's response peaks (px): steadier than EdgeBoxes' jittering boxes.
         centres = np.array([(bx + bw / 2.0, by + bh / 2.0) for bx, by, bw, bh in boxes])
         if holdoff:

@@ -161,8 +161,8 @@ class RedetectOptions:
     shifted the proposals' own scores (in the closed-loop test scene that flipped which proposal was
     accepted as the car emerged, to a box the tracker then slid off: ardupilot run centred 77 %). Not
     scored during the hold-off, so not remembered by the change test. Cost (`python -m
-    jsar.redetect.bench`, median, 2026-12-02): 126 ms per re-detection frame at omega 10 against 87 ms
-    without the lattice; nothing at omega 5 (55 ms).
+    jsar.redetect.bench`, median, back-to-back runs, 2026-12-02): 142 ms per re-detection frame at omega
+    10 against 88 ms without the lattice; nothing at omega 5 (61-63 ms either way).
     accept_ceiling_fraction: eta_d is at most this x the monitor's reference (the target's peak level;
     0: no ceiling), see monitor.py: the paper's absolute 0.02 lies above a weak target's own level
     (Gull2: tracked at 0.018, reappearing at 0.014-0.015, eta_d 0.016 by then).

@@ -17,7 +17,10 @@ raw translation peak (MATLAB FFT convention, see jsar.config):
 Choices beyond the paper (stated, measured in the report): the accepted box is centred where the
 decision response peaks inside the proposal's patch (not just the proposal's centre) and its size is
 by default the proposal's (`size_blend`, see RedetectOptions); proposals are also scored with the
-image turned by +-45 degrees (`scoring_angles_deg`: a target that turned while hidden); the decision
+image turned by +-45 degrees (`scoring_angles_deg`: a target that turned while hidden); windows on a
+lattice over the search square are scored besides the proposals (`grid_stride_sides`: a small target
+far from where it was lost need not be among EdgeBoxes' boxes); eta_d is capped at 0.8 x the target's
+peak level (`accept_ceiling_fraction`: the paper's absolute value can lie above a weak target's); the decision
 filter is NOT re-initialised on recovery (it is the long-term memory of reliable appearances;
 retraining it from the re-detected sample would let one false acceptance overwrite it); and a
 proposal above eta_d is only accepted where the score CHANGED since the target was hidden

@@ -451,10 +451,10 @@ def test_probation_does_not_switch_away_from_the_target_to_a_weaker_look_alike()
         (challenger.box[0] + challenger.box[2] / 2, challenger.box[1] + challenger.box[3] / 2), (162, 112)) < 8
 
 
-def _run_flash_decoy(resume_refuted: bool):
+def _run_flash_decoy(resume_refuted: bool) -> dict[int, tuple[str, tuple[float, ...]]]:
     """The target drifts and vanishes at frame 35; a plain look-alike flashes at (150, 130) on frames 44
     and 47 only (each flash a change: the first is accepted as the target); the target comes back
-    where it was at frame 52. Returns frame -> (state, box) and the tracker."""
+    where it was at frame 52. Returns frame -> (state, box)."""
     background = _background()
 
     def frame(index: int) -> np.ndarray:
@@ -472,7 +472,7 @@ def _run_flash_decoy(resume_refuted: bool):
     for index in range(1, 60):
         result = tracker.update(frame(index))
         results[index] = (result.state, result.box)
-    return results, tracker
+    return results
 
 
 def test_a_refuted_reinitialisation_resumes_the_search_it_ended():
@@ -480,7 +480,7 @@ def test_a_refuted_reinitialisation_resumes_the_search_it_ended():
         return box[0] + box[2] / 2, box[1] + box[3] / 2
 
     decoy_centre, target_centre = (162.0, 142.0), (123.0, 112.0)
-    results, tracker = _run_flash_decoy(resume_refuted=True)
+    results = _run_flash_decoy(resume_refuted=True)
     assert results[44][0] == "recovered" and math.dist(centre(results[44][1]), decoy_centre) < 6, \
         "the flash must be accepted first: the scenario tests nothing"
     # Frame 45: the decoy is gone and the new track with it; the search resumes where it was: the
@@ -493,7 +493,7 @@ def test_a_refuted_reinitialisation_resumes_the_search_it_ended():
     assert all(results[i][0] == "tracking" and math.dist(centre(results[i][1]), target_centre) < 6
                for i in range(53, 60)), [results[i] for i in range(52, 60)]
     # Without it the search restarts around the decoy's place.
-    plain, _ = _run_flash_decoy(resume_refuted=False)
+    plain = _run_flash_decoy(resume_refuted=False)
     assert plain[44][0] == "recovered"
     assert plain[45][0] == "lost" and math.dist(centre(plain[45][1]), decoy_centre) < 6
 
@@ -509,6 +509,10 @@ def test_grid_boxes_span_the_search_square_at_the_stride_inside_the_frame():
     near_corner = grid_boxes((15.0, 15.0), (20.0, 10.0), omega=12.0, stride_sides=2.0, frame_shape=(480, 640))
     assert near_corner[:, 0].min() >= 0.0 and near_corner[:, 1].min() >= 0.0  # clamped inside
     assert len(grid_boxes((200.0, 150.0), (20.0, 20.0), 1.0, 2.0, (480, 640))) == 1
+    ring = grid_boxes((200.0, 150.0), (20.0, 20.0), 12.0, 2.0, (480, 640), beyond_sides=2.5)
+    assert len(ring) == 32  # the inner 2 x 2 (1 side off the centre) left out
+    assert np.all(np.abs(ring[:, :2] + 10.0 - (200.0, 150.0)).max(axis=1) > 50.0)
+    assert len(grid_boxes((200.0, 150.0), (20.0, 20.0), 7.0, 2.0, (480, 640), beyond_sides=2.5)) == 0
     with pytest.raises(ValueError, match="grid_stride_sides"):
         RedetectOptions(grid_stride_sides=-1.0)
 

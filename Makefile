@@ -33,8 +33,8 @@ longterm: $(STAMP)
 	$(PY) -m jsar.eval $(DATA) --longterm --trackers jsar-re,jsar,csrt --json out/longterm.json
 
 bench: $(STAMP)
-	$(PY) -m jsar.tracking.bench $(DATA) --trackers jsar,csrt
-	JSAR_DATA_ROOT=$(DATA) $(PY) -m service.bench
+	$(PY) -m bench.tracking $(DATA) --trackers jsar,csrt
+	JSAR_DATA_ROOT=$(DATA) $(PY) -m bench.service
 
 clean:
 	rm -rf $(VENV) out

@@ -22,7 +22,7 @@ Derivation (`derived_colour_table`):
 An external 32768 x 11 table is projected with the same Q; a 32768 x 10 table is used as is.
 
 sigma was chosen before measuring and not tuned on the shared sequences: `python -m
-jsar.features.colour_ab DATA_ROOT [--sigma S]` measures the tracker with and without the colour
+bench.colour_ab DATA_ROOT [--sigma S]` measures the tracker with and without the colour
 channels (numbers in the README's features section; they move with the tracker's version).
 """
 from __future__ import annotations

@@ -4,6 +4,6 @@
   expects (optional OpenCV structured-edge model via `StructuredEdges`);
 - `proposals`: EdgeBoxes proposals in the omega-square around the last position (full-frame boxes);
 - `monitor`: the failure-monitor state machine (pure, no I/O);
-- `jsar_re`: `JsarReTracker` (Algorithm 1) and the registry factory `make_jsar_re` ("jsar-re");
-- `bench`: re-detection cost and re-initialisation size study (`python -m jsar.redetect.bench`).
+- `jsar_re`: `JsarReTracker` (Algorithm 1) and the registry factory `make_jsar_re` ("jsar-re").
+Re-detection cost and the re-initialisation size study: `python -m bench.redetect`.
 """

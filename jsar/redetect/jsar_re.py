@@ -72,7 +72,7 @@ class RedetectOptions:
     size_blend: re-initialised size = proposal^size_blend * last_confident^(1 - size_blend)
     (geometric, per side; 1 = the proposal's size as the original; the centre is always where the
     decision response peaks). Default 1. Evidence is mixed: on forced re-detections on the shared
-    sequences (`python -m jsar.redetect.bench DATA --size-blend`) the re-initialised box IoU was
+    sequences (`python -m bench.redetect DATA --size-blend`) the re-initialised box IoU was
     0.533 (blend 0), 0.482 (0.5), 0.411 (1): EdgeBoxes' boxes are loose. But in the closed-loop
     scene the car turns under the canopy: the last confident size (the diagonal car) was twice the
     reappearing car, the re-initialised filter learned the canopy edge with it and the size filter
@@ -165,7 +165,7 @@ class RedetectOptions:
     shifted the proposals' own scores (in the closed-loop test scene that flipped which proposal was
     accepted as the car emerged, to a box the tracker then slid off: ardupilot run centred 77 %). Not
     scored during the hold-off, so not remembered by the change test. Cost (`python -m
-    jsar.redetect.bench`, median, back-to-back runs, 2026-12-02): 142 ms per re-detection frame at omega
+    bench.redetect`, median, back-to-back runs, 2026-12-02): 142 ms per re-detection frame at omega
     10 against 88 ms without the lattice; nothing at omega 5 (61-63 ms either way).
     accept_ceiling_fraction: eta_d is at most this x the monitor's reference (the target's peak level;
     0: no ceiling), see monitor.py: the paper's absolute 0.02 lies above a weak target's own level

@@ -1,6 +1,6 @@
 """End-to-end benchmark of the daemon: latency from frame read to gimbal command, and CPU use.
 
-    python -m service.bench [--sequence UAVDT_S1301] [--trackers jsar-re,csrt] [--seconds 15]
+    python -m bench.service [--sequence UAVDT_S1301] [--trackers jsar-re,csrt] [--seconds 15]
 
 A real shared sequence (JSAR_DATA_ROOT) is resized to 640x480 and written as an MJPG video at 30 fps
 (under out/bench/, git-ignored). For each tracker the daemon runs as a subprocess on that file
@@ -209,7 +209,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m service.bench", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m bench.service", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sequence", default="UAVDT_S1301", help="folder under JSAR_DATA_ROOT")
     parser.add_argument("--trackers", default="jsar-re,csrt", help="comma-separated tracker names")

@@ -1,4 +1,4 @@
-"""Feature-extraction benchmark on one thread: `python -m jsar.features.bench [--frames N] [--json FILE]`.
+"""Feature-extraction benchmark on one thread: `python -m bench.features [--frames N] [--json FILE]`.
 
 Times (median over repeats, milliseconds) the per-frame feature work of the JSAR tracker on a real
 frame (first frame of a sequence under JSAR_DATA_ROOT when set, else a synthetic 1280x720 frame):

@@ -1,4 +1,4 @@
-"""Colour channels on / off: `python -m jsar.features.colour_ab DATA_ROOT [--table FILE.npy | --sigma S] [--json FILE]`.
+"""Colour channels on / off: `python -m bench.colour_ab DATA_ROOT [--table FILE.npy | --sigma S] [--json FILE]`.
 
 Runs the "jsar" tracker one-pass over every sequence under DATA_ROOT twice, with the colour
 attributes (42 channels; the derived table, --sigma: derived with another softness, or --table: an

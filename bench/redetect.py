@@ -1,4 +1,4 @@
-"""Cost of JSAR-Re's re-detection, one thread: `python -m jsar.redetect.bench DATA_ROOT [--frames N]`.
+"""Cost of JSAR-Re's re-detection, one thread: `python -m bench.redetect DATA_ROOT [--frames N]`.
 
 `--size-blend` instead measures which re-initialisation size is best: on every sequence, every 10th
 frame after 30, re-detection is forced at the tracker's current box (omega 5) on the next frame and,

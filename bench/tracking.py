@@ -1,6 +1,6 @@
 """Tracker speed on real sequences, one thread: lock-step ratio against OpenCV CSRT and per-stage times.
 
-    python -m jsar.tracking.bench DATA_ROOT [--trackers jsar,csrt] [--sequences a,b] [--stages SEQ]
+    python -m bench.tracking DATA_ROOT [--trackers jsar,csrt] [--sequences a,b] [--stages SEQ]
 
 Every decoded frame is handed to each tracker in turn, so all trackers see the same machine load;
 wall time and thread CPU time of `update` only (decoding excluded) are reported, frame-weighted.

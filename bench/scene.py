@@ -1,6 +1,6 @@
 """Render speed of the synthetic scene on one thread (frames per second at the configured size).
 
-    OMP_NUM_THREADS=1 python -m sim.bench [--frames 300] [--width 640 --height 480]
+    OMP_NUM_THREADS=1 python -m bench.scene [--frames 300] [--width 640 --height 480]
 """
 from __future__ import annotations
 

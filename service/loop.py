@@ -27,6 +27,7 @@ from service.control.frame_clock import ClockLimits, FrameStamp, control_interva
 from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
 from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
+from service.domain import ControlCommand, LoopState
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.camera import TrackSnapshot
@@ -35,31 +36,8 @@ from service.selection import normalised_box, point_box, proposal_box, rectangle
 from service.sources.base import Frame, LatestSlot
 
 log = logging.getLogger("service.loop")
-LoopState = Literal["idle", "tracking", "lost", "recovered"]
 CLOCK_LIMITS = ClockLimits()  # controller time step bounds, capture-clock seconds
 FRAME_GAP_S = 0.5  # no frame for this long while tracking: hold gimbal and vehicle
-
-
-@dataclass(frozen=True)
-class ControlCommand:
-    """One frame's decision for the outputs.
-
-    state: loop state after this frame; stopped: tracking just ended (send zeros once);
-    rates: (yaw_rate, pitch_rate) rad/s or None (no gimbal command); bearing: target direction from
-    the vehicle nose (rad, + right) or None; ground: flat-ground target estimate or None;
-    frame_time_s: capture time (s, source clock) of the frame the command was computed from, the
-    clock guidance is throttled on; None for commands not tied to a frame (hold after a frame gap,
-    stop while no frames arrive). coasting: lost, and the rates are the coast's (service.control.coast),
-    not a hold.
-    """
-
-    state: LoopState
-    stopped: bool
-    rates: tuple[float, float] | None
-    bearing: float | None
-    ground: GroundTarget | None
-    frame_time_s: float | None = None
-    coasting: bool = False
 
 
 class Outputs(Protocol):
@@ -116,7 +94,7 @@ class TrackingLoop:
         self.gains = PidGains.from_config(config.gimbal)
         self.coast_params = CoastParams.from_config(config.gimbal)
         self.hfov = math.radians(config.camera.hfov_deg)
-        self.state: LoopState = "idle"
+        self.state = LoopState.IDLE
         self.mode = messages.TRACKING_MODE_NONE
         self.tracker: Tracker | None = None
         self.box: tuple[float, float, float, float] | None = None
@@ -173,7 +151,7 @@ class TrackingLoop:
         command = self._control(frame, size, result, stopped)
         self.outputs.apply(time.monotonic(), command)
         sent = time.monotonic()
-        box_norm = normalised_box(self.box, size) if self.box is not None and self.state != "idle" else None
+        box_norm = normalised_box(self.box, size) if self.box is not None and self.state != LoopState.IDLE else None
         status = messages.TrackingStatus(
             status={"idle": messages.TRACKING_STATUS_IDLE, "lost": messages.TRACKING_STATUS_COASTING}.get(
                 self.state, messages.TRACKING_STATUS_ACTIVE),
@@ -182,7 +160,7 @@ class TrackingLoop:
         self.publish_snapshot(TrackSnapshot(status, command.ground, pose.alt_amsl_m if pose else None))
         report = FrameReport(
             frame_id=frame.frame_id, capture_time_s=frame.capture_time_s, image_size=size,
-            box=self.box if self.state != "idle" else None, box_normalised=box_norm,
+            box=self.box if self.state != LoopState.IDLE else None, box_normalised=box_norm,
             score=result.score if result is not None else None, state=self.state,
             queue_ms=(start - frame.read_monotonic_s) * 1e3, track_ms=(track_done - start) * 1e3,
             total_ms=(sent - frame.read_monotonic_s) * 1e3, dropped_frames=self.dropped(),
@@ -217,7 +195,7 @@ class TrackingLoop:
             log.error('event=track_init_failed box=%s reason="%s"', _fmt_box(box), exc)
             return "stopped" if self._stop_tracking("init failed") else None
         self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
-        self.state = "tracking"
+        self.state = LoopState.TRACKING
         self._reset_controller()
         self._reset_coast()
         self.size_memory = SizeMemory()
@@ -242,7 +220,7 @@ class TrackingLoop:
             log.info("event=coast_end reason=no_frames")
             self.coast = None
         log.warning("event=no_frames_while_tracking action=hold_gimbal_and_vehicle gap_s=%.1f", FRAME_GAP_S)
-        self.outputs.apply(time.monotonic(), ControlCommand("lost", False, (0.0, 0.0), None, None))
+        self.outputs.apply(time.monotonic(), ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0)))
 
     def _apply_selection_without_frame(self) -> None:
         """A stop must take effect even while no frames arrive (camera unplugged)."""
@@ -251,7 +229,7 @@ class TrackingLoop:
             return
         if isinstance(pending, StopTracking):
             if self._stop_tracking("stop requested"):
-                self.outputs.apply(time.monotonic(), ControlCommand("idle", True, (0.0, 0.0), None, None))
+                self.outputs.apply(time.monotonic(), ControlCommand(state=LoopState.IDLE, stopped=True, rates=(0.0, 0.0)))
         else:
             self.selections.put(pending)  # keep it for the next frame
 
@@ -261,7 +239,7 @@ class TrackingLoop:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
         self.size_memory = SizeMemory()
-        self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
+        self.state, self.mode = LoopState.IDLE, messages.TRACKING_MODE_NONE
         self._reset_controller()
         self._reset_coast()
         return was_active
@@ -362,11 +340,11 @@ class TrackingLoop:
         except Exception as exc:  # noqa: BLE001 - a tracker failure is a lost track, not a crash
             self.counters["tracker_errors"] += 1
             log.error('event=tracker_error error="%s: %s"', type(exc).__name__, exc)
-            self._set_state("lost")
+            self._set_state(LoopState.LOST)
             return None
         if all(math.isfinite(v) for v in result.box):
             self.box = result.box
-        self._set_state("lost" if result.state == "lost" else result.state)
+        self._set_state(LoopState(result.state))
         if result.state == "tracking" and self.box is not None:
             self._remember_size(self.box, size, capture_time_s)
         return result
@@ -374,9 +352,9 @@ class TrackingLoop:
     def _set_state(self, state: LoopState) -> None:
         if state == self.state:
             return
-        if state == "lost":
+        if state == LoopState.LOST:
             self.counters["lost"] += 1
-        elif self.state == "lost":
+        elif self.state == LoopState.LOST:
             self.counters["recovered"] += 1
         log.info("event=track_state from=%s to=%s", self.state, state)
         self.state = state
@@ -384,9 +362,10 @@ class TrackingLoop:
     def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None,
                  stopped: bool) -> ControlCommand:
         stamp = frame.capture_time_s
-        if stopped or self.state == "idle":
-            return ControlCommand("idle", stopped, (0.0, 0.0) if stopped else None, None, None, stamp)
-        if self.state == "lost" or self.box is None:
+        if stopped or self.state == LoopState.IDLE:
+            return ControlCommand(state=LoopState.IDLE, stopped=stopped, rates=(0.0, 0.0) if stopped else None,
+                                  frame_time_s=stamp)
+        if self.state == LoopState.LOST or self.box is None:
             return self._lost_command(stamp)
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
@@ -408,7 +387,8 @@ class TrackingLoop:
             if camera is not None:
                 self.history = remember(self.history, stamp, Position(pose.lat_deg, pose.lon_deg, pose.height_m),
                                         Position(ground.lat_deg, ground.lon_deg), camera, self.coast_params.fit_window_s)
-        return ControlCommand(self.state, False, (yaw_rate, pitch_rate), bearing, ground, stamp)
+        return ControlCommand(state=self.state, rates=(yaw_rate, pitch_rate), bearing=bearing, ground=ground,
+                              frame_time_s=stamp)
 
     def _lost_command(self, stamp: float) -> ControlCommand:
         """Lost: coast (service.control.coast) while the plan lasts, then hold the gimbal still.
@@ -438,10 +418,10 @@ class TrackingLoop:
             self.coast, rates = coast_step(self.coast, stamp, vehicle, camera, self.coast_params)
             if rates is not None:
                 self.counters["coast_frames"] += 1
-                return ControlCommand("lost", False, rates, None, None, stamp, coasting=True)
+                return ControlCommand(state=LoopState.LOST, rates=rates, frame_time_s=stamp, coasting=True)
             log.info("event=coast_end reason=%s", "no_pose_or_gimbal_attitude" if camera is None else "coast_s_elapsed")
             self.coast = None
-        return ControlCommand("lost", False, (0.0, 0.0), None, None, stamp)
+        return ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0), frame_time_s=stamp)
 
 
 def _fmt_box(box: tuple[float, float, float, float]) -> str:

@@ -18,7 +18,7 @@ from service.control.gimbal import (AxisState, GimbalState, PidGains, angular_er
                                     pid_step)
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
 from service.control.size_bound import SizeMemory, remember_side, side_bounds_px
-from service.loop import ControlCommand
+from service.domain import ControlCommand, LoopState
 from service.mavlink import commands as c
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.outputs import MavlinkOutputs
@@ -216,8 +216,8 @@ def _outputs(overrides: dict, view: AutopilotView) -> tuple[MavlinkOutputs, Fake
     return MavlinkOutputs(config, link, lambda: view, lambda: 1234), link
 
 
-TRACKING = ControlCommand("tracking", False, (0.1, -0.1), 0.2, None)
-LOST = ControlCommand("lost", False, (0.0, 0.0), None, None)
+TRACKING = ControlCommand(state=LoopState.TRACKING, rates=(0.1, -0.1), bearing=0.2)
+LOST = ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0))
 
 
 def at(command: ControlCommand, frame_time_s: float) -> ControlCommand:
@@ -354,10 +354,13 @@ def test_follow_target_sends_the_ground_estimate_only_while_tracking() -> None:
     from service.control.geo import GroundTarget
     ground = GroundTarget(lat_deg=47.1, lon_deg=8.2, alt_amsl_m=500.0, ground_range_m=20.0, bearing_rad=0.3)
     outputs, link = _outputs({"guidance": {"mode": "follow_target", "rate_hz": 10.0}}, AutopilotView(system_id=1))
-    outputs.apply(1.0, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground, 50.0))
-    outputs.apply(1.05, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground, 50.05))  # throttled
-    outputs.apply(1.2, ControlCommand("lost", False, (0.0, 0.0), None, None, 50.2))
-    outputs.apply(1.3, ControlCommand("tracking", False, (0.0, 0.0), 0.1, None, 50.3))  # no ground estimate
+    outputs.apply(1.0, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1, ground=ground,
+                                       frame_time_s=50.0))
+    outputs.apply(1.05, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1, ground=ground,
+                                        frame_time_s=50.05))  # throttled
+    outputs.apply(1.2, ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0), frame_time_s=50.2))
+    outputs.apply(1.3, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1,
+                                       frame_time_s=50.3))  # no ground estimate
     follows = [m for m in link.sent if m.get_type() == "FOLLOW_TARGET"]
     assert len(follows) == 1
     assert (follows[0].lat, follows[0].lon, follows[0].est_capabilities) == (471000000, 82000000, 1)
@@ -453,7 +456,7 @@ def test_px4_outside_offboard_streams_only_zero_setpoints_so_the_pilot_can_engag
     assert len(setpoints) == 5  # > 2 Hz stream
     assert all((m.vx, m.vy, m.vz, m.yaw_rate) == (0, 0, 0, 0) for m in setpoints)
     idle_link = _outputs({"guidance": {"mode": "velocity"}}, hold)
-    idle_link[0].apply(10.0, ControlCommand("idle", False, None, None, None))
+    idle_link[0].apply(10.0, ControlCommand(state=LoopState.IDLE))
     assert idle_link[1].sent == []  # not tracking: nothing at all
     offboard = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
     outputs.autopilot = lambda: offboard

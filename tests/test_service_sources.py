@@ -11,7 +11,8 @@ import pytest
 
 from jsar.api import TrackResult
 from service.config import config_from_mapping
-from service.loop import ControlCommand, TrackingLoop
+from service.domain import ControlCommand
+from service.loop import TrackingLoop
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.commands import StopTracking, TrackRectangle
 from service.sources.base import CaptureWorker, EndOfStream, Frame, LatestSlot, SourceError, backoff_delays

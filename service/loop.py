@@ -27,11 +27,8 @@ from service.control.frame_clock import ClockLimits, FrameStamp, control_interva
 from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
 from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
-from service.domain import ControlCommand, LoopState
-from service.mavlink import messages
-from service.mavlink.autopilot import AutopilotView
-from service.mavlink.camera import TrackSnapshot
-from service.mavlink.commands import StopTracking, TrackPoint, TrackRectangle
+from service.domain import (AutopilotState, ControlCommand, LoopState, SelectionKind, StopTracking, TrackPoint,
+                            TrackRectangle, TrackSnapshot)
 from service.selection import normalised_box, point_box, proposal_box, rectangle_box, rescale_box
 from service.sources.base import Frame, LatestSlot
 
@@ -79,7 +76,7 @@ class TrackingLoop:
     """Owns the tracker and the gimbal controller state; one call to `step` per frame."""
 
     def __init__(self, config: ServiceConfig, selections: LatestSlot, make_tracker: Callable[[], Tracker],
-                 outputs: Outputs, autopilot: Callable[[], AutopilotView],
+                 outputs: Outputs, autopilot: Callable[[], AutopilotState],
                  publish_snapshot: Callable[[TrackSnapshot], None] = lambda snapshot: None,
                  publish_report: Callable[[FrameReport], None] = lambda report: None,
                  dropped: Callable[[], int] = lambda: 0) -> None:
@@ -95,7 +92,7 @@ class TrackingLoop:
         self.coast_params = CoastParams.from_config(config.gimbal)
         self.hfov = math.radians(config.camera.hfov_deg)
         self.state = LoopState.IDLE
-        self.mode = messages.TRACKING_MODE_NONE
+        self.mode: SelectionKind | None = None  # how the current target was selected
         self.tracker: Tracker | None = None
         self.box: tuple[float, float, float, float] | None = None
         self.tracked_size: tuple[int, int] | None = None
@@ -152,12 +149,10 @@ class TrackingLoop:
         self.outputs.apply(time.monotonic(), command)
         sent = time.monotonic()
         box_norm = normalised_box(self.box, size) if self.box is not None and self.state != LoopState.IDLE else None
-        status = messages.TrackingStatus(
-            status={"idle": messages.TRACKING_STATUS_IDLE, "lost": messages.TRACKING_STATUS_COASTING}.get(
-                self.state, messages.TRACKING_STATUS_ACTIVE),
-            mode=self.mode if self.state != "idle" else messages.TRACKING_MODE_NONE, box=box_norm)
         pose = self.autopilot().pose()
-        self.publish_snapshot(TrackSnapshot(status, command.ground, pose.alt_amsl_m if pose else None))
+        self.publish_snapshot(TrackSnapshot(
+            state=self.state, selection=self.mode if self.state != LoopState.IDLE else None, box_normalised=box_norm,
+            ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
         report = FrameReport(
             frame_id=frame.frame_id, capture_time_s=frame.capture_time_s, image_size=size,
             box=self.box if self.state != LoopState.IDLE else None, box_normalised=box_norm,
@@ -179,9 +174,9 @@ class TrackingLoop:
             return "stopped" if self._stop_tracking("stop requested") else None
         self.counters["selections"] += 1
         if isinstance(selection, TrackRectangle):
-            box, mode, how = rectangle_box(selection, size), messages.TRACKING_MODE_RECTANGLE, "rectangle"
+            box, mode, how = rectangle_box(selection, size), SelectionKind.RECTANGLE, "rectangle"
         elif isinstance(selection, TrackPoint):
-            box, mode, how = point_box(selection, size, self.config.camera), messages.TRACKING_MODE_POINT, "point"
+            box, mode, how = point_box(selection, size, self.config.camera), SelectionKind.POINT, "point"
             if self.config.camera.point_proposal:
                 proposal = proposal_box(image, selection, box)
                 how = "point+proposal" if proposal is not None else "point,no_proposal_qualified"
@@ -239,7 +234,7 @@ class TrackingLoop:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
         self.size_memory = SizeMemory()
-        self.state, self.mode = LoopState.IDLE, messages.TRACKING_MODE_NONE
+        self.state, self.mode = LoopState.IDLE, None
         self._reset_controller()
         self._reset_coast()
         return was_active

@@ -405,6 +405,19 @@ def test_status_reports_error_when_the_camera_fails_while_tracking() -> None:
     assert m.with_source_state(m.TrackingStatus(), False) == m.TrackingStatus()
 
 
+def test_the_loop_state_maps_to_tracking_status_and_mode() -> None:
+    from service.domain import LoopState, SelectionKind, TrackSnapshot
+    from service.mavlink import messages as m
+    box = (0.1, 0.1, 0.2, 0.2)
+    expected = {LoopState.TRACKING: m.TRACKING_STATUS_ACTIVE, LoopState.RECOVERED: m.TRACKING_STATUS_ACTIVE,
+                LoopState.LOST: m.TRACKING_STATUS_COASTING}
+    for state, status in expected.items():
+        for kind, mode in ((SelectionKind.POINT, m.TRACKING_MODE_POINT), (SelectionKind.RECTANGLE, m.TRACKING_MODE_RECTANGLE)):
+            snapshot = TrackSnapshot(state=state, selection=kind, box_normalised=box)
+            assert m.tracking_status(snapshot) == m.TrackingStatus(status, mode, box)
+    assert m.tracking_status(TrackSnapshot()) == m.TrackingStatus(m.TRACKING_STATUS_IDLE, m.TRACKING_MODE_NONE, None)
+
+
 def test_backoff_restarts_after_the_source_worked_again() -> None:
     class Flaky:
         """Fails to open three times, then delivers one frame and fails, and so on."""

@@ -11,11 +11,10 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
 from typing import Callable
 
 from service.config import ServiceConfig
-from service.control.geo import GroundTarget
+from service.domain import TrackSnapshot
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView, observe
 from service.mavlink.commands import (
@@ -48,15 +47,6 @@ class RepeatedRefusals:
             return False
         self._seen.add(key)
         return True
-
-
-@dataclass(frozen=True)
-class TrackSnapshot:
-    """What the loop last reported, for 275 / 276: status, ground estimate, vehicle altitude."""
-
-    image: messages.TrackingStatus = messages.TrackingStatus()
-    ground: GroundTarget | None = None
-    vehicle_alt_amsl_m: float | None = None
 
 
 class CameraComponent:
@@ -214,7 +204,7 @@ class CameraComponent:
 
     def _send_image_status(self) -> None:
         with self._lock:
-            status = self._snapshot.image
+            status = messages.tracking_status(self._snapshot)
         status = messages.with_source_state(status, self._source_ok())
         self.link.send(messages.tracking_image_status(self.link.mav, status))
         self.counters["status_sent"] += 1
@@ -222,7 +212,7 @@ class CameraComponent:
     def _send_geo_status(self) -> None:
         with self._lock:
             snap = self._snapshot
-        self.link.send(messages.tracking_geo_status(self.link.mav, snap.image.status, snap.ground,
+        self.link.send(messages.tracking_geo_status(self.link.mav, messages.tracking_status(snap).status, snap.ground,
                                                     snap.vehicle_alt_amsl_m))
 
     def _send_loop(self) -> None:

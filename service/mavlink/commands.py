@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Union
 
+from service.domain import StopTracking, TrackPoint, TrackRectangle
+
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MAV_CMD_REQUEST_CAMERA_INFORMATION = 521
@@ -28,30 +30,6 @@ MSG_ID_CAMERA_TRACKING_IMAGE_STATUS = 275
 MSG_ID_CAMERA_TRACKING_GEO_STATUS = 276
 STREAMABLE_MESSAGES = (MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, MSG_ID_CAMERA_TRACKING_GEO_STATUS)
 MIN_INTERVAL_US = 10_000  # 100 Hz: faster than any camera frame rate we serve
-
-
-@dataclass(frozen=True)
-class TrackPoint:
-    """Track what is at (x, y) normalised; radius as a fraction of the image width (0 = default)."""
-
-    x: float
-    y: float
-    radius: float
-
-
-@dataclass(frozen=True)
-class TrackRectangle:
-    """Track the rectangle with normalised corners top-left (x0, y0), bottom-right (x1, y1)."""
-
-    x0: float
-    y0: float
-    x1: float
-    y1: float
-
-
-@dataclass(frozen=True)
-class StopTracking:
-    """Stop tracking."""
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 from service.control.geo import GroundTarget
 from service.control.guidance import MAV_FRAME_BODY_OFFSET_NED, VELOCITY_YAW_RATE_TYPE_MASK, VelocitySetpoint
+from service.domain import LoopState, SelectionKind, TrackSnapshot
 
 NAN = float("nan")
 MAV_TYPE_CAMERA = 30
@@ -41,6 +42,17 @@ class TrackingStatus:
     status: int = TRACKING_STATUS_IDLE
     mode: int = TRACKING_MODE_NONE
     box: tuple[float, float, float, float] | None = None
+
+
+def tracking_status(snapshot: TrackSnapshot) -> TrackingStatus:
+    """The loop's snapshot in 275's terms: idle -> IDLE, lost -> COASTING, tracking / recovered -> ACTIVE;
+    mode from the selection (NONE while idle)."""
+    if snapshot.state == LoopState.IDLE:
+        return TrackingStatus(TRACKING_STATUS_IDLE, TRACKING_MODE_NONE, snapshot.box_normalised)
+    status = TRACKING_STATUS_COASTING if snapshot.state == LoopState.LOST else TRACKING_STATUS_ACTIVE
+    mode = {SelectionKind.POINT: TRACKING_MODE_POINT, SelectionKind.RECTANGLE: TRACKING_MODE_RECTANGLE}.get(
+        snapshot.selection, TRACKING_MODE_NONE)  # type: ignore[arg-type]
+    return TrackingStatus(status, mode, snapshot.box_normalised)
 
 
 def with_source_state(status: TrackingStatus, source_ok: bool) -> TrackingStatus:

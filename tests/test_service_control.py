@@ -564,3 +564,46 @@ def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current
     views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # autopilot silent
     loop.step(Frame(image, 5, 1.3, 0.0))
     assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 4
+
+
+def test_the_loop_reads_the_autopilot_once_per_frame() -> None:
+    """Selection, size bound, size sample, control and coast all use one snapshot of the autopilot a frame."""
+    import time
+
+    from jsar.api import TrackResult
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "jsar-re", "range_size_band": 1.5}, "camera": {"hfov_deg": 90.0}})
+    gimbal = GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False)
+    view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0), gimbal=gimbal,
+                         last_heartbeat_s=time.monotonic())
+    reads: list[int] = []
+    states = ["tracking"] * 20 + ["lost"] * 5
+
+    class Scripted:
+        def init(self, image, box):
+            self.box = box
+
+        def set_side_bounds(self, side_bounds_px):
+            pass
+
+        def update(self, image):
+            return TrackResult(self.box, 1.0, states.pop(0))
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            pass
+
+    def autopilot() -> AutopilotView:
+        reads.append(1)
+        return view
+
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Scripted, Record(), autopilot)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))
+    image = np.zeros((200, 200, 3), np.uint8)
+    for frame_id in range(26):
+        loop.step(Frame(image, frame_id, frame_id * 0.1, 0.0))
+        assert len(reads) == frame_id + 1
+    assert loop.counters["size_bounded_frames"] == 25 and loop.counters["coast_frames"] >= 1

@@ -14,15 +14,18 @@ import time
 from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20.common import (
+    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
+    MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+)
 
 from service.config import ServiceConfig
 from service.domain import TrackSnapshot
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView, observe
 from service.mavlink.commands import (
-    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
-    MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, Decision, RequestMessage,
-    SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide, is_for_us,
+    Decision, RequestMessage, SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide,
+    is_for_us,
 )
 from service.mavlink.link import MavlinkLink
 from service.sources.base import LatestSlot

@@ -10,6 +10,10 @@ import math
 from dataclasses import dataclass
 from typing import Union
 
+from service.mavlink.video_stream import (MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION, MAV_CMD_REQUEST_VIDEO_STREAM_STATUS,
+                                          MSG_ID_VIDEO_STREAM_INFORMATION, MSG_ID_VIDEO_STREAM_STATUS,
+                                          VIDEO_STREAM_MESSAGES, stream_id_matches)
+
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MAV_CMD_REQUEST_CAMERA_INFORMATION = 521
@@ -128,11 +132,19 @@ def decide(command: int, params: tuple[float, ...], own_component: int) -> Decis
         message_id = _as_message_id(p1)
         if message_id is None:
             return Decision(MAV_RESULT_DENIED, f"message id must be a whole number, got {p1}")
-        if message_id not in (MSG_ID_CAMERA_INFORMATION, *STREAMABLE_MESSAGES):
+        if message_id not in (MSG_ID_CAMERA_INFORMATION, *STREAMABLE_MESSAGES, *VIDEO_STREAM_MESSAGES):
             return Decision(MAV_RESULT_UNSUPPORTED, f"this camera does not provide message {message_id}")
+        if message_id in VIDEO_STREAM_MESSAGES and not stream_id_matches(p2):
+            return Decision(MAV_RESULT_DENIED, f"no video stream {p2:g} (this camera has stream 1)")
         return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(message_id))
     if command == MAV_CMD_REQUEST_CAMERA_INFORMATION:
         return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(MSG_ID_CAMERA_INFORMATION))
+    if command in (MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION, MAV_CMD_REQUEST_VIDEO_STREAM_STATUS):  # older ground stations
+        if not stream_id_matches(p1):
+            return Decision(MAV_RESULT_DENIED, f"no video stream {p1:g} (this camera has stream 1)")
+        return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(
+            MSG_ID_VIDEO_STREAM_INFORMATION if command == MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION
+            else MSG_ID_VIDEO_STREAM_STATUS))
     return Decision(MAV_RESULT_UNSUPPORTED, f"command {command} is not supported by this camera")
 
 

@@ -10,13 +10,13 @@ from dataclasses import dataclass
 
 from service.control.geo import GroundTarget
 from service.control.guidance import MAV_FRAME_BODY_OFFSET_NED, VELOCITY_YAW_RATE_TYPE_MASK, VelocitySetpoint
+from service.mavlink.video_stream import CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM  # pymavlink's enum
 
 NAN = float("nan")
 MAV_TYPE_CAMERA = 30
 MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
-CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM = 256
 CAMERA_CAP_FLAGS_HAS_TRACKING_POINT = 512
 CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE = 1024
 CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS = 2048
@@ -57,11 +57,14 @@ def heartbeat(mav: object, healthy: bool) -> object:
 
 
 def camera_information(mav: object, time_boot_ms: int, vendor: str, model: str, frame_size: tuple[int, int],
-                       geo_status: bool) -> object:
-    """CAMERA_INFORMATION with tracking flags and the real frame size (0x0 until a frame was seen)."""
+                       geo_status: bool, video_stream: bool = False) -> object:
+    """CAMERA_INFORMATION with tracking flags (and HAS_VIDEO_STREAM when the RTP stream is on) and the
+    real frame size (0x0 until a frame was seen)."""
     flags = CAMERA_CAP_FLAGS_HAS_TRACKING_POINT | CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE
     if geo_status:
         flags |= CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS
+    if video_stream:
+        flags |= CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
     return mav.camera_information_encode(  # type: ignore[attr-defined]
         time_boot_ms, _fixed(vendor, 32), _fixed(model, 32), 0, NAN, NAN, NAN,
         frame_size[0], frame_size[1], 0, flags, 0, b"")

@@ -163,6 +163,15 @@ class UdpSink:
         self.sock.close()
 
 
+def video_counters(session: object) -> dict:
+    """The preview_* / stream_* counters of the daemon's status ({} without an answer)."""
+    replies = [r.ok for r in session.get("bench/status", timeout=5.0) if r.ok is not None]  # type: ignore[attr-defined]
+    if not replies:
+        return {}
+    counters = json.loads(replies[0].payload.to_string())["counters"]
+    return {k: v for k, v in counters.items() if k.startswith(("preview_", "stream_"))}
+
+
 def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path, video_out: bool = False) -> dict:
     """Run the daemon with `tracker` on the video (video_out: preview and RTP stream on); the measured numbers."""
     import zenoh
@@ -201,7 +210,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
         previews[0] += 1
 
     session = None
-    video_counters: dict = {}
+    counters_end: dict = {}
     try:
         if not autopilot.heard.wait(60.0):
             raise SystemExit(f"{tracker}: no heartbeat from the daemon: {proc.stderr.read() if proc.poll() else ''}")
@@ -220,6 +229,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
         autopilot.track(gt[min(current + 1, len(gt) - 1)])
         with lock:
             lock.wait_for(lambda: any(r["state"] != "idle" for r in reports), 30.0)
+        counters_start = video_counters(session)
         start_wall, start_cpu = time.monotonic(), cpu_seconds(proc.pid)
         stream_bytes_before = sink.bytes if sink else 0
         start_index = len(reports)
@@ -228,10 +238,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
                           or time.monotonic() - start_wall > seconds, seconds + 5)
         wall, cpu = time.monotonic() - start_wall, cpu_seconds(proc.pid) - start_cpu
         stream_kbit_s = (sink.bytes - stream_bytes_before) * 8 / 1000 / wall if sink else 0.0
-        replies = [r.ok for r in session.get("bench/status", timeout=5.0) if r.ok is not None]
-        if replies:
-            counters = json.loads(replies[0].payload.to_string())["counters"]
-            video_counters = {k: v for k, v in counters.items() if k.startswith(("preview_", "stream_"))}
+        counters_end = video_counters(session)
         subscriber.undeclare()
         preview_subscriber.undeclare()
     finally:
@@ -262,7 +269,10 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
             "gimbal_commands": autopilot.gimbal_commands, "previews_received": previews[0],
             "stream_datagrams_received": sink.datagrams if sink else 0,
             "stream_kbit_s": stream_kbit_s,
-            "video_counters": video_counters,
+            "video_counters": counters_end,
+            # CPU time of each encoder's thread over the tracking window, in cores (contention does not inflate it)
+            "preview_encoder_cores": (counters_end.get("preview_cpu_ms", 0) - counters_start.get("preview_cpu_ms", 0)) / 1e3 / wall,
+            "stream_encoder_cores": (counters_end.get("stream_cpu_ms", 0) - counters_start.get("stream_cpu_ms", 0)) / 1e3 / wall,
             "centre_error_median_px": float(np.median(centre_err)) if centre_err else float("nan")}
 
 
@@ -302,16 +312,18 @@ def main(argv: list[str] | None = None) -> int:
               f"| {r['centre_error_median_px']:.1f} |")
     video_on = [r for r in results if r["video"] == "on"]
     if video_on:
-        print("\nvideo outputs over the whole run (idle + tracking): frames sent, dropped by a slow encoder, thinned "
-              "by rate; received by the viewers; the stream's bit rate over the tracking window")
+        print("\nvideo outputs: frames sent, dropped by a slow encoder, thinned by rate, received by the viewers over "
+              "the whole run (idle + tracking); bit rate and encoder threads' CPU over the tracking window")
         print("| tracker | round | preview sent | preview dropped | preview rate-skipped | previews received "
-              "| stream sent | stream dropped | RTP datagrams received | stream kbit/s |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+              "| stream sent | stream dropped | RTP datagrams received | stream kbit/s "
+              "| preview encoder CPU (cores) | stream encoder CPU (cores) |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in video_on:
             c = r["video_counters"]
             print(f"| {r['tracker']} | {r['round']} | {c.get('preview_sent')} | {c.get('preview_dropped')} | "
                   f"{c.get('preview_rate_skipped')} | {r['previews_received']} | {c.get('stream_sent')} | "
-                  f"{c.get('stream_dropped')} | {r['stream_datagrams_received']} | {r['stream_kbit_s']:.0f} |")
+                  f"{c.get('stream_dropped')} | {r['stream_datagrams_received']} | {r['stream_kbit_s']:.0f} "
+                  f"| {r['preview_encoder_cores']:.3f} | {r['stream_encoder_cores']:.3f} |")
     (out / "results.json").write_text(json.dumps(results, indent=2))
     return 0
 

@@ -37,6 +37,9 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import common as dialect  # noqa: E402
 
+import jsar  # noqa: E402
+from jsar.api import SideBoundedTracker  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
 IDLE_S = 3.0  # measured before the selection: decoding, telemetry and MAVLink without tracking
@@ -183,6 +186,8 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
     config["video"]["stream"].update({"enabled": video_out, "host": "127.0.0.1", "port": sink.port if sink else 5600,
                                       "max_width_px": WIDTH, "max_height_px": HEIGHT, "fps": FPS})
     config["tracker"].update({"name": tracker, "threads": 1})
+    if not isinstance(jsar.create(tracker), SideBoundedTracker):
+        config["tracker"]["range_size_band"] = 0  # OpenCV's trackers take no side bounds (the service refuses them)
     config["source"].update({"kind": "file", "path": str(video), "realtime": True, "loop": False})
     config["mavlink"]["url"] = f"udpout:127.0.0.1:{mav_port}"
     config["zenoh"].update({"enabled": True, "listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "bench"})

@@ -111,6 +111,19 @@ def test_an_unresolvable_stream_host_stops_the_service_naming_the_key() -> None:
         Service(config)
 
 
+def test_a_pyav_without_libx264_stops_the_service_naming_the_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    import av
+
+    from service.video.rtp_stream import h264_encoder_library
+
+    def no_x264(name: str, mode: str = "r") -> None:
+        raise av.codec.codec.UnknownCodecError(name)  # as on PyAV's armv7l wheels
+
+    monkeypatch.setattr(av.codec, "Codec", no_x264)
+    with pytest.raises(ConfigError, match="video.stream.enabled: this PyAV build has no libx264 H.264 encoder"):
+        h264_encoder_library()
+
+
 # --- announced over MAVLink ----------------------------------------------------------------------
 def test_video_stream_requests_decide_with_pymavlink_ids() -> None:
     info, status = mavlink.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, mavlink.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS

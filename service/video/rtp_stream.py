@@ -56,13 +56,26 @@ def yuv420(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2YUV_I420)
 
 
+def h264_encoder_library():  # -> the av module
+    """PyAV, checked to have the libx264 encoder; ConfigError naming video.stream.enabled otherwise (some
+    wheels, e.g. PyAV's armv7l builds, ship FFmpeg without libx264)."""
+    try:
+        import av  # imported only when the stream is on: the rest of the service runs without it
+        av.codec.Codec("libx264", "w")
+    except ImportError as exc:
+        raise ConfigError(f"video.stream.enabled: the H.264 stream needs PyAV (pip package av): {exc}") from exc
+    except ValueError as exc:  # av.codec.codec.UnknownCodecError
+        raise ConfigError("video.stream.enabled: this PyAV build has no libx264 H.264 encoder "
+                          f"({type(exc).__name__}: {exc}); install a PyAV wheel with libx264 or switch the stream off") from exc
+    return av
+
+
 class RtpH264Stream:
     """Sends the newest tracked frame as H.264 over RTP/UDP to config.host:config.port, at most fps a second."""
 
     def __init__(self, config: StreamConfig, hfov_deg: float) -> None:
-        import av  # the encoder library: imported where it is used, the rest of the service runs without it
-
-        self._av = av
+        """ConfigError naming video.stream.enabled when PyAV or its libx264 encoder is missing."""
+        self._av = h264_encoder_library()
         self.config = config
         self.hfov_deg = hfov_deg
         self.url = rtp_url(config.host, config.port)

@@ -21,6 +21,8 @@ from service.sources import CaptureWorker, LatestSlot, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
+from service.video.rtp_stream import RtpH264Stream, check_destination
+from service.video.zenoh_preview import ZenohPreview
 
 SIGNAL_POLL_S = 0.1  # s: how often the main thread wakes to run pending signal handlers
 
@@ -46,6 +48,8 @@ class Service:
         if tracker_cfg.range_size_band != 0 and not isinstance(probe, SideBoundedTracker):
             raise ConfigError(f"tracker.range_size_band: tracker {tracker_cfg.name!r} cannot bound its box size; "
                               "set 0 to run it without the range size bound")
+        if config.video.stream.enabled:
+            check_destination(config.video.stream)
         self._session = open_session(config.zenoh) if config.zenoh.enabled else None
         try:
             self.mailbox: LatestSlot[Frame] = LatestSlot()
@@ -54,17 +58,26 @@ class Service:
             self.selections: LatestSlot = LatestSlot()
             self.link = MavlinkLink(config.mavlink, config.mavlink.system_id or config.mavlink.provisional_system_id)
             health = self.worker.health
+            self.stream = RtpH264Stream(config.video.stream, config.camera.hfov_deg) if config.video.stream.enabled else None
+            stream = self.stream
             self.camera = CameraComponent(
                 config, self.link, self.selections,
                 frame_size=lambda: health.last_frame_size,
                 source_ok=lambda: health.state == "ok",
-                source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}")
+                source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}",
+                video_stream=(lambda: stream.describe(health.last_frame_size)) if stream is not None else None)
             self.outputs = MavlinkOutputs(config, self.link, self.camera.autopilot, self.camera.time_boot_ms)
             self.telemetry = Telemetry(self._session, config.zenoh.prefix, self.status) if self._session else None
+            self.preview = (ZenohPreview(self._session, config.zenoh.prefix, config.video.preview)
+                            if self._session is not None and config.video.preview.enabled else None)
+            if config.video.preview.enabled and self._session is None:
+                log.info("event=preview_off reason=zenoh_disabled")
+            self.video_outputs = [output for output in (self.preview, self.stream) if output is not None]
             self.loop = TrackingLoop(
                 config, self.selections, lambda: jsar.create(tracker_cfg.name, **tracker_cfg.params),
                 self.outputs, self.camera.autopilot, publish_snapshot=self.camera.publish,
-                publish_report=self._publish_report, dropped=lambda: self.worker.dropped)
+                publish_report=self._publish_report, dropped=lambda: self.worker.dropped,
+                publish_frame=self._publish_frame)
         except BaseException:
             if self._session is not None:
                 self._session.close()
@@ -81,6 +94,11 @@ class Service:
                 self.telemetry_errors += 1
                 log.warning('event=telemetry_failed error="%s"', exc)
 
+    def _publish_frame(self, frame: Frame) -> None:
+        """Tracking thread: hand the tracked frame to each video output (never waits for an encoder)."""
+        for output in self.video_outputs:
+            output.offer(frame)
+
     def status(self) -> dict[str, Any]:
         """Status, counters and effective configuration (answer of the <prefix>/status queryable)."""
         health = self.worker.health.snapshot()
@@ -96,7 +114,11 @@ class Service:
                          **{f"mavlink_{k}": v for k, v in self.camera.counters.items()},
                          **{f"out_{k}": v for k, v in self.outputs.counters.items()},
                          "mavlink_sent": self.link.sent, "mavlink_send_errors": self.link.send_errors,
-                         "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors},
+                         "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors,
+                         **{f"{output.worker.name}_{k}": v for output in self.video_outputs
+                            for k, v in output.worker.counters().items()}},
+            "video": {"preview": self.preview.status() if self.preview is not None else None,
+                      "stream": self.stream.status() if self.stream is not None else None},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
                           "custom_mode": view.custom_mode},
             "mavlink_system_id": self.link.system_id,
@@ -110,6 +132,8 @@ class Service:
         restarts it); per-frame errors are handled inside the loop.
         """
         self.worker.start()
+        for output in self.video_outputs:
+            output.start()
         self.camera.start()
         watchdog_s = watchdog_interval_s()
         last_ping = [0.0]
@@ -160,6 +184,8 @@ class Service:
             self.outputs.apply(time.monotonic(), ControlCommand(state=LoopState.IDLE, stopped=True, rates=(0.0, 0.0)))
         self.camera.stop(timeout_s=0.5)
         self.worker.stop(timeout_s=0.5)
+        for output in self.video_outputs:
+            output.stop(timeout_s=0.3)
         if self.telemetry is not None:
             self.telemetry.close()
         self.link.close()

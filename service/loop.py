@@ -106,6 +106,7 @@ class TrackingLoop:
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
+        self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0,
                          "size_bounded_frames": 0}
@@ -132,24 +133,33 @@ class TrackingLoop:
                 self._stop_tracking("step failed")
 
     def step(self, frame: Frame) -> FrameReport:
-        """Process one frame: apply a pending selection, track, control, report."""
+        """Process one frame: apply a pending selection, track, take the autopilot snapshot, control, report."""
         start = time.monotonic()
         image = frame.image
         size = (image.shape[1], image.shape[0])
         self.counters["frames"] += 1
-        change = self._apply_selection(image, size, frame.capture_time_s)
+        change = self._apply_selection(image, size)
         stopped = change == "stopped"
         if self.tracker is not None and self.tracked_size != size:
             self._handle_resize(image, size)
         result: TrackResult | None = None
         if self.tracker is not None and change != "started":  # the init frame's box is the selection
-            result = self._track(image, frame.capture_time_s)
+            result = self._track(image)
         track_done = time.monotonic()
-        command = self._control(frame, size, result, stopped)
+        # One snapshot of the autopilot a frame, taken once the tracker is done (the newest state the control
+        # can have): this frame's size sample, control and status, and with this frame's box the next
+        # update's size bound.
+        view = self.view = self.autopilot()
+        confident = change == "started" or (result is not None and result.state == "tracking")
+        if confident and self.box is not None:  # the selection, or a box the tracker is confident of
+            self._remember_size(self.box, size, frame.capture_time_s, view)
+            if change == "started" and self.size_memory.samples:
+                log.info("event=target_size side_m=%.2f", self.size_memory.samples[0])
+        command = self._control(frame, size, result, stopped, view)
         self.outputs.apply(time.monotonic(), command)
         sent = time.monotonic()
         box_norm = normalised_box(self.box, size) if self.box is not None and self.state != LoopState.IDLE else None
-        pose = self.autopilot().pose()
+        pose = view.pose()
         self.publish_snapshot(TrackSnapshot(
             state=self.state, selection=self.mode if self.state != LoopState.IDLE else None, box_normalised=box_norm,
             ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
@@ -164,8 +174,7 @@ class TrackingLoop:
         return report
 
     # --- pieces -------------------------------------------------------------------------------
-    def _apply_selection(self, image: np.ndarray, size: tuple[int, int],
-                         capture_time_s: float) -> Literal["started", "stopped"] | None:
+    def _apply_selection(self, image: np.ndarray, size: tuple[int, int]) -> Literal["started", "stopped"] | None:
         """Apply a pending selection: "started" (tracker initialised on this frame), "stopped", or None."""
         selection = self.selections.take(timeout_s=0.0)
         if selection is None:
@@ -195,9 +204,6 @@ class TrackingLoop:
         self._reset_coast()
         self.size_memory = SizeMemory()
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
-        self._remember_size(box, size, capture_time_s)
-        if self.size_memory.samples:
-            log.info("event=target_size side_m=%.2f", self.size_memory.samples[0])
         return "started"
 
     def _hold_without_frames(self) -> None:
@@ -286,10 +292,10 @@ class TrackingLoop:
         self.last_stamp = stamp
         return self.nominal_dt_s if interval.dt_s is None else interval.dt_s
 
-    def _ground_px_per_m(self, box: tuple[float, float, float, float], size: tuple[int, int]) -> float | None:
+    def _ground_px_per_m(self, box: tuple[float, float, float, float], size: tuple[int, int],
+                         view: AutopilotState) -> float | None:
         """Pixels per metre of ground-target side where `box` (px) is, from the autopilot's pose and gimbal
         attitude (flat ground, see geo.ground_px_per_m); None without them or with the autopilot silent."""
-        view = self.autopilot()
         pose = view.pose()
         if (pose is None or view.gimbal is None
                 or not view.alive(time.monotonic(), self.config.mavlink.heartbeat_timeout_s)):
@@ -298,20 +304,22 @@ class TrackingLoop:
         ray = camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw)
         return ground_px_per_m(pose, ray, yaw_err, pitch_err, focal_length_px(size[0], self.hfov))
 
-    def _remember_size(self, box: tuple[float, float, float, float], size: tuple[int, int], time_s: float) -> None:
+    def _remember_size(self, box: tuple[float, float, float, float], size: tuple[int, int], time_s: float,
+                       view: AutopilotState) -> None:
         """Add the ground side (m) of a box (px) the tracker is confident of to the size memory, if the
         geometry is known (one sample per range_size_sample_s of capture time)."""
         cfg = self.config.tracker
         if cfg.range_size_band == 0 or not sample_due(self.size_memory, time_s, cfg.range_size_sample_s):
             return  # the geometry is only worked out when a sample is due (once a second), not every frame
-        px_per_m = self._ground_px_per_m(box, size)
+        px_per_m = self._ground_px_per_m(box, size, view)
         if px_per_m is not None:
             self.size_memory = remember_side(self.size_memory, time_s, math.sqrt(box[2] * box[3]) / px_per_m,
                                              cfg.range_size_sample_s, cfg.range_size_samples)
 
     def _bound_size(self, size: tuple[int, int]) -> None:
-        """Bound the tracker's box side to [1/band, band] x the remembered ground size at the current
-        range (service.control.size_bound); unbounded while the geometry or the memory is missing."""
+        """Bound the tracker's box side to [1/band, band] x the remembered ground size at the range of the
+        last box, seen in the last frame's autopilot snapshot (service.control.size_bound); unbounded while
+        the geometry or the memory is missing."""
         assert self.tracker is not None and self.box is not None
         band = self.config.tracker.range_size_band
         if band == 0:
@@ -319,14 +327,15 @@ class TrackingLoop:
         if not isinstance(self.tracker, SideBoundedTracker):  # the service checks this at start
             raise TypeError(f"tracker {type(self.tracker).__name__} takes no side bounds (tracker.range_size_band)")
         reference_m = self.size_memory.reference_m
-        px_per_m = self._ground_px_per_m(self.box, size) if reference_m is not None else None
+        px_per_m = (self._ground_px_per_m(self.box, size, self.view)
+                    if reference_m is not None and self.view is not None else None)
         if px_per_m is None or reference_m is None:
             self.tracker.set_side_bounds(None)
             return
         self.tracker.set_side_bounds(side_bounds_px(reference_m, px_per_m, band))
         self.counters["size_bounded_frames"] += 1
 
-    def _track(self, image: np.ndarray, capture_time_s: float) -> TrackResult | None:
+    def _track(self, image: np.ndarray) -> TrackResult | None:
         assert self.tracker is not None
         size = (image.shape[1], image.shape[0])
         try:
@@ -340,8 +349,6 @@ class TrackingLoop:
         if all(math.isfinite(v) for v in result.box):
             self.box = result.box
         self._set_state(LoopState(result.state))
-        if result.state == "tracking" and self.box is not None:
-            self._remember_size(self.box, size, capture_time_s)
         return result
 
     def _set_state(self, state: LoopState) -> None:
@@ -354,19 +361,18 @@ class TrackingLoop:
         log.info("event=track_state from=%s to=%s", self.state, state)
         self.state = state
 
-    def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None,
-                 stopped: bool) -> ControlCommand:
+    def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None, stopped: bool,
+                 view: AutopilotState) -> ControlCommand:
         stamp = frame.capture_time_s
         if stopped or self.state == LoopState.IDLE:
             return ControlCommand(state=LoopState.IDLE, stopped=stopped, rates=(0.0, 0.0) if stopped else None,
                                   frame_time_s=stamp)
         if self.state == LoopState.LOST or self.box is None:
-            return self._lost_command(stamp)
+            return self._lost_command(stamp, view)
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
         yaw_err, pitch_err = angular_error(self.box, size, self.hfov)
         self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err, dt, self.gains)
-        view = self.autopilot()
         bearing: float | None = None
         ground: GroundTarget | None = None
         pose = view.pose()
@@ -385,7 +391,7 @@ class TrackingLoop:
         return ControlCommand(state=self.state, rates=(yaw_rate, pitch_rate), bearing=bearing, ground=ground,
                               frame_time_s=stamp)
 
-    def _lost_command(self, stamp: float) -> ControlCommand:
+    def _lost_command(self, stamp: float, view: AutopilotState) -> ControlCommand:
         """Lost: coast (service.control.coast) while the plan lasts, then hold the gimbal still.
 
         The tracking controller is reset (integrator, slew memory) on every lost frame; the coast starts
@@ -406,7 +412,6 @@ class TrackingLoop:
                          ">= %d confident frames over %.2f s)", len(self.history.samples), self.coast_params.min_samples,
                          self.coast_params.min_span_s)
         if self.coast is not None:
-            view = self.autopilot()
             pose = view.pose()
             camera = camera_angles(view.gimbal, pose.yaw) if view.gimbal is not None and pose is not None else None
             vehicle = Position(pose.lat_deg, pose.lon_deg, pose.height_m) if pose is not None else None

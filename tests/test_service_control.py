@@ -515,8 +515,9 @@ def test_size_memory_samples_once_per_interval_and_keeps_the_newest():
 
 def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current_range() -> None:
     """The selection's side (px) becomes a ground size (m) at its range; each update gets (side / band,
-    side * band) at the current range, side = the median remembered ground size; confident boxes add a
-    sample once per range_size_sample_s; no bounds while the autopilot is silent."""
+    side * band) at the range of the last box, in the autopilot snapshot of the frame it was seen on,
+    side = the median remembered ground size; confident boxes add a sample once per range_size_sample_s;
+    no bounds while the autopilot is silent."""
     import time
 
     from jsar.api import TrackResult
@@ -554,13 +555,59 @@ def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current
     loop.step(Frame(image, 1, 0.033, 0.0))
     assert bounds[-1] == pytest.approx((20.0 / 1.5, 20.0 * 1.5))
     views.append(dataclasses.replace(views[-1], position=(47.0, 8.0, 560.0, 60.0)))  # twice as high: half the side
-    loop.step(Frame(image, 2, 0.066, 0.0))
+    loop.step(Frame(image, 2, 0.066, 0.0))  # the last box was seen from the first height
+    assert bounds[-1] == pytest.approx((20.0 / 1.5, 20.0 * 1.5))
+    loop.step(Frame(image, 3, 0.1, 0.0))
     assert bounds[-1] == pytest.approx((10.0 / 1.5, 10.0 * 1.5))
     assert len(loop.size_memory.samples) == 1  # under a second since the last sample
-    loop.step(Frame(image, 3, 1.1, 0.0))  # the same 20 px box from twice as high: twice the ground size
+    loop.step(Frame(image, 4, 1.1, 0.0))  # the same 20 px box from twice as high: twice the ground size
     assert loop.size_memory.samples == pytest.approx((20.0 / px_per_m, 40.0 / px_per_m))
-    loop.step(Frame(image, 4, 1.2, 0.0))  # median 30 px at the first range, 15 px at this one
+    loop.step(Frame(image, 5, 1.2, 0.0))  # median 30 px at the first range, 15 px at this one
     assert bounds[-1] == pytest.approx((15.0 / 1.5, 15.0 * 1.5))
     views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # autopilot silent
-    loop.step(Frame(image, 5, 1.3, 0.0))
-    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 4
+    loop.step(Frame(image, 6, 1.3, 0.0))
+    loop.step(Frame(image, 7, 1.4, 0.0))
+    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 6
+
+
+def test_the_loop_reads_the_autopilot_once_per_frame() -> None:
+    """Selection, size bound, size sample, control and coast all use one snapshot of the autopilot a frame."""
+    import time
+
+    from jsar.api import TrackResult
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "jsar-re", "range_size_band": 1.5}, "camera": {"hfov_deg": 90.0}})
+    gimbal = GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False)
+    view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0), gimbal=gimbal,
+                         last_heartbeat_s=time.monotonic())
+    reads: list[int] = []
+    states = ["tracking"] * 20 + ["lost"] * 5
+
+    class Scripted:
+        def init(self, image, box):
+            self.box = box
+
+        def set_side_bounds(self, side_bounds_px):
+            pass
+
+        def update(self, image):
+            return TrackResult(self.box, 1.0, states.pop(0))
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            pass
+
+    def autopilot() -> AutopilotView:
+        reads.append(1)
+        return view
+
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Scripted, Record(), autopilot)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))
+    image = np.zeros((200, 200, 3), np.uint8)
+    for frame_id in range(26):
+        loop.step(Frame(image, frame_id, frame_id * 0.1, 0.0))
+        assert len(reads) == frame_id + 1
+    assert loop.counters["size_bounded_frames"] == 25 and loop.counters["coast_frames"] >= 1

@@ -176,6 +176,10 @@ def test_bad_controller_inputs_raise() -> None:
     (3, 2, 5, False),      # ArduCopter LOITER
     (3, 1, 15, True),      # ArduPlane GUIDED
     (3, 1, 4, False),      # ArduPlane 4 is not GUIDED
+    (3, 10, 15, True),     # ArduRover GUIDED
+    (3, 19, 15, True),     # the VTOL types (19..25) run ArduPlane
+    (3, 25, 15, True),
+    (3, 13, 4, True),      # a hexarotor is copter-like
     (12, 2, 6 << 16, True),          # PX4 OFFBOARD
     (12, 2, (4 << 16) | (3 << 24), False),  # PX4 AUTO.LOITER
     (8, 2, 4, False),      # not an autopilot

@@ -13,20 +13,26 @@ import threading
 import time
 from typing import Callable
 
+from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20.common import (
+    MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
+    MAV_RESULT_TEMPORARILY_REJECTED, MAVLINK_MSG_ID_CAMERA_INFORMATION, MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS,
+    MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+)
+
 from service.config import ServiceConfig
 from service.domain import TrackSnapshot
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView, observe
 from service.mavlink.commands import (
-    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MSG_ID_CAMERA_INFORMATION,
-    MSG_ID_CAMERA_TRACKING_GEO_STATUS, MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, Decision, RequestMessage,
-    SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide, is_for_us,
+    Decision, RequestMessage, SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide,
+    is_for_us,
 )
 from service.mavlink.link import MavlinkLink
 from service.sources.base import LatestSlot
 
 log = logging.getLogger("service.mavlink")
-RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+RESULT_NAMES = {value: entry.name.removeprefix("MAV_RESULT_") for value, entry in mavlink.enums["MAV_RESULT"].items()}
 
 
 class RepeatedRefusals:
@@ -41,7 +47,8 @@ class RepeatedRefusals:
 
     def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
         """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
-        message = int(param1) if command in (511, 512) and math.isfinite(param1) else None
+        asks_for_message = command in (MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE)
+        message = int(param1) if asks_for_message and math.isfinite(param1) else None
         key = (command, message, source[0], source[1], result)
         if key in self._seen:
             return False
@@ -66,8 +73,8 @@ class CameraComponent:
         self._snapshot = TrackSnapshot()
         # 275 is off until a ground station asks; 276 streams at the guidance rate in follow_target mode
         geo = 1.0 / config.guidance.rate_hz if config.guidance.mode == "follow_target" else None
-        self._intervals: dict[int, float | None] = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: None,
-                                                    MSG_ID_CAMERA_TRACKING_GEO_STATUS: geo}
+        self._intervals: dict[int, float | None] = {MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: None,
+                                                    MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS: geo}
         self._info_requested = threading.Event()
         self._started = time.monotonic()
         self._stop = threading.Event()
@@ -170,7 +177,7 @@ class CameraComponent:
             if not self._source_ok() or self._frame_size() is None:
                 return Decision(MAV_RESULT_FAILED, f"no camera frames: {self._source_reason()}")
             self.selections.put(intent)
-        elif isinstance(intent, RequestMessage) and intent.message_id == MSG_ID_CAMERA_INFORMATION:
+        elif isinstance(intent, RequestMessage) and intent.message_id == MAVLINK_MSG_ID_CAMERA_INFORMATION:
             if self._frame_size() is None:
                 # the real frame size is part of the answer: ask again once the camera delivers frames
                 return Decision(MAV_RESULT_TEMPORARILY_REJECTED, f"no camera frames yet: {self._source_reason()}")
@@ -186,11 +193,11 @@ class CameraComponent:
 
     # --- send ---------------------------------------------------------------------------------
     def _send_requested(self, message_id: int) -> None:
-        if message_id == MSG_ID_CAMERA_INFORMATION:
+        if message_id == MAVLINK_MSG_ID_CAMERA_INFORMATION:
             self._send_camera_information()
-        elif message_id == MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
+        elif message_id == MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
             self._send_image_status()
-        elif message_id == MSG_ID_CAMERA_TRACKING_GEO_STATUS:
+        elif message_id == MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS:
             self._send_geo_status()
 
     def _send_camera_information(self) -> None:
@@ -219,8 +226,8 @@ class CameraComponent:
         next_heartbeat = time.monotonic()
         next_due: dict[int, float] = {}
         announced_size: tuple[int, int] | None = None  # once at start (first frame), again on a size change
-        senders = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self._send_image_status,
-                   MSG_ID_CAMERA_TRACKING_GEO_STATUS: self._send_geo_status}
+        senders = {MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self._send_image_status,
+                   MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS: self._send_geo_status}
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_heartbeat:

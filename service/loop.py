@@ -108,6 +108,7 @@ class TrackingLoop:
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
+        self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0,
                          "size_bounded_frames": 0}
@@ -134,20 +135,28 @@ class TrackingLoop:
                 self._stop_tracking("step failed")
 
     def step(self, frame: Frame) -> FrameReport:
-        """Process one frame: apply a pending selection, track, control, report."""
+        """Process one frame: apply a pending selection, track, take the autopilot snapshot, control, report."""
         start = time.monotonic()
-        view = self.autopilot()  # one snapshot of the autopilot's state for the whole frame
         image = frame.image
         size = (image.shape[1], image.shape[0])
         self.counters["frames"] += 1
-        change = self._apply_selection(image, size, frame.capture_time_s, view)
+        change = self._apply_selection(image, size)
         stopped = change == "stopped"
         if self.tracker is not None and self.tracked_size != size:
             self._handle_resize(image, size)
         result: TrackResult | None = None
         if self.tracker is not None and change != "started":  # the init frame's box is the selection
-            result = self._track(image, frame.capture_time_s, view)
+            result = self._track(image)
         track_done = time.monotonic()
+        # One snapshot of the autopilot a frame, taken once the tracker is done (the newest state the control
+        # can have): this frame's size sample, control and status, and with this frame's box the next
+        # update's size bound.
+        view = self.view = self.autopilot()
+        confident = change == "started" or (result is not None and result.state == "tracking")
+        if confident and self.box is not None:  # the selection, or a box the tracker is confident of
+            self._remember_size(self.box, size, frame.capture_time_s, view)
+            if change == "started" and self.size_memory.samples:
+                log.info("event=target_size side_m=%.2f", self.size_memory.samples[0])
         command = self._control(frame, size, result, stopped, view)
         self.outputs.apply(time.monotonic(), command)
         sent = time.monotonic()
@@ -168,8 +177,7 @@ class TrackingLoop:
         return report
 
     # --- pieces -------------------------------------------------------------------------------
-    def _apply_selection(self, image: np.ndarray, size: tuple[int, int], capture_time_s: float,
-                         view: AutopilotState) -> Literal["started", "stopped"] | None:
+    def _apply_selection(self, image: np.ndarray, size: tuple[int, int]) -> Literal["started", "stopped"] | None:
         """Apply a pending selection: "started" (tracker initialised on this frame), "stopped", or None."""
         selection = self.selections.take(timeout_s=0.0)
         if selection is None:
@@ -199,9 +207,6 @@ class TrackingLoop:
         self._reset_coast()
         self.size_memory = SizeMemory()
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
-        self._remember_size(box, size, capture_time_s, view)
-        if self.size_memory.samples:
-            log.info("event=target_size side_m=%.2f", self.size_memory.samples[0])
         return "started"
 
     def _hold_without_frames(self) -> None:
@@ -314,9 +319,10 @@ class TrackingLoop:
             self.size_memory = remember_side(self.size_memory, time_s, math.sqrt(box[2] * box[3]) / px_per_m,
                                              cfg.range_size_sample_s, cfg.range_size_samples)
 
-    def _bound_size(self, size: tuple[int, int], view: AutopilotState) -> None:
-        """Bound the tracker's box side to [1/band, band] x the remembered ground size at the current
-        range (service.control.size_bound); unbounded while the geometry or the memory is missing."""
+    def _bound_size(self, size: tuple[int, int]) -> None:
+        """Bound the tracker's box side to [1/band, band] x the remembered ground size at the range of the
+        last box, seen in the last frame's autopilot snapshot (service.control.size_bound); unbounded while
+        the geometry or the memory is missing."""
         assert self.tracker is not None and self.box is not None
         band = self.config.tracker.range_size_band
         if band == 0:
@@ -324,18 +330,19 @@ class TrackingLoop:
         if not isinstance(self.tracker, SideBoundedTracker):  # the service checks this at start
             raise TypeError(f"tracker {type(self.tracker).__name__} takes no side bounds (tracker.range_size_band)")
         reference_m = self.size_memory.reference_m
-        px_per_m = self._ground_px_per_m(self.box, size, view) if reference_m is not None else None
+        px_per_m = (self._ground_px_per_m(self.box, size, self.view)
+                    if reference_m is not None and self.view is not None else None)
         if px_per_m is None or reference_m is None:
             self.tracker.set_side_bounds(None)
             return
         self.tracker.set_side_bounds(side_bounds_px(reference_m, px_per_m, band))
         self.counters["size_bounded_frames"] += 1
 
-    def _track(self, image: np.ndarray, capture_time_s: float, view: AutopilotState) -> TrackResult | None:
+    def _track(self, image: np.ndarray) -> TrackResult | None:
         assert self.tracker is not None
         size = (image.shape[1], image.shape[0])
         try:
-            self._bound_size(size, view)
+            self._bound_size(size)
             result = self.tracker.update(image)
         except Exception as exc:  # noqa: BLE001 - a tracker failure is a lost track, not a crash
             self.counters["tracker_errors"] += 1
@@ -345,8 +352,6 @@ class TrackingLoop:
         if all(math.isfinite(v) for v in result.box):
             self.box = result.box
         self._set_state(LoopState(result.state))
-        if result.state == "tracking" and self.box is not None:
-            self._remember_size(self.box, size, capture_time_s, view)
         return result
 
     def _set_state(self, state: LoopState) -> None:

@@ -519,8 +519,9 @@ def test_size_memory_samples_once_per_interval_and_keeps_the_newest():
 
 def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current_range() -> None:
     """The selection's side (px) becomes a ground size (m) at its range; each update gets (side / band,
-    side * band) at the current range, side = the median remembered ground size; confident boxes add a
-    sample once per range_size_sample_s; no bounds while the autopilot is silent."""
+    side * band) at the range of the last box, in the autopilot snapshot of the frame it was seen on,
+    side = the median remembered ground size; confident boxes add a sample once per range_size_sample_s;
+    no bounds while the autopilot is silent."""
     import time
 
     from jsar.api import TrackResult
@@ -558,16 +559,19 @@ def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current
     loop.step(Frame(image, 1, 0.033, 0.0))
     assert bounds[-1] == pytest.approx((20.0 / 1.5, 20.0 * 1.5))
     views.append(dataclasses.replace(views[-1], position=(47.0, 8.0, 560.0, 60.0)))  # twice as high: half the side
-    loop.step(Frame(image, 2, 0.066, 0.0))
+    loop.step(Frame(image, 2, 0.066, 0.0))  # the last box was seen from the first height
+    assert bounds[-1] == pytest.approx((20.0 / 1.5, 20.0 * 1.5))
+    loop.step(Frame(image, 3, 0.1, 0.0))
     assert bounds[-1] == pytest.approx((10.0 / 1.5, 10.0 * 1.5))
     assert len(loop.size_memory.samples) == 1  # under a second since the last sample
-    loop.step(Frame(image, 3, 1.1, 0.0))  # the same 20 px box from twice as high: twice the ground size
+    loop.step(Frame(image, 4, 1.1, 0.0))  # the same 20 px box from twice as high: twice the ground size
     assert loop.size_memory.samples == pytest.approx((20.0 / px_per_m, 40.0 / px_per_m))
-    loop.step(Frame(image, 4, 1.2, 0.0))  # median 30 px at the first range, 15 px at this one
+    loop.step(Frame(image, 5, 1.2, 0.0))  # median 30 px at the first range, 15 px at this one
     assert bounds[-1] == pytest.approx((15.0 / 1.5, 15.0 * 1.5))
     views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # autopilot silent
-    loop.step(Frame(image, 5, 1.3, 0.0))
-    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 4
+    loop.step(Frame(image, 6, 1.3, 0.0))
+    loop.step(Frame(image, 7, 1.4, 0.0))
+    assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 6
 
 
 def test_the_loop_reads_the_autopilot_once_per_frame() -> None:

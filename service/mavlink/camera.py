@@ -15,8 +15,9 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.dialects.v20.common import (
-    MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_UNSUPPORTED,
-    MAVLINK_MSG_ID_CAMERA_INFORMATION, MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+    MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
+    MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_UNSUPPORTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
+    MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
     MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
 )
 
@@ -49,7 +50,7 @@ class RepeatedRefusals:
 
     def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
         """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
-        asks_for_message = command in (mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_REQUEST_MESSAGE)
+        asks_for_message = command in (MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE)
         message = int(param1) if asks_for_message and math.isfinite(param1) else None
         key = (command, message, source[0], source[1], result)
         if key in self._seen:

@@ -11,11 +11,13 @@ from __future__ import annotations
 import logging
 from typing import Callable
 
+from pymavlink.dialects.v20.common import MAV_AUTOPILOT_PX4, MAV_COMP_ID_AUTOPILOT1
+
 from service.config import ServiceConfig
-from service.control.guidance import MAV_AUTOPILOT_PX4, ZERO_VELOCITY, guidance_allowed, velocity_setpoint
+from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
 from service.domain import ControlCommand, LoopState
 from service.mavlink import messages
-from service.mavlink.autopilot import MAV_COMP_ID_AUTOPILOT1, AutopilotView
+from service.mavlink.autopilot import AutopilotView
 
 log = logging.getLogger("service.control")
 

@@ -3,7 +3,7 @@
 Each frame: render the scene from the mock's vehicle + gimbal pose, publish it over Zenoh, (lockstep)
 wait for the daemon's telemetry of that frame and for its gimbal command, then step the mock's
 dynamics by one frame period of simulated time. The target is selected through the mavsdk ground
-station (sim.gcs) on the ground-station link, routed by the mock autopilot to the daemon.
+station (gcs.cli) on the ground-station link, routed by the mock autopilot to the daemon.
 
 One simulated timeline stamps every frame (the daemon's controllers integrate over capture-time
 intervals): startup and selection frames advance the sim clock by 1/fps each while the scene waits at
@@ -365,7 +365,7 @@ class ClosedLoop:
     def select_target(self, timeout_s: float = 30.0) -> str:
         """Select the car through the mavsdk ground station (TRACK_RECTANGLE on its ground-truth box),
         re-sending the t = 0 frame until the daemon reports tracking. Returns the command result."""
-        from sim.gcs import GroundStation
+        from gcs.cli import GroundStation
         self.gcs = GroundStation(f"udpout://127.0.0.1:{self.gcs_port}", discovery_timeout_s=timeout_s)
         frame, truth = self.render(0.0)
         # Keep frames flowing while mavsdk discovers the camera (CAMERA_INFORMATION needs a frame size).

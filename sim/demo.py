@@ -61,7 +61,7 @@ def run_replay(args: argparse.Namespace) -> int:
     """Replay a shared sequence as the camera; the target = the sequence's first ground-truth box."""
     from sim.autopilot import MockAutopilot, run_realtime
     from sim.daemon import Daemon
-    from sim.gcs import GroundStation
+    from gcs.cli import GroundStation
     from sim.replay import iter_frames, open_recording
     from sim.vehicle_model import VehicleConfig
     from sim.zenoh_link import SimCamera, ZenohEndpoints

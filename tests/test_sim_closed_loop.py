@@ -25,7 +25,7 @@ os.environ.setdefault("MAVLINK20", "1")
 import pytest
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, RunResult
-from sim.gcs import TrackingStatus
+from gcs.cli import TrackingStatus
 from sim.scene import SceneConfig
 from sim.soak import SoakCriteria, analyse
 

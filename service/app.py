@@ -20,6 +20,7 @@ from service.sources import CaptureWorker, LatestSlot, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
+from service.video.zenoh_preview import ZenohPreview
 
 SIGNAL_POLL_S = 0.1  # s: how often the main thread wakes to run pending signal handlers
 
@@ -60,10 +61,16 @@ class Service:
                 source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}")
             self.outputs = MavlinkOutputs(config, self.link, self.camera.autopilot, self.camera.time_boot_ms)
             self.telemetry = Telemetry(self._session, config.zenoh.prefix, self.status) if self._session else None
+            self.preview = (ZenohPreview(self._session, config.zenoh.prefix, config.video.preview)
+                            if self._session is not None and config.video.preview.enabled else None)
+            if config.video.preview.enabled and self._session is None:
+                log.info("event=preview_off reason=zenoh_disabled")
+            self.video_outputs = [output for output in (self.preview,) if output is not None]
             self.loop = TrackingLoop(
                 config, self.selections, lambda: jsar.create(tracker_cfg.name, **tracker_cfg.params),
                 self.outputs, self.camera.autopilot, publish_snapshot=self.camera.publish,
-                publish_report=self._publish_report, dropped=lambda: self.worker.dropped)
+                publish_report=self._publish_report, dropped=lambda: self.worker.dropped,
+                publish_frame=self._publish_frame)
         except BaseException:
             if self._session is not None:
                 self._session.close()
@@ -80,6 +87,11 @@ class Service:
                 self.telemetry_errors += 1
                 log.warning('event=telemetry_failed error="%s"', exc)
 
+    def _publish_frame(self, frame: Frame) -> None:
+        """Tracking thread: hand the tracked frame to each video output (never waits for an encoder)."""
+        for output in self.video_outputs:
+            output.offer(frame)
+
     def status(self) -> dict[str, Any]:
         """Status, counters and effective configuration (answer of the <prefix>/status queryable)."""
         health = self.worker.health.snapshot()
@@ -95,7 +107,10 @@ class Service:
                          **{f"mavlink_{k}": v for k, v in self.camera.counters.items()},
                          **{f"out_{k}": v for k, v in self.outputs.counters.items()},
                          "mavlink_sent": self.link.sent, "mavlink_send_errors": self.link.send_errors,
-                         "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors},
+                         "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors,
+                         **{f"{output.worker.name}_{k}": v for output in self.video_outputs
+                            for k, v in output.worker.counters().items()}},
+            "video": {"preview": self.preview.status() if self.preview is not None else None},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
                           "custom_mode": view.custom_mode},
             "mavlink_system_id": self.link.system_id,
@@ -109,6 +124,8 @@ class Service:
         restarts it); per-frame errors are handled inside the loop.
         """
         self.worker.start()
+        for output in self.video_outputs:
+            output.start()
         self.camera.start()
         watchdog_s = watchdog_interval_s()
         last_ping = [0.0]
@@ -160,6 +177,8 @@ class Service:
             self.outputs.apply(time.monotonic(), ControlCommand("idle", True, (0.0, 0.0), None, None))
         self.camera.stop(timeout_s=0.5)
         self.worker.stop(timeout_s=0.5)
+        for output in self.video_outputs:
+            output.stop(timeout_s=0.3)
         if self.telemetry is not None:
             self.telemetry.close()
         self.link.close()

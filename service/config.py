@@ -158,6 +158,39 @@ class ZenohConfig:
 
 
 @dataclass(frozen=True)
+class PreviewConfig:
+    """Tracked frames as JPEG over Zenoh on <prefix>/camera/preview (only while zenoh.enabled)."""
+
+    enabled: bool = True
+    max_width_px: int = _checked(640, _positive)  # scaled down to fit inside, aspect kept, never enlarged
+    max_height_px: int = _checked(480, _positive)
+    max_fps: float = _checked(15.0, _positive)  # frames thinned to at most this rate
+    jpeg_quality: int = _checked(70, _in_range(1, 100))
+
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """Tracked frames as H.264 over RTP/UDP to a ground station (QGroundControl listens on UDP 5600)."""
+
+    enabled: bool = False
+    host: str = ""  # the ground station's address (IPv4 or name); required when enabled
+    port: int = _checked(5600, _in_range(1, 65535))  # RTP; RTCP goes to port + 1
+    max_width_px: int = _checked(640, _positive)  # scaled down to fit inside (even sizes), never enlarged
+    max_height_px: int = _checked(480, _positive)
+    fps: float = _checked(30.0, _in_range(1.0, 120.0))  # frames thinned to at most this rate
+    bitrate_kbps: int = _checked(2000, _in_range(100, 50000))  # H.264 target bit rate
+    keyframe_interval_s: float = _checked(1.0, _in_range(0.1, 10.0))  # a late-joining viewer waits up to this
+
+
+@dataclass(frozen=True)
+class VideoConfig:
+    """Video out of the daemon, encoded off the tracking thread (latest frame wins, drops counted)."""
+
+    preview: PreviewConfig = field(default_factory=PreviewConfig)
+    stream: StreamConfig = field(default_factory=StreamConfig)
+
+
+@dataclass(frozen=True)
 class LoggingConfig:
     """Structured logs on stderr (journald picks them up)."""
 
@@ -176,6 +209,7 @@ class ServiceConfig:
     gimbal: GimbalConfig = field(default_factory=GimbalConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    video: VideoConfig = field(default_factory=VideoConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 
 
@@ -246,6 +280,12 @@ def _check_cross_fields(config: ServiceConfig) -> None:
         raise ConfigError(f"zenoh.prefix: must be non-empty without leading/trailing '/', got {config.zenoh.prefix!r}")
     if src.kind == "zenoh" and not config.zenoh.enabled:
         raise ConfigError("zenoh.enabled: must be true when source.kind is zenoh")
+    stream = config.video.stream
+    if stream.enabled and not stream.host:
+        raise ConfigError("video.stream.host: must name the ground station's address when video.stream.enabled is true")
+    if stream.enabled and (any(c.isspace() for c in stream.host) or "/" in stream.host or ":" in stream.host):
+        raise ConfigError(f"video.stream.host: must be an IPv4 address or a host name (no port, no scheme), "
+                          f"got {stream.host!r}")
     from jsar.registry import available  # lazily: keeps config parsing importable on its own
 
     names = available()

@@ -104,7 +104,8 @@ class TrackingLoop:
                  outputs: Outputs, autopilot: Callable[[], AutopilotView],
                  publish_snapshot: Callable[[TrackSnapshot], None] = lambda snapshot: None,
                  publish_report: Callable[[FrameReport], None] = lambda report: None,
-                 dropped: Callable[[], int] = lambda: 0) -> None:
+                 dropped: Callable[[], int] = lambda: 0,
+                 publish_frame: Callable[[Frame], None] = lambda frame: None) -> None:
         self.config = config
         self.selections = selections
         self.make_tracker = make_tracker
@@ -113,6 +114,7 @@ class TrackingLoop:
         self.publish_snapshot = publish_snapshot
         self.publish_report = publish_report
         self.dropped = dropped
+        self.publish_frame = publish_frame  # video outputs: must not block (service.video hands off)
         self.gains = PidGains.from_config(config.gimbal)
         self.coast_params = CoastParams.from_config(config.gimbal)
         self.hfov = math.radians(config.camera.hfov_deg)
@@ -188,6 +190,7 @@ class TrackingLoop:
             total_ms=(sent - frame.read_monotonic_s) * 1e3, dropped_frames=self.dropped(),
             coasting=command.coasting)
         self.publish_report(report)
+        self.publish_frame(frame)  # after its telemetry: a preview frame's box is already on <prefix>/track
         return report
 
     # --- pieces -------------------------------------------------------------------------------

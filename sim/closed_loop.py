@@ -89,6 +89,11 @@ class ClosedLoopConfig:
     # A sim faster than real time would compress a 5 s link drop below the heartbeat timeout.
     lockstep_realtime_floor: bool = True
     gimbal_command_timeout_s: float = 2.0  # lockstep: wait this long (wall) for a frame's gimbal command
+    # Several drones at once: each its own autopilot system id and Zenoh key prefix; `zenoh_connect` adds
+    # endpoints the daemon also connects to (e.g. a Zenoh router that ground stations reach).
+    system_id: int = 1
+    zenoh_prefix: str = "jsar"
+    zenoh_connect: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.flavour not in ("ardupilot", "px4"):
@@ -220,8 +225,9 @@ def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
         "camera": {"hfov_deg": cfg.camera.hfov_deg},
         "gimbal": {"backend": cfg.flavour},
         "guidance": {"mode": cfg.guidance},
-        "zenoh": {"enabled": True, "mode": "peer", "listen": [], "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
-                  "multicast_scouting": False, "prefix": "jsar"},
+        "zenoh": {"enabled": True, "mode": "peer", "listen": [],
+                  "connect": [f"tcp/127.0.0.1:{zenoh_port}", *cfg.zenoh_connect],
+                  "multicast_scouting": False, "prefix": cfg.zenoh_prefix},
     }
     if cfg.tracker is not None:
         overrides["tracker"] = {"name": cfg.tracker, "params": {}}
@@ -261,9 +267,9 @@ class ClosedLoop:
         self.zenoh_port = free_port(1)  # SOCK_STREAM
         self.scene = Scene(cfg.scene, cfg.camera)
         self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
-                                                     start_altitude_m=cfg.altitude_m),
+                                                     start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
                                        self.service_port, self.gcs_port)
-        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",)))
+        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",), prefix=cfg.zenoh_prefix))
         self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
                              f"udpout:127.0.0.1:{self.service_port}")
         self.gcs = None

@@ -95,7 +95,7 @@ class DroneDirectory:
     drones: dict[str, Drone] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entrant: wait_for predicates call summaries()
         self._changed = threading.Condition(self._lock)
         self._watchers: dict[str, int] = {}
         self._preview_subs: dict[str, Any] = {}

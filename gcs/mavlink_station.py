@@ -179,7 +179,7 @@ class MavlinkStation:
         except ConnectionError:
             self.close()
             raise
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entrant: wait_for predicates call the queries below
         self._changed = threading.Condition(self._lock)
         self._heard: dict[tuple[int, int], tuple[float, int]] = {}  # (sys, comp) -> (monotonic, MAV_TYPE)
         self._route: dict[int, Link] = {}  # system -> link it was last heard on
@@ -266,6 +266,11 @@ class MavlinkStation:
         with self._lock:
             entry = self._heard.get((system_id, component_id))
         return entry is not None and time.monotonic() - entry[0] <= max_age_s
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Block until predicate() holds (re-checked on every message received) or timeout_s passes."""
+        with self._changed:
+            return self._changed.wait_for(predicate, timeout=timeout_s)
 
     def status(self, system_id: int, component_id: int) -> ImageStatus | None:
         """The camera's newest 275, None before the first."""

@@ -7,26 +7,13 @@ from jsar.api import Tracker
 
 
 def _factories() -> dict[str, Callable[..., Tracker]]:
-    # Imported lazily so `import jsar` stays cheap and a missing optional piece names itself.
+    # Imported lazily so `import jsar` stays cheap.
     from jsar.opencv_trackers import make_csrt, make_kcf
+    from jsar.redetect.jsar_re import make_jsar_re
+    from jsar.tracking.jsar_tracker import make_jsar, make_strcf
 
-    # OpenCV's trackers: the evaluation's baselines, and usable before the JSAR tracker exists.
-    factories: dict[str, Callable[..., Tracker]] = {"csrt": make_csrt, "kcf": make_kcf}
-    try:
-        from jsar.tracking.jsar_tracker import make_jsar, make_strcf
-    except ModuleNotFoundError as exc:
-        if exc.name != "jsar.tracking.jsar_tracker":
-            raise
-    else:
-        factories.update({"jsar": make_jsar, "strcf": make_strcf})
-    try:
-        from jsar.redetect.jsar_re import make_jsar_re
-    except ModuleNotFoundError as exc:
-        if exc.name != "jsar.redetect.jsar_re":
-            raise
-    else:
-        factories["jsar-re"] = make_jsar_re
-    return factories
+    # csrt and kcf are OpenCV's trackers: the evaluation's baselines.
+    return {"jsar": make_jsar, "strcf": make_strcf, "jsar-re": make_jsar_re, "csrt": make_csrt, "kcf": make_kcf}
 
 
 def available() -> list[str]:

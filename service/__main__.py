@@ -7,7 +7,6 @@ import signal
 import sys
 import threading
 
-import service.mavlink  # noqa: F401  (MAVLINK20 before pymavlink loads)
 from service.config import ConfigError, load_config, with_overrides
 from service.logs import setup_logging
 

@@ -12,6 +12,7 @@ from threadpoolctl import threadpool_limits
 import jsar
 from jsar.api import SideBoundedTracker
 from service.config import ConfigError, ServiceConfig, as_plain
+from service.domain import ControlCommand, LoopState
 from service.loop import FrameReport, TrackingLoop
 from service.mavlink.camera import CameraComponent
 from service.mavlink.link import MavlinkLink
@@ -173,8 +174,7 @@ class Service:
         """Zero the gimbal if tracking, stop threads, close links."""
         sd_notify("STOPPING=1")
         if self.loop.tracker is not None:
-            from service.loop import ControlCommand
-            self.outputs.apply(time.monotonic(), ControlCommand("idle", True, (0.0, 0.0), None, None))
+            self.outputs.apply(time.monotonic(), ControlCommand(state=LoopState.IDLE, stopped=True, rates=(0.0, 0.0)))
         self.camera.stop(timeout_s=0.5)
         self.worker.stop(timeout_s=0.5)
         for output in self.video_outputs:

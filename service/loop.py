@@ -27,39 +27,14 @@ from service.control.frame_clock import ClockLimits, FrameStamp, control_interva
 from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
 from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
 from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
-from service.mavlink import messages
-from service.mavlink.autopilot import AutopilotView
-from service.mavlink.camera import TrackSnapshot
-from service.mavlink.commands import StopTracking, TrackPoint, TrackRectangle
+from service.domain import (AutopilotState, ControlCommand, LoopState, SelectionKind, StopTracking, TrackPoint,
+                            TrackRectangle, TrackSnapshot)
 from service.selection import normalised_box, point_box, proposal_box, rectangle_box, rescale_box
 from service.sources.base import Frame, LatestSlot
 
 log = logging.getLogger("service.loop")
-LoopState = Literal["idle", "tracking", "lost", "recovered"]
 CLOCK_LIMITS = ClockLimits()  # controller time step bounds, capture-clock seconds
 FRAME_GAP_S = 0.5  # no frame for this long while tracking: hold gimbal and vehicle
-
-
-@dataclass(frozen=True)
-class ControlCommand:
-    """One frame's decision for the outputs.
-
-    state: loop state after this frame; stopped: tracking just ended (send zeros once);
-    rates: (yaw_rate, pitch_rate) rad/s or None (no gimbal command); bearing: target direction from
-    the vehicle nose (rad, + right) or None; ground: flat-ground target estimate or None;
-    frame_time_s: capture time (s, source clock) of the frame the command was computed from, the
-    clock guidance is throttled on; None for commands not tied to a frame (hold after a frame gap,
-    stop while no frames arrive). coasting: lost, and the rates are the coast's (service.control.coast),
-    not a hold.
-    """
-
-    state: LoopState
-    stopped: bool
-    rates: tuple[float, float] | None
-    bearing: float | None
-    ground: GroundTarget | None
-    frame_time_s: float | None = None
-    coasting: bool = False
 
 
 class Outputs(Protocol):
@@ -101,7 +76,7 @@ class TrackingLoop:
     """Owns the tracker and the gimbal controller state; one call to `step` per frame."""
 
     def __init__(self, config: ServiceConfig, selections: LatestSlot, make_tracker: Callable[[], Tracker],
-                 outputs: Outputs, autopilot: Callable[[], AutopilotView],
+                 outputs: Outputs, autopilot: Callable[[], AutopilotState],
                  publish_snapshot: Callable[[TrackSnapshot], None] = lambda snapshot: None,
                  publish_report: Callable[[FrameReport], None] = lambda report: None,
                  dropped: Callable[[], int] = lambda: 0,
@@ -118,8 +93,8 @@ class TrackingLoop:
         self.gains = PidGains.from_config(config.gimbal)
         self.coast_params = CoastParams.from_config(config.gimbal)
         self.hfov = math.radians(config.camera.hfov_deg)
-        self.state: LoopState = "idle"
-        self.mode = messages.TRACKING_MODE_NONE
+        self.state = LoopState.IDLE
+        self.mode: SelectionKind | None = None  # how the current target was selected
         self.tracker: Tracker | None = None
         self.box: tuple[float, float, float, float] | None = None
         self.tracked_size: tuple[int, int] | None = None
@@ -161,30 +136,29 @@ class TrackingLoop:
     def step(self, frame: Frame) -> FrameReport:
         """Process one frame: apply a pending selection, track, control, report."""
         start = time.monotonic()
+        view = self.autopilot()  # one snapshot of the autopilot's state for the whole frame
         image = frame.image
         size = (image.shape[1], image.shape[0])
         self.counters["frames"] += 1
-        change = self._apply_selection(image, size, frame.capture_time_s)
+        change = self._apply_selection(image, size, frame.capture_time_s, view)
         stopped = change == "stopped"
         if self.tracker is not None and self.tracked_size != size:
             self._handle_resize(image, size)
         result: TrackResult | None = None
         if self.tracker is not None and change != "started":  # the init frame's box is the selection
-            result = self._track(image, frame.capture_time_s)
+            result = self._track(image, frame.capture_time_s, view)
         track_done = time.monotonic()
-        command = self._control(frame, size, result, stopped)
+        command = self._control(frame, size, result, stopped, view)
         self.outputs.apply(time.monotonic(), command)
         sent = time.monotonic()
-        box_norm = normalised_box(self.box, size) if self.box is not None and self.state != "idle" else None
-        status = messages.TrackingStatus(
-            status={"idle": messages.TRACKING_STATUS_IDLE, "lost": messages.TRACKING_STATUS_COASTING}.get(
-                self.state, messages.TRACKING_STATUS_ACTIVE),
-            mode=self.mode if self.state != "idle" else messages.TRACKING_MODE_NONE, box=box_norm)
-        pose = self.autopilot().pose()
-        self.publish_snapshot(TrackSnapshot(status, command.ground, pose.alt_amsl_m if pose else None))
+        box_norm = normalised_box(self.box, size) if self.box is not None and self.state != LoopState.IDLE else None
+        pose = view.pose()
+        self.publish_snapshot(TrackSnapshot(
+            state=self.state, selection=self.mode if self.state != LoopState.IDLE else None, box_normalised=box_norm,
+            ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
         report = FrameReport(
             frame_id=frame.frame_id, capture_time_s=frame.capture_time_s, image_size=size,
-            box=self.box if self.state != "idle" else None, box_normalised=box_norm,
+            box=self.box if self.state != LoopState.IDLE else None, box_normalised=box_norm,
             score=result.score if result is not None else None, state=self.state,
             queue_ms=(start - frame.read_monotonic_s) * 1e3, track_ms=(track_done - start) * 1e3,
             total_ms=(sent - frame.read_monotonic_s) * 1e3, dropped_frames=self.dropped(),
@@ -194,8 +168,8 @@ class TrackingLoop:
         return report
 
     # --- pieces -------------------------------------------------------------------------------
-    def _apply_selection(self, image: np.ndarray, size: tuple[int, int],
-                         capture_time_s: float) -> Literal["started", "stopped"] | None:
+    def _apply_selection(self, image: np.ndarray, size: tuple[int, int], capture_time_s: float,
+                         view: AutopilotState) -> Literal["started", "stopped"] | None:
         """Apply a pending selection: "started" (tracker initialised on this frame), "stopped", or None."""
         selection = self.selections.take(timeout_s=0.0)
         if selection is None:
@@ -204,9 +178,9 @@ class TrackingLoop:
             return "stopped" if self._stop_tracking("stop requested") else None
         self.counters["selections"] += 1
         if isinstance(selection, TrackRectangle):
-            box, mode, how = rectangle_box(selection, size), messages.TRACKING_MODE_RECTANGLE, "rectangle"
+            box, mode, how = rectangle_box(selection, size), SelectionKind.RECTANGLE, "rectangle"
         elif isinstance(selection, TrackPoint):
-            box, mode, how = point_box(selection, size, self.config.camera), messages.TRACKING_MODE_POINT, "point"
+            box, mode, how = point_box(selection, size, self.config.camera), SelectionKind.POINT, "point"
             if self.config.camera.point_proposal:
                 proposal = proposal_box(image, selection, box)
                 how = "point+proposal" if proposal is not None else "point,no_proposal_qualified"
@@ -220,12 +194,12 @@ class TrackingLoop:
             log.error('event=track_init_failed box=%s reason="%s"', _fmt_box(box), exc)
             return "stopped" if self._stop_tracking("init failed") else None
         self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
-        self.state = "tracking"
+        self.state = LoopState.TRACKING
         self._reset_controller()
         self._reset_coast()
         self.size_memory = SizeMemory()
         log.info("event=track_started how=%s box=%s size=%dx%d", how, _fmt_box(box), size[0], size[1])
-        self._remember_size(box, size, capture_time_s)
+        self._remember_size(box, size, capture_time_s, view)
         if self.size_memory.samples:
             log.info("event=target_size side_m=%.2f", self.size_memory.samples[0])
         return "started"
@@ -245,7 +219,7 @@ class TrackingLoop:
             log.info("event=coast_end reason=no_frames")
             self.coast = None
         log.warning("event=no_frames_while_tracking action=hold_gimbal_and_vehicle gap_s=%.1f", FRAME_GAP_S)
-        self.outputs.apply(time.monotonic(), ControlCommand("lost", False, (0.0, 0.0), None, None))
+        self.outputs.apply(time.monotonic(), ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0)))
 
     def _apply_selection_without_frame(self) -> None:
         """A stop must take effect even while no frames arrive (camera unplugged)."""
@@ -254,7 +228,7 @@ class TrackingLoop:
             return
         if isinstance(pending, StopTracking):
             if self._stop_tracking("stop requested"):
-                self.outputs.apply(time.monotonic(), ControlCommand("idle", True, (0.0, 0.0), None, None))
+                self.outputs.apply(time.monotonic(), ControlCommand(state=LoopState.IDLE, stopped=True, rates=(0.0, 0.0)))
         else:
             self.selections.put(pending)  # keep it for the next frame
 
@@ -264,7 +238,7 @@ class TrackingLoop:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
         self.size_memory = SizeMemory()
-        self.state, self.mode = "idle", messages.TRACKING_MODE_NONE
+        self.state, self.mode = LoopState.IDLE, None
         self._reset_controller()
         self._reset_coast()
         return was_active
@@ -316,10 +290,10 @@ class TrackingLoop:
         self.last_stamp = stamp
         return self.nominal_dt_s if interval.dt_s is None else interval.dt_s
 
-    def _ground_px_per_m(self, box: tuple[float, float, float, float], size: tuple[int, int]) -> float | None:
+    def _ground_px_per_m(self, box: tuple[float, float, float, float], size: tuple[int, int],
+                         view: AutopilotState) -> float | None:
         """Pixels per metre of ground-target side where `box` (px) is, from the autopilot's pose and gimbal
         attitude (flat ground, see geo.ground_px_per_m); None without them or with the autopilot silent."""
-        view = self.autopilot()
         pose = view.pose()
         if (pose is None or view.gimbal is None
                 or not view.alive(time.monotonic(), self.config.mavlink.heartbeat_timeout_s)):
@@ -328,18 +302,19 @@ class TrackingLoop:
         ray = camera_ray_ned(yaw_err, pitch_err, view.gimbal, pose.yaw)
         return ground_px_per_m(pose, ray, yaw_err, pitch_err, focal_length_px(size[0], self.hfov))
 
-    def _remember_size(self, box: tuple[float, float, float, float], size: tuple[int, int], time_s: float) -> None:
+    def _remember_size(self, box: tuple[float, float, float, float], size: tuple[int, int], time_s: float,
+                       view: AutopilotState) -> None:
         """Add the ground side (m) of a box (px) the tracker is confident of to the size memory, if the
         geometry is known (one sample per range_size_sample_s of capture time)."""
         cfg = self.config.tracker
         if cfg.range_size_band == 0 or not sample_due(self.size_memory, time_s, cfg.range_size_sample_s):
             return  # the geometry is only worked out when a sample is due (once a second), not every frame
-        px_per_m = self._ground_px_per_m(box, size)
+        px_per_m = self._ground_px_per_m(box, size, view)
         if px_per_m is not None:
             self.size_memory = remember_side(self.size_memory, time_s, math.sqrt(box[2] * box[3]) / px_per_m,
                                              cfg.range_size_sample_s, cfg.range_size_samples)
 
-    def _bound_size(self, size: tuple[int, int]) -> None:
+    def _bound_size(self, size: tuple[int, int], view: AutopilotState) -> None:
         """Bound the tracker's box side to [1/band, band] x the remembered ground size at the current
         range (service.control.size_bound); unbounded while the geometry or the memory is missing."""
         assert self.tracker is not None and self.box is not None
@@ -349,53 +324,53 @@ class TrackingLoop:
         if not isinstance(self.tracker, SideBoundedTracker):  # the service checks this at start
             raise TypeError(f"tracker {type(self.tracker).__name__} takes no side bounds (tracker.range_size_band)")
         reference_m = self.size_memory.reference_m
-        px_per_m = self._ground_px_per_m(self.box, size) if reference_m is not None else None
+        px_per_m = self._ground_px_per_m(self.box, size, view) if reference_m is not None else None
         if px_per_m is None or reference_m is None:
             self.tracker.set_side_bounds(None)
             return
         self.tracker.set_side_bounds(side_bounds_px(reference_m, px_per_m, band))
         self.counters["size_bounded_frames"] += 1
 
-    def _track(self, image: np.ndarray, capture_time_s: float) -> TrackResult | None:
+    def _track(self, image: np.ndarray, capture_time_s: float, view: AutopilotState) -> TrackResult | None:
         assert self.tracker is not None
         size = (image.shape[1], image.shape[0])
         try:
-            self._bound_size(size)
+            self._bound_size(size, view)
             result = self.tracker.update(image)
         except Exception as exc:  # noqa: BLE001 - a tracker failure is a lost track, not a crash
             self.counters["tracker_errors"] += 1
             log.error('event=tracker_error error="%s: %s"', type(exc).__name__, exc)
-            self._set_state("lost")
+            self._set_state(LoopState.LOST)
             return None
         if all(math.isfinite(v) for v in result.box):
             self.box = result.box
-        self._set_state("lost" if result.state == "lost" else result.state)
+        self._set_state(LoopState(result.state))
         if result.state == "tracking" and self.box is not None:
-            self._remember_size(self.box, size, capture_time_s)
+            self._remember_size(self.box, size, capture_time_s, view)
         return result
 
     def _set_state(self, state: LoopState) -> None:
         if state == self.state:
             return
-        if state == "lost":
+        if state == LoopState.LOST:
             self.counters["lost"] += 1
-        elif self.state == "lost":
+        elif self.state == LoopState.LOST:
             self.counters["recovered"] += 1
         log.info("event=track_state from=%s to=%s", self.state, state)
         self.state = state
 
-    def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None,
-                 stopped: bool) -> ControlCommand:
+    def _control(self, frame: Frame, size: tuple[int, int], result: TrackResult | None, stopped: bool,
+                 view: AutopilotState) -> ControlCommand:
         stamp = frame.capture_time_s
-        if stopped or self.state == "idle":
-            return ControlCommand("idle", stopped, (0.0, 0.0) if stopped else None, None, None, stamp)
-        if self.state == "lost" or self.box is None:
-            return self._lost_command(stamp)
+        if stopped or self.state == LoopState.IDLE:
+            return ControlCommand(state=LoopState.IDLE, stopped=stopped, rates=(0.0, 0.0) if stopped else None,
+                                  frame_time_s=stamp)
+        if self.state == LoopState.LOST or self.box is None:
+            return self._lost_command(stamp, view)
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
         yaw_err, pitch_err = angular_error(self.box, size, self.hfov)
         self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err, dt, self.gains)
-        view = self.autopilot()
         bearing: float | None = None
         ground: GroundTarget | None = None
         pose = view.pose()
@@ -411,9 +386,10 @@ class TrackingLoop:
             if camera is not None:
                 self.history = remember(self.history, stamp, Position(pose.lat_deg, pose.lon_deg, pose.height_m),
                                         Position(ground.lat_deg, ground.lon_deg), camera, self.coast_params.fit_window_s)
-        return ControlCommand(self.state, False, (yaw_rate, pitch_rate), bearing, ground, stamp)
+        return ControlCommand(state=self.state, rates=(yaw_rate, pitch_rate), bearing=bearing, ground=ground,
+                              frame_time_s=stamp)
 
-    def _lost_command(self, stamp: float) -> ControlCommand:
+    def _lost_command(self, stamp: float, view: AutopilotState) -> ControlCommand:
         """Lost: coast (service.control.coast) while the plan lasts, then hold the gimbal still.
 
         The tracking controller is reset (integrator, slew memory) on every lost frame; the coast starts
@@ -434,17 +410,16 @@ class TrackingLoop:
                          ">= %d confident frames over %.2f s)", len(self.history.samples), self.coast_params.min_samples,
                          self.coast_params.min_span_s)
         if self.coast is not None:
-            view = self.autopilot()
             pose = view.pose()
             camera = camera_angles(view.gimbal, pose.yaw) if view.gimbal is not None and pose is not None else None
             vehicle = Position(pose.lat_deg, pose.lon_deg, pose.height_m) if pose is not None else None
             self.coast, rates = coast_step(self.coast, stamp, vehicle, camera, self.coast_params)
             if rates is not None:
                 self.counters["coast_frames"] += 1
-                return ControlCommand("lost", False, rates, None, None, stamp, coasting=True)
+                return ControlCommand(state=LoopState.LOST, rates=rates, frame_time_s=stamp, coasting=True)
             log.info("event=coast_end reason=%s", "no_pose_or_gimbal_attitude" if camera is None else "coast_s_elapsed")
             self.coast = None
-        return ControlCommand("lost", False, (0.0, 0.0), None, None, stamp)
+        return ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0), frame_time_s=stamp)
 
 
 def _fmt_box(box: tuple[float, float, float, float]) -> str:

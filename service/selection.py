@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from service.config import CameraConfig
-from service.mavlink.commands import TrackPoint, TrackRectangle
+from service.domain import TrackPoint, TrackRectangle
 
 Box = tuple[float, float, float, float]
 PROPOSAL_SEARCH_FACTOR = 3.0  # search square side = this * the point's square side

@@ -14,6 +14,10 @@ after each step the mock pushes its heartbeat (flight mode) and state at once. N
 state travels over UDP and the next frame over Zenoh, so a daemon starved for longer than the sim
 takes to render a frame could track that frame with the previous pose; `python -m sim.repro` checks.
 
+The camera sees the synthetic scene (sim.scene), or any other World: `python -m sim.demo --replay`
+runs the same loop on a recorded sequence (sim.replay.RecordingWorld), whose frames do not follow the
+gimbal.
+
 Centring (the tests' definition): the ground-truth centre of the car is within the central 20 % of
 the image, |dx| <= 0.1 W and |dy| <= 0.1 H, measured on frames where >= 50 % of the car is visible.
 """
@@ -25,7 +29,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import cv2
 import numpy as np
@@ -34,7 +38,7 @@ import jsar
 from jsar.api import SideBoundedTracker
 from sim.autopilot import MockAutopilot
 from sim.daemon import Daemon, deep_merge
-from sim.scene import CameraConfig, GroundTruth, Scene, SceneConfig, pose_from_vehicle
+from sim.scene import CameraConfig, CameraPose, GroundTruth, Scene, SceneConfig, pose_from_vehicle
 from sim.vehicle_model import VehicleConfig
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 
@@ -52,6 +56,13 @@ SIM_CLOCK_EPOCH_S = float(2 ** 20)
 # The run summary's "first 3 s of a loss": the window in which re-detection can find a car that drove
 # under a canopy (the default scene's car reappears 1.2-1.8 s after the loss) and gimbal.coast_s's default.
 LOST_EARLY_S = 3.0
+
+
+class World(Protocol):
+    """What the camera sees: the frame (BGR uint8, the config's camera size) and its ground truth at simulated
+    time t (s after the init frame) from a camera pose (sim.scene.Scene is one)."""
+
+    def render(self, pose: CameraPose, t: float) -> tuple[np.ndarray, GroundTruth]: ...
 
 
 def free_port(kind: int) -> int:
@@ -130,7 +141,9 @@ class FrameRecord:
 
     @property
     def target_distance_m(self) -> float:
-        """Horizontal vehicle-to-car distance in metres."""
+        """Horizontal vehicle-to-car distance in metres (NaN where the car's position is unknown: a recording)."""
+        if self.truth.target is None:
+            return math.nan
         return math.hypot(self.truth.target.north - self.vehicle_ne[0], self.truth.target.east - self.vehicle_ne[1])
 
 
@@ -175,6 +188,11 @@ class RunResult:
                 recovered += 1
             previous = r.state if r.state is not None else previous
         return lost, recovered
+
+    def box_error_px(self) -> list[float]:
+        """On frames with the car visible and a reported box: pixels from the car's centre to the box's centre."""
+        return [math.hypot(r.truth.centre[0] - (r.box[0] + r.box[2] / 2), r.truth.centre[1] - (r.box[1] + r.box[3] / 2))
+                for r in self.records if r.box is not None and r.truth.visible]
 
     def lost_car_to_box_px(self, within_s: float = math.inf) -> list[float]:
         """On lost frames with the car visible, at most within_s simulated seconds after the loss began:
@@ -250,22 +268,29 @@ def annotate(frame: np.ndarray, record: FrameRecord) -> np.ndarray:
         colour = (0, 0, 255) if record.state == "lost" else (0, 255, 255)
         cv2.rectangle(out, (int(x), int(y)), (int(x + bw), int(y + bh)), colour, 2)
     text = (f"t={record.time_s:5.1f}s  {record.state or '-':9s} mode {record.mode}"
-            f"{'  LINK DOWN' if record.link_down else ''}  dist {record.target_distance_m:5.1f} m")
+            f"{'  LINK DOWN' if record.link_down else ''}{_distance_text(record)}")
     cv2.putText(out, text, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
     cv2.putText(out, text, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     return out
 
 
+def _distance_text(record: FrameRecord) -> str:
+    """The status text's vehicle-to-car distance; empty where the car's position is unknown (a recording)."""
+    distance = record.target_distance_m
+    return f"  dist {distance:5.1f} m" if math.isfinite(distance) else ""
+
+
 class ClosedLoop:
     """Owns the mock autopilot, the Zenoh camera, the daemon and the scene for one run."""
 
-    def __init__(self, cfg: ClosedLoopConfig, workdir: Path | None = None) -> None:
+    def __init__(self, cfg: ClosedLoopConfig, workdir: Path | None = None, world: World | None = None) -> None:
+        """world: what the camera sees; None = the synthetic scene of cfg.scene and cfg.camera."""
         self.cfg = cfg
         self._tmp = tempfile.TemporaryDirectory(prefix="jsar-sim-") if workdir is None else None
         self.workdir = Path(self._tmp.name) if self._tmp is not None else workdir
         self.service_port, self.gcs_port = free_port(2), free_port(2)  # SOCK_DGRAM
         self.zenoh_port = free_port(1)  # SOCK_STREAM
-        self.scene = Scene(cfg.scene, cfg.camera)
+        self.scene = Scene(cfg.scene, cfg.camera) if world is None else world
         self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
                                                      start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
                                        self.service_port, self.gcs_port)
@@ -527,5 +552,4 @@ class ClosedLoop:
         cx, cy = r.truth.centre
         err = math.hypot(cx - self.cfg.camera.width / 2, cy - self.cfg.camera.height / 2) if r.truth.visible else math.nan
         print(f"\rframe {k + 1:5d}/{frames}  sim {r.time_s:6.1f} s  {(k + 1) / max(elapsed, 1e-9):5.1f} fps  "
-              f"state {state:9s}  centring error {err:6.1f} px  mode {r.mode:8s}  "
-              f"dist {r.target_distance_m:5.1f} m ", end="", flush=True)
+              f"state {state:9s}  centring error {err:6.1f} px  mode {r.mode:8s}{_distance_text(r)} ", end="", flush=True)

@@ -13,19 +13,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
-import tempfile
-import threading
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
+from sim.closed_loop import ClosedLoop, ClosedLoopConfig
 from sim.daemon import exit_on_sigterm
-from sim.scene import SceneConfig
+from sim.scene import CameraConfig, SceneConfig
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "out"
 
@@ -58,13 +54,9 @@ def run_closed_loop(args: argparse.Namespace) -> int:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    """Replay a shared sequence as the camera; the target = the sequence's first ground-truth box."""
-    from sim.autopilot import MockAutopilot, run_realtime
-    from sim.daemon import Daemon
-    from gcs.cli import GroundStation
-    from sim.replay import iter_frames, open_recording
-    from sim.vehicle_model import VehicleConfig
-    from sim.zenoh_link import SimCamera, ZenohEndpoints
+    """Replay a shared sequence as the camera in the closed loop (open loop: the frames do not follow the
+    gimbal); the target = the sequence's first ground-truth box."""
+    from sim.replay import RecordingWorld, open_recording
 
     path = Path(args.replay)
     if not path.exists():
@@ -75,115 +67,29 @@ def run_replay(args: argparse.Namespace) -> int:
     recording = open_recording(path)
     if not recording.groundtruth:
         raise SystemExit(f"{path.name} has no groundtruth_rect.txt: nothing to select")
-    service_port, gcs_port, zenoh_port = free_port(2), free_port(2), free_port(1)
+    world = RecordingWorld(recording, loop=args.loop)
+    (width, height), count = world.size, len(world.frames)
+    # without --loop the run ends with the last frame (frame 0 is the one the target is selected on)
+    duration = args.duration if args.loop else min(args.duration, (count - 1) / recording.fps)
     video = OUT_DIR / f"demo_replay_{path.name}.avi"
-    stop = threading.Event()
-    with tempfile.TemporaryDirectory(prefix="jsar-demo-") as workdir, \
-            MockAutopilot(VehicleConfig(flavour=args.flavour), service_port, gcs_port) as autopilot, \
-            SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{zenoh_port}",))) as camera:
-        stepper = threading.Thread(target=run_realtime, args=(autopilot, stop), daemon=True)
-        stepper.start()
-        overrides = {"source": {"kind": "zenoh"}, "gimbal": {"backend": args.flavour},
-                     "zenoh": {"enabled": True, "mode": "peer", "listen": [],
-                               "connect": [f"tcp/127.0.0.1:{zenoh_port}"], "multicast_scouting": False}}
-        if args.tracker:
-            overrides["tracker"] = {"name": args.tracker, "params": {}}
-        daemon = Daemon(Path(workdir), overrides, f"udpout:127.0.0.1:{service_port}").start()
-        try:
-            if not autopilot.wait_for_heartbeat(100, 60.0):
-                raise SystemExit(f"daemon did not come up; log:\n{daemon.log_tail()}")
-            frames = list(iter_frames(recording))
-            first = frames[0]
-            frame_id = 0
-            print(f"replay {path.name}: {len(frames)} frames {first.shape[1]}x{first.shape[0]} at "
-                  f"{recording.fps:.0f} fps; selecting the first ground-truth box via the mavsdk ground station")
-            gcs = GroundStation(f"udpout://127.0.0.1:{gcs_port}", 30.0)
-            try:
-                info = None
-                while info is None:  # keep the first frame flowing while mavsdk discovers the camera
-                    frame_id += 1
-                    camera.publish(first, frame_id)
-                    camera.telemetry.wait_frame(frame_id, 0.5)
-                    try:
-                        info = gcs.wait_for_camera(0.2)
-                    except TimeoutError:
-                        pass
-                gcs.set_status_interval(info.component_id, 0.5)
-                x, y, w, h = recording.groundtruth[0]
-                H, W = first.shape[:2]
-                result = gcs.track_rectangle(info.component_id, x / W, y / H, (x + w) / W, (y + h) / H)
-                print(f"track_rectangle: {result.name}")
-                while (camera.telemetry.last or {}).get("state") != "tracking":
-                    frame_id += 1
-                    camera.publish(first, frame_id)
-                    if camera.telemetry.wait_frame(frame_id, 5.0) is None:
-                        raise SystemExit(f"daemon did not start tracking; log:\n{daemon.log_tail()}")
-                start_id = frame_id + 1
-                ids: list[int] = []
-                period = 1.0 / recording.fps
-                start = time.monotonic()
-                index = 0
-                while time.monotonic() - start < args.duration:
-                    image = frames[index % len(frames)] if args.loop else frames[index]
-                    frame_id += 1
-                    ids.append(index)
-                    camera.publish(image, frame_id)
-                    if args.pace == "lockstep":
-                        camera.telemetry.wait_frame(frame_id, 10.0)
-                    else:
-                        delay = start + (len(ids)) * period - time.monotonic()
-                        if delay > 0:
-                            time.sleep(delay)  # camera pacing, not synchronisation
-                    last = camera.telemetry.last or {}
-                    if len(ids) % 10 == 0:
-                        print(f"\rframe {len(ids):5d}  {len(ids) / (time.monotonic() - start):5.1f} fps sent  "
-                              f"daemon frame {last.get('frame_id', '-')}  state {last.get('state', '-'):9s}  "
-                              f"dropped {last.get('dropped_frames', 0)}", end="", flush=True)
-                    index += 1
-                    if not args.loop and index >= len(frames):
-                        break
-                camera.telemetry.wait_frame(frame_id, 3.0)
-                wall = time.monotonic() - start
-                status = camera.status(2.0) or {}
-                gcs.track_stop(info.component_id)
-            finally:
-                gcs.close()
-            errors, answered, states = [], 0, []
-            OUT_DIR.mkdir(exist_ok=True)
-            writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), recording.fps, (W, H))
-            for offset, index in enumerate(ids):
-                sample = camera.telemetry.by_frame.get(start_id + offset)
-                image = frames[index].copy()
-                truth = recording.groundtruth[index] if index < len(recording.groundtruth) else (math.nan,) * 4
-                if all(math.isfinite(v) for v in truth):
-                    tx, ty, tw, th = truth
-                    cv2.rectangle(image, (int(tx), int(ty)), (int(tx + tw), int(ty + th)), (0, 255, 0), 2)
-                if sample is not None:
-                    answered += 1
-                    states.append(sample.get("state"))
-                    if sample.get("box_px"):
-                        bx, by, bw, bh = sample["box_px"]
-                        colour = (0, 0, 255) if sample.get("state") == "lost" else (0, 255, 255)
-                        cv2.rectangle(image, (int(bx), int(by)), (int(bx + bw), int(by + bh)), colour, 2)
-                        if all(math.isfinite(v) for v in truth):
-                            errors.append(math.hypot(bx + bw / 2 - truth[0] - truth[2] / 2,
-                                                     by + bh / 2 - truth[1] - truth[3] / 2))
-                writer.write(image)
-            writer.release()
-            lost = sum(1 for a, b in zip(states, states[1:]) if b == "lost" and a != "lost")
-            recovered = sum(1 for a, b in zip(states, states[1:]) if a == "lost" and b in ("recovered", "tracking"))
-            print_summary(f"replay summary ({path.name})", {
-                "frames_sent": len(ids), "frames_processed": answered, "wall_s": round(wall, 2),
-                "send_fps": round(len(ids) / wall, 1), "processed_fps": round(answered / wall, 1),
-                "dropped_frames": (camera.telemetry.last or {}).get("dropped_frames"),
-                "lost": lost, "recovered": recovered,
-                "centre_error_px_median (box vs ground truth)": round(float(np.median(errors)), 1) if errors else None,
-                "daemon_counters": json.dumps(status.get("counters", {})),
-                "annotated_video": str(video.relative_to(OUT_DIR.parent))})
-        finally:
-            stop.set()
-            daemon.stop()
-    return 0
+    # lockstep without the real-time floor: as fast as the daemon consumes (no link drops to keep real)
+    cfg = ClosedLoopConfig(flavour=args.flavour, duration_s=duration, fps=recording.fps, pace=args.pace,
+                           guidance=args.guidance, tracker=args.tracker, camera=CameraConfig(width, height),
+                           video_path=video, lockstep_realtime_floor=False)
+    print(f"replay {path.name}: {count} frames {width}x{height} at {recording.fps:.0f} fps; selecting the first "
+          "ground-truth box via the mavsdk ground station", flush=True)
+    with ClosedLoop(cfg, world=world) as loop:
+        result = loop.run(live=True)
+    summary, errors = result.summary(), result.box_error_px()
+    print_summary(f"replay summary ({path.name})", {
+        "track_rectangle": result.selection_result, "frames_sent": summary["frames"],
+        "frames_processed": summary["answered"], "wall_s": summary["wall_s"], "send_fps": summary["sent_fps"],
+        "processed_fps": summary["processed_fps"], "dropped_frames": summary["dropped_frames"],
+        "lost": summary["lost"], "recovered": summary["recovered"],
+        "centre_error_px_median (box vs ground truth)": round(float(np.median(errors)), 1) if errors else None,
+        "daemon_counters": json.dumps(result.counters),
+        "annotated_video": str(video.relative_to(OUT_DIR.parent))})
+    return 0 if result.daemon_alive else 1
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,6 +5,8 @@ keep up with), `lockstep` sends frame N+1 only after the daemon's telemetry for 
 fast as the daemon consumes; nothing dropped, reproducible).
 
     python -m sim.replay $JSAR_DATA_ROOT/UAVDT_S0310 --connect tcp/127.0.0.1:7447 --pace realtime
+
+RecordingWorld serves a recording to the closed loop instead (`python -m sim.demo --replay`).
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from typing import Iterator, Literal
 import cv2
 import numpy as np
 
+from sim.scene import CameraPose, GroundTruth
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 
 Pace = Literal["realtime", "lockstep"]
@@ -91,6 +94,33 @@ def iter_frames(recording: Recording) -> Iterator[np.ndarray]:
             yield image
     finally:
         capture.release()
+
+
+class RecordingWorld:
+    """A recording as the closed loop's world (sim.closed_loop.World), open loop: at simulated time t the
+    frame round(t * fps) whatever the camera's pose (the recorded camera does not follow the gimbal), with
+    its ground-truth box (the car's ground position unknown). After the last frame the recording starts
+    over when `loop`, else the last frame holds."""
+
+    def __init__(self, recording: Recording, loop: bool = False) -> None:
+        self.recording = recording
+        self.loop = loop
+        self.frames = list(iter_frames(recording))
+        if not self.frames:
+            raise ValueError(f"{recording.path} has no frames")
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) pixels of the frames."""
+        return self.frames[0].shape[1], self.frames[0].shape[0]
+
+    def render(self, pose: CameraPose, t: float) -> tuple[np.ndarray, GroundTruth]:
+        index = int(round(t * self.recording.fps))
+        index = index % len(self.frames) if self.loop else min(index, len(self.frames) - 1)
+        truth = self.recording.groundtruth
+        box = truth[index] if index < len(truth) else (math.nan,) * 4
+        seen = 1.0 if all(math.isfinite(v) for v in box) else 0.0
+        return self.frames[index], GroundTruth(box, seen, seen, None)
 
 
 @dataclass

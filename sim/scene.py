@@ -115,12 +115,13 @@ class Occluder:
 @dataclass(frozen=True)
 class GroundTruth:
     """The car in one frame: box (x, y, w, h) pixels of its projected outline (not clipped to the
-    image), the fraction of its area inside the image and not occluded, and the derived flags."""
+    image), the fraction of its area inside the image and not occluded, its pose on the ground (None
+    where unknown: a recorded sequence), and the derived flags."""
 
     box: tuple[float, float, float, float]
     in_view_fraction: float
     visible_fraction: float
-    target: TargetPose
+    target: TargetPose | None
 
     @property
     def visible(self) -> bool:

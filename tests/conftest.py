@@ -1,4 +1,4 @@
-"""Shared test fixtures: the real-data root, loopback port allocation."""
+"""Shared test fixtures: the real-data root and its sequences, loopback port allocation."""
 from __future__ import annotations
 
 import os
@@ -20,6 +20,17 @@ def data_root() -> Path:
     if not path.is_dir():
         pytest.skip(f"JSAR_DATA_ROOT={root} is not a directory")
     return path
+
+
+def real_sequence(data_root: Path, name: str):
+    """Sequence `name` under the data root, read by jsar.eval.dataset.load_sequence (frame paths; ground truth
+    (N, 4) 0-based x, y, w, h pixels, NaN rows = target not visible); skip when it is not there."""
+    from jsar.eval.dataset import load_sequence
+
+    folder = data_root / name
+    if not folder.is_dir():
+        pytest.skip(f"sequence {name} is not under JSAR_DATA_ROOT")
+    return load_sequence(folder)
 
 
 def free_tcp_port() -> int:

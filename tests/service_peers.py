@@ -17,12 +17,9 @@ from typing import Callable
 os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20.common import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_TYPE_QUADROTOR  # noqa: E402
 
 from service.config import ServiceConfig, config_from_mapping  # noqa: E402
-
-MAV_TYPE_QUADROTOR = 2
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
-MAV_AUTOPILOT_PX4 = 12
 
 
 @dataclass

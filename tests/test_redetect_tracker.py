@@ -12,6 +12,7 @@ import jsar
 from jsar.config import JsarParams
 from jsar.redetect.jsar_re import (JsarReTracker, RedetectOptions, blend_size, clamp_side_ratio, grid_boxes, grid_peak_offset,
                                    max_score_near)
+from tests.conftest import real_sequence
 
 TARGET = 24  # px, side of the synthetic target
 
@@ -141,15 +142,8 @@ def test_reinitialised_size_stays_near_the_size_the_proposal_was_scored_at():
 
 
 def _load_real(root, name: str, count: int) -> tuple[list[np.ndarray], np.ndarray]:
-    folder = root / name
-    if not folder.is_dir():
-        pytest.skip(f"sequence {name} not under JSAR_DATA_ROOT")
-    paths = sorted((folder / "img").glob("*.jpg"))[:count]
-    lines = (folder / "groundtruth_rect.txt").read_text().split("\n")[:count]
-    gt = np.array([[float(v) for v in line.replace("\t", ",").split(",")] for line in lines])
-    gt[:, :2] -= 1.0  # MATLAB 1-based -> 0-based pixels
-    frames = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths]
-    return frames, gt
+    sequence = real_sequence(root, name)
+    return [sequence.read_frame(index) for index in range(count)], sequence.groundtruth[:count]
 
 
 @pytest.mark.data

@@ -195,7 +195,8 @@ def test_loop_coasts_while_lost_then_holds(coast_s: float) -> None:
     coast_s 0 is today's hold."""
     from jsar.api import TrackResult
     from service.control.geo import GimbalAttitude
-    from service.loop import ControlCommand, FrameReport, TrackingLoop
+    from service.domain import ControlCommand
+    from service.loop import FrameReport, TrackingLoop
     from service.mavlink import commands as c
     from service.mavlink.autopilot import AutopilotView
     from service.sources.base import Frame, LatestSlot

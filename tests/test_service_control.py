@@ -18,7 +18,7 @@ from service.control.gimbal import (AxisState, GimbalState, PidGains, angular_er
                                     pid_step)
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
 from service.control.size_bound import SizeMemory, remember_side, side_bounds_px
-from service.loop import ControlCommand
+from service.domain import ControlCommand, LoopState
 from service.mavlink import commands as c
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.outputs import MavlinkOutputs
@@ -176,6 +176,10 @@ def test_bad_controller_inputs_raise() -> None:
     (3, 2, 5, False),      # ArduCopter LOITER
     (3, 1, 15, True),      # ArduPlane GUIDED
     (3, 1, 4, False),      # ArduPlane 4 is not GUIDED
+    (3, 10, 15, True),     # ArduRover GUIDED
+    (3, 19, 15, True),     # the VTOL types (19..25) run ArduPlane
+    (3, 25, 15, True),
+    (3, 13, 4, True),      # a hexarotor is copter-like
     (12, 2, 6 << 16, True),          # PX4 OFFBOARD
     (12, 2, (4 << 16) | (3 << 24), False),  # PX4 AUTO.LOITER
     (8, 2, 4, False),      # not an autopilot
@@ -216,8 +220,8 @@ def _outputs(overrides: dict, view: AutopilotView) -> tuple[MavlinkOutputs, Fake
     return MavlinkOutputs(config, link, lambda: view, lambda: 1234), link
 
 
-TRACKING = ControlCommand("tracking", False, (0.1, -0.1), 0.2, None)
-LOST = ControlCommand("lost", False, (0.0, 0.0), None, None)
+TRACKING = ControlCommand(state=LoopState.TRACKING, rates=(0.1, -0.1), bearing=0.2)
+LOST = ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0))
 
 
 def at(command: ControlCommand, frame_time_s: float) -> ControlCommand:
@@ -354,10 +358,13 @@ def test_follow_target_sends_the_ground_estimate_only_while_tracking() -> None:
     from service.control.geo import GroundTarget
     ground = GroundTarget(lat_deg=47.1, lon_deg=8.2, alt_amsl_m=500.0, ground_range_m=20.0, bearing_rad=0.3)
     outputs, link = _outputs({"guidance": {"mode": "follow_target", "rate_hz": 10.0}}, AutopilotView(system_id=1))
-    outputs.apply(1.0, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground, 50.0))
-    outputs.apply(1.05, ControlCommand("tracking", False, (0.0, 0.0), 0.1, ground, 50.05))  # throttled
-    outputs.apply(1.2, ControlCommand("lost", False, (0.0, 0.0), None, None, 50.2))
-    outputs.apply(1.3, ControlCommand("tracking", False, (0.0, 0.0), 0.1, None, 50.3))  # no ground estimate
+    outputs.apply(1.0, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1, ground=ground,
+                                       frame_time_s=50.0))
+    outputs.apply(1.05, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1, ground=ground,
+                                        frame_time_s=50.05))  # throttled
+    outputs.apply(1.2, ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0), frame_time_s=50.2))
+    outputs.apply(1.3, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1,
+                                       frame_time_s=50.3))  # no ground estimate
     follows = [m for m in link.sent if m.get_type() == "FOLLOW_TARGET"]
     assert len(follows) == 1
     assert (follows[0].lat, follows[0].lon, follows[0].est_capabilities) == (471000000, 82000000, 1)
@@ -453,7 +460,7 @@ def test_px4_outside_offboard_streams_only_zero_setpoints_so_the_pilot_can_engag
     assert len(setpoints) == 5  # > 2 Hz stream
     assert all((m.vx, m.vy, m.vz, m.yaw_rate) == (0, 0, 0, 0) for m in setpoints)
     idle_link = _outputs({"guidance": {"mode": "velocity"}}, hold)
-    idle_link[0].apply(10.0, ControlCommand("idle", False, None, None, None))
+    idle_link[0].apply(10.0, ControlCommand(state=LoopState.IDLE))
     assert idle_link[1].sent == []  # not tracking: nothing at all
     offboard = AutopilotView(system_id=1, autopilot=12, vehicle_type=2, custom_mode=6 << 16, last_heartbeat_s=10.0)
     outputs.autopilot = lambda: offboard
@@ -561,3 +568,46 @@ def test_loop_bounds_the_box_side_from_the_remembered_ground_size_at_the_current
     views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # autopilot silent
     loop.step(Frame(image, 5, 1.3, 0.0))
     assert bounds[-1] is None and loop.counters["size_bounded_frames"] == 4
+
+
+def test_the_loop_reads_the_autopilot_once_per_frame() -> None:
+    """Selection, size bound, size sample, control and coast all use one snapshot of the autopilot a frame."""
+    import time
+
+    from jsar.api import TrackResult
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "jsar-re", "range_size_band": 1.5}, "camera": {"hfov_deg": 90.0}})
+    gimbal = GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False)
+    view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0), gimbal=gimbal,
+                         last_heartbeat_s=time.monotonic())
+    reads: list[int] = []
+    states = ["tracking"] * 20 + ["lost"] * 5
+
+    class Scripted:
+        def init(self, image, box):
+            self.box = box
+
+        def set_side_bounds(self, side_bounds_px):
+            pass
+
+        def update(self, image):
+            return TrackResult(self.box, 1.0, states.pop(0))
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            pass
+
+    def autopilot() -> AutopilotView:
+        reads.append(1)
+        return view
+
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Scripted, Record(), autopilot)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))
+    image = np.zeros((200, 200, 3), np.uint8)
+    for frame_id in range(26):
+        loop.step(Frame(image, frame_id, frame_id * 0.1, 0.0))
+        assert len(reads) == frame_id + 1
+    assert loop.counters["size_bounded_frames"] == 25 and loop.counters["coast_frames"] >= 1

@@ -13,22 +13,13 @@ import numpy as np
 import pytest
 
 from service.app import Service
-from tests.conftest import free_tcp_port, free_udp_port
+from tests.conftest import free_tcp_port, free_udp_port, real_sequence
 from tests.service_peers import AutopilotPeer, GroundStation, Recorder, RunningService, service_config
 
 SEQUENCE = "OTB_Crossing"  # 360x240, 120 frames, a pedestrian crossing from right of centre to left
 FPS = 30.0
 TRACK_RECT, STOP, INTERVAL = 2005, 2010, 511
 STATUS_INTERVAL_US = 100_000
-
-
-def load_ground_truth(folder: Path) -> np.ndarray:
-    """(N, 4) x, y, w, h 0-based pixels (the file is 1-based MATLAB); NaN rows kept."""
-    rows = [[float(v) for v in line.replace("\t", ",").split(",")]
-            for line in (folder / "groundtruth_rect.txt").read_text().splitlines() if line.strip()]
-    gt = np.array(rows, dtype=float)
-    gt[:, :2] -= 1.0
-    return gt
 
 
 def write_video(folder: Path, path: Path) -> tuple[int, int, int]:
@@ -48,12 +39,9 @@ def write_video(folder: Path, path: Path) -> tuple[int, int, int]:
 def test_track_rectangle_on_a_real_sequence_end_to_end(data_root: Path, tmp_path: Path) -> None:
     import zenoh
 
-    folder = data_root / SEQUENCE
-    if not folder.is_dir():
-        pytest.skip(f"{SEQUENCE} is not in JSAR_DATA_ROOT")
-    gt = load_ground_truth(folder)
+    gt = real_sequence(data_root, SEQUENCE).groundtruth
     video = tmp_path / "crossing.avi"
-    n_frames, width, height = write_video(folder, video)
+    n_frames, width, height = write_video(data_root / SEQUENCE, video)
     assert len(gt) == n_frames
 
     service_port, gcs_port, zenoh_port = free_udp_port(), free_udp_port(), free_tcp_port()

@@ -8,10 +8,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_MODE_NONE as MODE_NONE
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_MODE_POINT as MODE_POINT
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_MODE_RECTANGLE as MODE_RECTANGLE
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_ACTIVE as ACTIVE
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_COASTING as COASTING
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_ERROR as ERROR
+from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_IDLE as IDLE
 
 from jsar.api import TrackResult
 from service.config import config_from_mapping
-from service.loop import ControlCommand, TrackingLoop
+from service.domain import ControlCommand
+from service.loop import TrackingLoop
 from service.mavlink.autopilot import AutopilotView
 from service.mavlink.commands import StopTracking, TrackRectangle
 from service.sources.base import CaptureWorker, EndOfStream, Frame, LatestSlot, SourceError, backoff_delays
@@ -397,11 +405,22 @@ def test_frames_stop_while_tracking_holds_gimbal_and_vehicle_once() -> None:
 
 def test_status_reports_error_when_the_camera_fails_while_tracking() -> None:
     from service.mavlink import messages as m
-    active = m.TrackingStatus(m.TRACKING_STATUS_ACTIVE, m.TRACKING_MODE_RECTANGLE, (0.1, 0.1, 0.2, 0.2))
-    assert m.with_source_state(active, False) == m.TrackingStatus(m.TRACKING_STATUS_ERROR, m.TRACKING_MODE_RECTANGLE,
-                                                                  (0.1, 0.1, 0.2, 0.2))
+    active = m.TrackingStatus(ACTIVE, MODE_RECTANGLE, (0.1, 0.1, 0.2, 0.2))
+    assert m.with_source_state(active, False) == m.TrackingStatus(ERROR, MODE_RECTANGLE, (0.1, 0.1, 0.2, 0.2))
     assert m.with_source_state(active, True) == active
     assert m.with_source_state(m.TrackingStatus(), False) == m.TrackingStatus()
+
+
+def test_the_loop_state_maps_to_tracking_status_and_mode() -> None:
+    from service.domain import LoopState, SelectionKind, TrackSnapshot
+    from service.mavlink import messages as m
+    box = (0.1, 0.1, 0.2, 0.2)
+    statuses = {LoopState.TRACKING: ACTIVE, LoopState.RECOVERED: ACTIVE, LoopState.LOST: COASTING}
+    for state, status in statuses.items():
+        for kind, mode in ((SelectionKind.POINT, MODE_POINT), (SelectionKind.RECTANGLE, MODE_RECTANGLE)):
+            snapshot = TrackSnapshot(state=state, selection=kind, box_normalised=box)
+            assert m.tracking_status(snapshot) == m.TrackingStatus(status, mode, box)
+    assert m.tracking_status(TrackSnapshot()) == m.TrackingStatus(IDLE, MODE_NONE, None)
 
 
 def test_backoff_restarts_after_the_source_worked_again() -> None:

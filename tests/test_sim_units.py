@@ -273,6 +273,22 @@ def test_groundtruth_is_converted_to_zero_based(tiny_sequence):
         open_recording(tiny_sequence / "missing")
 
 
+def test_a_recording_as_the_closed_loops_world_ignores_the_pose_and_holds_or_loops(tiny_sequence):
+    from sim.replay import RecordingWorld
+
+    recording = open_recording(tiny_sequence)  # 6 frames at 30 fps; frame i is grey level 20 * i
+    pose = CameraPose(0.0, 0.0, 30.0, 0.0, -0.5)
+    held, looped = RecordingWorld(recording), RecordingWorld(recording, loop=True)
+    assert held.size == (64, 48)
+    frame, truth = held.render(pose, 2 / 30)
+    assert abs(int(frame.mean()) - 40) <= 2 and truth.box == (10.0, 20.0, 10.0, 8.0)
+    assert truth.visible and truth.target is None
+    assert held.render(CameraPose(5.0, 5.0, 10.0, 1.0, -1.0), 2 / 30)[0] is frame  # the pose changes nothing
+    last, hidden = held.render(pose, 9 / 30)  # after the end: the last frame holds, its ground truth is NaN
+    assert abs(int(last.mean()) - 100) <= 2 and not hidden.visible and hidden.in_view_fraction == 0.0
+    assert looped.render(pose, 8 / 30)[0] is looped.frames[2]
+
+
 def test_lockstep_replay_waits_for_each_frames_telemetry(tiny_sequence):
     """A stand-in daemon (a Zenoh peer) answers each frame; lockstep sends N+1 only after N's answer."""
     import zenoh

@@ -1,14 +1,13 @@
 """JsarTracker / STRCF baseline: public API, step API, hard inputs, and one real shared sequence."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
 import jsar
 from jsar.tracking.jsar_tracker import JsarTracker, make_jsar
+from tests.conftest import real_sequence
 
 
 def _background(height: int, width: int, seed: int = 0) -> np.ndarray:
@@ -154,21 +153,12 @@ def test_locate_changes_nothing_commit_moves_and_reinitialise_retrains_once():
     assert tracker.translation.filter_f is not fresh
 
 
-def _load_boxes(path: Path) -> np.ndarray:
-    rows = [line.replace("\t", ",").strip() for line in path.read_text().splitlines() if line.strip()]
-    return np.array([[float(v) for v in row.split(",")] for row in rows])
-
-
 @pytest.mark.data
 @pytest.mark.slow
 def test_real_sequence_precision_above_floor(data_root):
     """OTB_Crossing (120 frames, 360x240): measured precision 1.00 / AUC 0.79; floor 0.85."""
-    sequence = data_root / "OTB_Crossing"
-    if not sequence.is_dir():
-        pytest.skip(f"{sequence} not present in JSAR_DATA_ROOT")
-    truth = _load_boxes(sequence / "groundtruth_rect.txt")
-    truth[:, :2] -= 1.0  # 1-based MATLAB -> 0-based continuous pixels
-    files = sorted((sequence / "img").glob("*.jpg"))
+    sequence = real_sequence(data_root, "OTB_Crossing")
+    truth, files = sequence.groundtruth, sequence.frame_paths
     tracker = jsar.create("jsar")
     tracker.init(cv2.imread(str(files[0])), tuple(truth[0]))
     hits, scores = [], []

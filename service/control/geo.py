@@ -10,9 +10,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from pymavlink.dialects.v20.common import GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME
 
 EARTH_RADIUS_M = 6378137.0
-GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME = 64
 
 
 @dataclass(frozen=True)

@@ -10,19 +10,27 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from pymavlink.dialects.v20.ardupilotmega import COPTER_MODE_GUIDED, PLANE_MODE_GUIDED
+from pymavlink.dialects.v20.common import (
+    MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, MAV_TYPE_FIXED_WING, MAV_TYPE_FLAPPING_WING,
+    MAV_TYPE_GROUND_ROVER, MAV_TYPE_SUBMARINE, MAV_TYPE_SURFACE_BOAT, MAV_TYPE_VTOL_DUOROTOR, MAV_TYPE_VTOL_RESERVED5,
+    POSITION_TARGET_TYPEMASK_AX_IGNORE, POSITION_TARGET_TYPEMASK_AY_IGNORE, POSITION_TARGET_TYPEMASK_AZ_IGNORE,
+    POSITION_TARGET_TYPEMASK_X_IGNORE, POSITION_TARGET_TYPEMASK_Y_IGNORE, POSITION_TARGET_TYPEMASK_YAW_IGNORE,
+    POSITION_TARGET_TYPEMASK_Z_IGNORE,
+)
+
 from service.config import GuidanceConfig
 
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
-MAV_AUTOPILOT_PX4 = 12
-ARDUCOPTER_GUIDED = 4
-ARDUPLANE_GUIDED = 15  # ArduPlane and ArduRover both number GUIDED 15
-PX4_MAIN_MODE_OFFBOARD = 6
-# MAV_TYPE values flown by ArduPlane / driven by ArduRover (GUIDED = 15); the rest are copter-like
-FIXED_WING_OR_GROUND_TYPES = {1, 10, 11, 12, 16, 19, 20, 21, 22, 23, 24, 25}
-# SET_POSITION_TARGET_LOCAL_NED type_mask: ignore position (1|2|4), acceleration (64|128|256) and
-# yaw (1024); use velocity and yaw rate
-VELOCITY_YAW_RATE_TYPE_MASK = 0x05C7
-MAV_FRAME_BODY_OFFSET_NED = 9
+PX4_MAIN_MODE_OFFBOARD = 6  # PX4's px4_custom_mode.h, not a MAVLink enum
+# MAV_TYPE values flown by ArduPlane / driven by ArduRover (GUIDED = 15 in both: PLANE_MODE_GUIDED, ROVER_MODE_GUIDED);
+# the rest are copter-like
+FIXED_WING_OR_GROUND_TYPES = {MAV_TYPE_FIXED_WING, MAV_TYPE_GROUND_ROVER, MAV_TYPE_SURFACE_BOAT, MAV_TYPE_SUBMARINE,
+                              MAV_TYPE_FLAPPING_WING, *range(MAV_TYPE_VTOL_DUOROTOR, MAV_TYPE_VTOL_RESERVED5 + 1)}
+# SET_POSITION_TARGET_LOCAL_NED type_mask: ignore position, acceleration and yaw; use velocity and yaw rate
+VELOCITY_YAW_RATE_TYPE_MASK = (POSITION_TARGET_TYPEMASK_X_IGNORE | POSITION_TARGET_TYPEMASK_Y_IGNORE
+                               | POSITION_TARGET_TYPEMASK_Z_IGNORE | POSITION_TARGET_TYPEMASK_AX_IGNORE
+                               | POSITION_TARGET_TYPEMASK_AY_IGNORE | POSITION_TARGET_TYPEMASK_AZ_IGNORE
+                               | POSITION_TARGET_TYPEMASK_YAW_IGNORE)
 
 
 def px4_main_mode(custom_mode: int) -> int:
@@ -33,7 +41,7 @@ def px4_main_mode(custom_mode: int) -> int:
 def guidance_allowed(autopilot: int, vehicle_type: int, custom_mode: int) -> bool:
     """True when the heartbeat (autopilot, type, custom_mode) says GUIDED (ArduPilot) / OFFBOARD (PX4)."""
     if autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
-        guided = ARDUPLANE_GUIDED if vehicle_type in FIXED_WING_OR_GROUND_TYPES else ARDUCOPTER_GUIDED
+        guided = PLANE_MODE_GUIDED if vehicle_type in FIXED_WING_OR_GROUND_TYPES else COPTER_MODE_GUIDED
         return custom_mode == guided
     if autopilot == MAV_AUTOPILOT_PX4:
         return px4_main_mode(custom_mode) == PX4_MAIN_MODE_OFFBOARD

@@ -8,10 +8,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from service.control.geo import GimbalAttitude, VehiclePose, gimbal_attitude_from_status
+from pymavlink.dialects.v20.common import MAV_AUTOPILOT_INVALID, MAV_COMP_ID_AUTOPILOT1
 
-MAV_AUTOPILOT_INVALID = 8
-MAV_COMP_ID_AUTOPILOT1 = 1
+from service.control.geo import GimbalAttitude, VehiclePose, gimbal_attitude_from_status
 
 
 @dataclass(frozen=True)

@@ -11,24 +11,28 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
 from typing import Callable
 
+from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20.common import (
+    MAV_CMD_CAMERA_STOP_TRACKING, MAV_CMD_CAMERA_TRACK_POINT, MAV_CMD_CAMERA_TRACK_RECTANGLE, MAV_RESULT_ACCEPTED,
+    MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
+    MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+)
+
 from service.config import ServiceConfig
-from service.control.geo import GroundTarget
+from service.domain import TrackSnapshot
 from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView, observe
 from service.mavlink.commands import (
-    MAV_CMD_CAMERA_STOP_TRACKING, MAV_CMD_CAMERA_TRACK_POINT, MAV_CMD_CAMERA_TRACK_RECTANGLE, MAV_RESULT_ACCEPTED,
-    MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MSG_ID_CAMERA_INFORMATION,
-    MSG_ID_CAMERA_TRACKING_GEO_STATUS, MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, Decision, RequestMessage,
-    SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide, is_for_us,
+    Decision, RequestMessage, SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide,
+    is_for_us,
 )
 from service.mavlink.link import MavlinkLink
 from service.sources.base import LatestSlot
 
 log = logging.getLogger("service.mavlink")
-RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+RESULT_NAMES = {value: entry.name.removeprefix("MAV_RESULT_") for value, entry in mavlink.enums["MAV_RESULT"].items()}
 # The operator's commands: a refusal of one is also sent as STATUSTEXT with its reason (not the refusals of
 # what a ground station polls for, which would flood the operator's messages).
 OPERATOR_COMMANDS = {MAV_CMD_CAMERA_TRACK_POINT: "TRACK_POINT", MAV_CMD_CAMERA_TRACK_RECTANGLE: "TRACK_RECTANGLE",
@@ -47,21 +51,13 @@ class RepeatedRefusals:
 
     def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
         """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
-        message = int(param1) if command in (511, 512) and math.isfinite(param1) else None
+        asks_for_message = command in (mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAV_CMD_REQUEST_MESSAGE)
+        message = int(param1) if asks_for_message and math.isfinite(param1) else None
         key = (command, message, source[0], source[1], result)
         if key in self._seen:
             return False
         self._seen.add(key)
         return True
-
-
-@dataclass(frozen=True)
-class TrackSnapshot:
-    """What the loop last reported, for 275 / 276: status, ground estimate, vehicle altitude."""
-
-    image: messages.TrackingStatus = messages.TrackingStatus()
-    ground: GroundTarget | None = None
-    vehicle_alt_amsl_m: float | None = None
 
 
 class CameraComponent:
@@ -81,8 +77,8 @@ class CameraComponent:
         self._snapshot = TrackSnapshot()
         # 275 is off until a ground station asks; 276 streams at the guidance rate in follow_target mode
         geo = 1.0 / config.guidance.rate_hz if config.guidance.mode == "follow_target" else None
-        self._intervals: dict[int, float | None] = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: None,
-                                                    MSG_ID_CAMERA_TRACKING_GEO_STATUS: geo}
+        self._intervals: dict[int, float | None] = {MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: None,
+                                                    MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS: geo}
         self._info_requested = threading.Event()
         self._started = time.monotonic()
         self._stop = threading.Event()
@@ -193,7 +189,7 @@ class CameraComponent:
             if not self._source_ok() or self._frame_size() is None:
                 return Decision(MAV_RESULT_FAILED, f"no camera frames: {self._source_reason()}")
             self.selections.put(intent)
-        elif isinstance(intent, RequestMessage) and intent.message_id == MSG_ID_CAMERA_INFORMATION:
+        elif isinstance(intent, RequestMessage) and intent.message_id == MAVLINK_MSG_ID_CAMERA_INFORMATION:
             if self._frame_size() is None:
                 # the real frame size is part of the answer: ask again once the camera delivers frames
                 return Decision(MAV_RESULT_TEMPORARILY_REJECTED, f"no camera frames yet: {self._source_reason()}")
@@ -209,11 +205,11 @@ class CameraComponent:
 
     # --- send ---------------------------------------------------------------------------------
     def _send_requested(self, message_id: int) -> None:
-        if message_id == MSG_ID_CAMERA_INFORMATION:
+        if message_id == MAVLINK_MSG_ID_CAMERA_INFORMATION:
             self._send_camera_information()
-        elif message_id == MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
+        elif message_id == MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
             self._send_image_status()
-        elif message_id == MSG_ID_CAMERA_TRACKING_GEO_STATUS:
+        elif message_id == MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS:
             self._send_geo_status()
 
     def _send_camera_information(self) -> None:
@@ -227,7 +223,7 @@ class CameraComponent:
 
     def _send_image_status(self) -> None:
         with self._lock:
-            status = self._snapshot.image
+            status = messages.tracking_status(self._snapshot)
         status = messages.with_source_state(status, self._source_ok())
         self.link.send(messages.tracking_image_status(self.link.mav, status))
         self.counters["status_sent"] += 1
@@ -235,15 +231,15 @@ class CameraComponent:
     def _send_geo_status(self) -> None:
         with self._lock:
             snap = self._snapshot
-        self.link.send(messages.tracking_geo_status(self.link.mav, snap.image.status, snap.ground,
+        self.link.send(messages.tracking_geo_status(self.link.mav, messages.tracking_status(snap).status, snap.ground,
                                                     snap.vehicle_alt_amsl_m))
 
     def _send_loop(self) -> None:
         next_heartbeat = time.monotonic()
         next_due: dict[int, float] = {}
         announced_size: tuple[int, int] | None = None  # once at start (first frame), again on a size change
-        senders = {MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self._send_image_status,
-                   MSG_ID_CAMERA_TRACKING_GEO_STATUS: self._send_geo_status}
+        senders = {MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS: self._send_image_status,
+                   MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS: self._send_geo_status}
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_heartbeat:

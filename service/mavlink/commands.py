@@ -10,48 +10,17 @@ import math
 from dataclasses import dataclass
 from typing import Union
 
-MAV_CMD_SET_MESSAGE_INTERVAL = 511
-MAV_CMD_REQUEST_MESSAGE = 512
-MAV_CMD_REQUEST_CAMERA_INFORMATION = 521
-MAV_CMD_CAMERA_TRACK_POINT = 2004
-MAV_CMD_CAMERA_TRACK_RECTANGLE = 2005
-MAV_CMD_CAMERA_STOP_TRACKING = 2010
+from pymavlink.dialects.v20.common import (
+    MAV_CMD_CAMERA_STOP_TRACKING, MAV_CMD_CAMERA_TRACK_POINT, MAV_CMD_CAMERA_TRACK_RECTANGLE,
+    MAV_CMD_REQUEST_CAMERA_INFORMATION, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED, MAV_RESULT_UNSUPPORTED,
+    MAVLINK_MSG_ID_CAMERA_INFORMATION, MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+)
 
-MAV_RESULT_ACCEPTED = 0
-MAV_RESULT_TEMPORARILY_REJECTED = 1
-MAV_RESULT_DENIED = 2
-MAV_RESULT_UNSUPPORTED = 3
-MAV_RESULT_FAILED = 4
+from service.domain import StopTracking, TrackPoint, TrackRectangle
 
-MSG_ID_CAMERA_INFORMATION = 259
-MSG_ID_CAMERA_TRACKING_IMAGE_STATUS = 275
-MSG_ID_CAMERA_TRACKING_GEO_STATUS = 276
-STREAMABLE_MESSAGES = (MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, MSG_ID_CAMERA_TRACKING_GEO_STATUS)
+STREAMABLE_MESSAGES = (MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS)
 MIN_INTERVAL_US = 10_000  # 100 Hz: faster than any camera frame rate we serve
-
-
-@dataclass(frozen=True)
-class TrackPoint:
-    """Track what is at (x, y) normalised; radius as a fraction of the image width (0 = default)."""
-
-    x: float
-    y: float
-    radius: float
-
-
-@dataclass(frozen=True)
-class TrackRectangle:
-    """Track the rectangle with normalised corners top-left (x0, y0), bottom-right (x1, y1)."""
-
-    x0: float
-    y0: float
-    x1: float
-    y1: float
-
-
-@dataclass(frozen=True)
-class StopTracking:
-    """Stop tracking."""
 
 
 @dataclass(frozen=True)
@@ -128,11 +97,11 @@ def decide(command: int, params: tuple[float, ...], own_component: int) -> Decis
         message_id = _as_message_id(p1)
         if message_id is None:
             return Decision(MAV_RESULT_DENIED, f"message id must be a whole number, got {p1}")
-        if message_id not in (MSG_ID_CAMERA_INFORMATION, *STREAMABLE_MESSAGES):
+        if message_id not in (MAVLINK_MSG_ID_CAMERA_INFORMATION, *STREAMABLE_MESSAGES):
             return Decision(MAV_RESULT_UNSUPPORTED, f"this camera does not provide message {message_id}")
         return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(message_id))
     if command == MAV_CMD_REQUEST_CAMERA_INFORMATION:
-        return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(MSG_ID_CAMERA_INFORMATION))
+        return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(MAVLINK_MSG_ID_CAMERA_INFORMATION))
     return Decision(MAV_RESULT_UNSUPPORTED, f"command {command} is not supported by this camera")
 
 

@@ -7,7 +7,6 @@ import threading
 import time
 from pathlib import Path
 
-import service.mavlink  # noqa: F401  (sets MAVLINK20 before pymavlink loads)
 from pymavlink import mavutil
 
 from service.config import MavlinkConfig, SigningConfig

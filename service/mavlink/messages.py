@@ -8,46 +8,50 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from pymavlink.dialects.v20.common import (
+    CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS, CAMERA_CAP_FLAGS_HAS_TRACKING_POINT, CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE,
+    CAMERA_TRACKING_MODE_NONE, CAMERA_TRACKING_MODE_POINT, CAMERA_TRACKING_MODE_RECTANGLE,
+    CAMERA_TRACKING_STATUS_FLAGS_ACTIVE, CAMERA_TRACKING_STATUS_FLAGS_COASTING, CAMERA_TRACKING_STATUS_FLAGS_ERROR,
+    CAMERA_TRACKING_STATUS_FLAGS_IDLE, CAMERA_TRACKING_TARGET_DATA_IN_STATUS, GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME,
+    MAV_AUTOPILOT_INVALID, MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, MAV_FRAME_BODY_OFFSET_NED, MAV_STATE_ACTIVE,
+    MAV_STATE_CRITICAL, MAV_TYPE_CAMERA,
+)
+
 from service.control.geo import GroundTarget
-from service.control.guidance import MAV_FRAME_BODY_OFFSET_NED, VELOCITY_YAW_RATE_TYPE_MASK, VelocitySetpoint
+from service.control.guidance import VELOCITY_YAW_RATE_TYPE_MASK, VelocitySetpoint
+from service.domain import LoopState, SelectionKind, TrackSnapshot
 
 NAN = float("nan")
-MAV_TYPE_CAMERA = 30
-MAV_AUTOPILOT_INVALID = 8
-MAV_STATE_ACTIVE = 4
-MAV_STATE_CRITICAL = 5
-CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM = 256
-CAMERA_CAP_FLAGS_HAS_TRACKING_POINT = 512
-CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE = 1024
-CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS = 2048
-TRACKING_STATUS_IDLE = 0
-TRACKING_STATUS_ACTIVE = 1
-TRACKING_STATUS_ERROR = 2
-TRACKING_STATUS_COASTING = 8
-TRACKING_MODE_NONE = 0
-TRACKING_MODE_POINT = 1
-TRACKING_MODE_RECTANGLE = 2
-TRACKING_TARGET_DATA_NONE = 0
-TRACKING_TARGET_DATA_IN_STATUS = 4
-GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME = 32
-MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE = 1001
-FOLLOW_TARGET_CAP_POSITION = 1
+NO_TARGET_DATA = 0  # CAMERA_TRACKING_TARGET_DATA is a bitmask: no bit set = no target data
+FOLLOW_TARGET_CAP_POSITION = 1  # FOLLOW_TARGET.est_capabilities bit 0 (position); MAVLink names no enum for it
 
 
 @dataclass(frozen=True)
 class TrackingStatus:
     """What 275 reports: status flag, mode, and the target's normalised box (x, y, w, h) or None."""
 
-    status: int = TRACKING_STATUS_IDLE
-    mode: int = TRACKING_MODE_NONE
+    status: int = CAMERA_TRACKING_STATUS_FLAGS_IDLE
+    mode: int = CAMERA_TRACKING_MODE_NONE
     box: tuple[float, float, float, float] | None = None
+
+
+def tracking_status(snapshot: TrackSnapshot) -> TrackingStatus:
+    """The loop's snapshot in 275's terms: idle -> IDLE, lost -> COASTING, tracking / recovered -> ACTIVE;
+    mode from the selection (NONE while idle)."""
+    if snapshot.state == LoopState.IDLE:
+        return TrackingStatus(CAMERA_TRACKING_STATUS_FLAGS_IDLE, CAMERA_TRACKING_MODE_NONE, snapshot.box_normalised)
+    lost = snapshot.state == LoopState.LOST
+    status = CAMERA_TRACKING_STATUS_FLAGS_COASTING if lost else CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+    modes = {SelectionKind.POINT: CAMERA_TRACKING_MODE_POINT, SelectionKind.RECTANGLE: CAMERA_TRACKING_MODE_RECTANGLE}
+    mode = modes.get(snapshot.selection, CAMERA_TRACKING_MODE_NONE)  # type: ignore[arg-type]
+    return TrackingStatus(status, mode, snapshot.box_normalised)
 
 
 def with_source_state(status: TrackingStatus, source_ok: bool) -> TrackingStatus:
     """A track whose camera has failed is reported as ERROR (keeping mode and last box); idle stays idle."""
-    if source_ok or status.status == TRACKING_STATUS_IDLE:
+    if source_ok or status.status == CAMERA_TRACKING_STATUS_FLAGS_IDLE:
         return status
-    return TrackingStatus(TRACKING_STATUS_ERROR, status.mode, status.box)
+    return TrackingStatus(CAMERA_TRACKING_STATUS_FLAGS_ERROR, status.mode, status.box)
 
 
 def heartbeat(mav: object, healthy: bool) -> object:
@@ -71,10 +75,10 @@ def tracking_image_status(mav: object, status: TrackingStatus) -> object:
     """CAMERA_TRACKING_IMAGE_STATUS (275): point = box centre, radius = half width / image width."""
     if status.box is None:
         return mav.camera_tracking_image_status_encode(  # type: ignore[attr-defined]
-            status.status, status.mode, TRACKING_TARGET_DATA_NONE, NAN, NAN, NAN, NAN, NAN, NAN, NAN)
+            status.status, status.mode, NO_TARGET_DATA, NAN, NAN, NAN, NAN, NAN, NAN, NAN)
     x, y, w, h = status.box
     return mav.camera_tracking_image_status_encode(  # type: ignore[attr-defined]
-        status.status, status.mode, TRACKING_TARGET_DATA_IN_STATUS, x + w / 2, y + h / 2, w / 2,
+        status.status, status.mode, CAMERA_TRACKING_TARGET_DATA_IN_STATUS, x + w / 2, y + h / 2, w / 2,
         x, y, x + w, y + h)
 
 

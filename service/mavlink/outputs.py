@@ -13,7 +13,7 @@ from typing import Callable
 
 from service.config import ServiceConfig
 from service.control.guidance import MAV_AUTOPILOT_PX4, ZERO_VELOCITY, guidance_allowed, velocity_setpoint
-from service.loop import ControlCommand
+from service.domain import ControlCommand, LoopState
 from service.mavlink import messages
 from service.mavlink.autopilot import MAV_COMP_ID_AUTOPILOT1, AutopilotView
 
@@ -50,7 +50,7 @@ class MavlinkOutputs:
         elif mode == "follow_target":
             self._follow(command)
         if command.rates is not None:
-            self._gimbal(now_s, view, target, command.rates, tracking=command.state != "idle")
+            self._gimbal(now_s, view, target, command.rates, tracking=command.state != LoopState.IDLE)
 
     # --- gimbal -------------------------------------------------------------------------------
     def _gimbal(self, now_s: float, view: AutopilotView, target: tuple[int, int], rates: tuple[float, float],
@@ -104,7 +104,7 @@ class MavlinkOutputs:
             log.info("event=guidance_gate allowed=%s alive=%s custom_mode=%s", allowed, alive, view.custom_mode)
             self._guidance_was_allowed = allowed
         if not allowed:
-            if command.state == "idle" and not command.stopped:
+            if command.state == LoopState.IDLE and not command.stopped:
                 return
             self.counters["gated"] += 1
             if alive and view.autopilot == MAV_AUTOPILOT_PX4 and self._due(command, force=False):
@@ -114,11 +114,11 @@ class MavlinkOutputs:
                 self.link.send(messages.velocity_target(self.link.mav, target, self.time_boot_ms(), ZERO_VELOCITY))  # type: ignore[attr-defined]
                 self.counters["px4_prestream"] += 1
             return
-        if command.state == "idle" and not command.stopped:
+        if command.state == LoopState.IDLE and not command.stopped:
             return
         if not self._due(command, force=command.stopped):
             return
-        if command.state in ("tracking", "recovered") and command.bearing is not None:
+        if command.state in (LoopState.TRACKING, LoopState.RECOVERED) and command.bearing is not None:
             ground_range = command.ground.ground_range_m if command.ground is not None else None
             setpoint = velocity_setpoint(command.bearing, ground_range, self.config.guidance)
         else:
@@ -127,7 +127,7 @@ class MavlinkOutputs:
         self.counters["velocity"] += 1
 
     def _follow(self, command: ControlCommand) -> None:
-        if command.state not in ("tracking", "recovered") or command.ground is None:
+        if command.state not in (LoopState.TRACKING, LoopState.RECOVERED) or command.ground is None:
             return
         if not self._due(command, force=False):
             return

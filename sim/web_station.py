@@ -6,12 +6,13 @@ Used by `make run` (sim.demo prints the page's address) and the browser tests.
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
 import subprocess
 import sys
 import threading
 import time
-from typing import Callable
+from typing import Callable, Iterator
 
 from sim.closed_loop import ClosedLoop
 from sim.daemon import REPO_ROOT
@@ -165,3 +166,21 @@ def free_tcp_port(preferred: int) -> int:
             return 0
     return preferred
 
+
+
+def daemon_listen(port: int) -> dict:
+    """Daemon config overrides: listen for Zenoh on tcp/127.0.0.1:port, as a drone's daemon does for ground
+    stations (config.yaml zenoh.listen), so the web station can connect to it."""
+    return {"zenoh": {"listen": [f"tcp/127.0.0.1:{port}"]}}
+
+
+@contextlib.contextmanager
+def web_station_beside(loop: ClosedLoop, daemon_zenoh_port: int, web_port: int = 8080) -> Iterator[WebStation]:
+    """The web station on the loop's ground-station link and the daemon's Zenoh endpoint (see daemon_listen),
+    serving on web_port if free, else on any free port."""
+    station = WebStation([f"udpout:127.0.0.1:{loop.gcs_port}"], [f"tcp/127.0.0.1:{daemon_zenoh_port}"],
+                         port=free_tcp_port(web_port)).start()
+    try:
+        yield station
+    finally:
+        station.stop()

@@ -115,3 +115,13 @@ def test_zenoh_settings_need_a_way_to_reach_daemons() -> None:
     with pytest.raises(ValueError, match="peer or client"):
         ZenohSettings(connect=("tcp/127.0.0.1:7447",), mode="router")
     ZenohSettings(connect=("tcp/127.0.0.1:7447",), mode="client").to_zenoh()
+
+
+def test_the_ground_side_imports_nothing_of_the_service_the_sim_or_the_tracker() -> None:
+    """gcs/ runs on a ground station: only the public wire formats, never service / sim / jsar / bench code."""
+    from tests.test_import_graph import import_graph, within
+    graph = import_graph()
+    assert any(within(module, ("gcs",)) for module in graph)
+    wrong = {(module, name) for module, names in graph.items() if within(module, ("gcs",))
+             for name in names if within(name, ("service", "sim", "jsar", "bench"))}
+    assert not wrong

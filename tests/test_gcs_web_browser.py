@@ -189,14 +189,11 @@ def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path
 
 def test_two_drones_through_one_router_select_the_second(data_root, tmp_path: Path) -> None:
     import zenoh
+
+    from gcs.router import router_config
     OUT.mkdir(parents=True, exist_ok=True)
-    router_port = free_port(1)
-    router_config = zenoh.Config()
-    router_config.insert_json5("mode", '"router"')
-    router_config.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{router_port}"]))
-    router_config.insert_json5("scouting/multicast/enabled", "false")
-    router = zenoh.open(router_config)
-    router_endpoint = f"tcp/127.0.0.1:{router_port}"
+    router_endpoint = f"tcp/127.0.0.1:{free_port(1)}"
+    router = zenoh.open(router_config([router_endpoint], multicast_scouting=False))  # what python -m gcs.router runs
     loops: list[ClosedLoop] = []
     runs: list[OperatorRun] = []
     try:

@@ -10,7 +10,7 @@ Keys (the daemon's public contract, docs/video.md and config.yaml's `zenoh:`):
 
 A drone appears when its track samples or its status answer arrive (`**/track` is subscribed, `**/status`
 queried every `status_every_s`). Previews are subscribed only for the drones a page watches (a 640x480
-preview is ~0.5 MB/s; the fleet's telemetry is small).
+preview is ~0.3 MB/s at 15 fps; the fleet's telemetry is small).
 """
 from __future__ import annotations
 

@@ -173,6 +173,8 @@ class MavlinkStation:
         self.on_status, self.on_text = on_status, on_text
         self.ack_timeout_s, self.attempts = ack_timeout_s, attempts
         self.links: list[Link] = []
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
         try:
             for url in urls:
                 self.links.append(Link(url, system_id, component_id))
@@ -188,7 +190,6 @@ class MavlinkStation:
         self._acks: collections.deque = collections.deque(maxlen=200)  # (monotonic, sys, comp, command, result)
         self._command_locks: dict[tuple[int, int], threading.Lock] = collections.defaultdict(threading.Lock)
         self._interval_asked: dict[tuple[int, int], float] = {}
-        self._stop = threading.Event()
         self.counters = collections.Counter()
         self._threads = [threading.Thread(target=self._receive, args=(link,), name=f"mavlink-rx-{i}", daemon=True)
                          for i, link in enumerate(self.links)]
@@ -361,7 +362,7 @@ class MavlinkStation:
     def close(self) -> None:
         """Stop the threads and close the links."""
         self._stop.set()
-        for thread in getattr(self, "_threads", []):
+        for thread in self._threads:
             thread.join(timeout=1.0)
         for link in self.links:
             try:

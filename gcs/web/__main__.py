@@ -92,12 +92,14 @@ def main(argv: list[str] | None = None) -> int:
 
     config = uvicorn.Config(create_app(hub), host=args.host, port=args.port, log_level="warning",
                             ws="websockets-sansio", lifespan="on")
+    server = AnnouncingServer(config)
     try:
-        server = AnnouncingServer(config)
         server.run()
-        return 0 if server.started else 2  # not started: the address is taken (uvicorn said so)
+    except SystemExit:  # uvicorn could not start (it said why: e.g. the address is taken)
+        return 2
     finally:
         close_hub(hub)
+    return 0 if server.started else 2
 
 
 if __name__ == "__main__":

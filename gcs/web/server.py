@@ -75,6 +75,7 @@ class Page:
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     frames_sent: int = 0
     dropped_frames: int = 0
+    tasks: set = field(default_factory=set)  # commands in flight (referenced until done)
 
 
 class Hub:
@@ -138,18 +139,22 @@ class Hub:
 
 
 async def page_sender(page: Page) -> None:
-    """Send the page its queued events (one message), then the newest frame; wait for more."""
-    while True:
-        await page.wake.wait()
-        page.wake.clear()
-        if page.events:
-            events = list(page.events)
-            page.events.clear()
-            await page.websocket.send_text(json.dumps({"type": "events", "events": events}, allow_nan=False))
-        frame, page.frame = page.frame, None
-        if frame is not None:
-            await page.websocket.send_bytes(frame)
-            page.frames_sent += 1
+    """Send the page its queued events (one message), then the newest frame; wait for more. Ends when the
+    page goes away (the receiving side notices and cleans up)."""
+    try:
+        while True:
+            await page.wake.wait()
+            page.wake.clear()
+            if page.events:
+                events = list(page.events)
+                page.events.clear()
+                await page.websocket.send_text(json.dumps({"type": "events", "events": events}, allow_nan=False))
+            frame, page.frame = page.frame, None
+            if frame is not None:
+                await page.websocket.send_bytes(frame)
+                page.frames_sent += 1
+    except (WebSocketDisconnect, RuntimeError, OSError):
+        return  # closed under us
 
 
 def number(message: dict[str, Any], name: str) -> float:
@@ -201,6 +206,12 @@ async def ask_status(hub: Hub, prefix: str) -> None:
 def create_app(hub: Hub) -> Starlette:
     """The Starlette app serving `hub` (built with build_hub; closed by its owner after the server stops)."""
     state: dict[str, Any] = {"hub": hub}
+    background: set[asyncio.Task] = set()  # referenced until done (the loop keeps only weak references)
+
+    def spawn(coroutine: Any) -> None:
+        task = asyncio.create_task(coroutine)
+        background.add(task)
+        task.add_done_callback(background.discard)
 
     async def index(_request: Request) -> Response:
         return FileResponse(str(STATIC / "index.html"), headers={"Cache-Control": "no-store"})
@@ -231,16 +242,23 @@ def create_app(hub: Hub) -> Starlette:
                 kind = message.get("type") if isinstance(message, dict) else None
                 if kind == "watch":
                     prefix = str(message.get("prefix"))
+                    if prefix not in {d["prefix"] for d in hub.directory.summaries()}:
+                        page.events.append({"type": "text", "prefix": prefix, "severity": 4,
+                                            "text": f"no drone {prefix!r} on the Zenoh network"})
+                        page.wake.set()
+                        continue
                     if page.watching is not None:
                         await asyncio.to_thread(hub.directory.unwatch, page.watching)
                     page.watching, page.frame = prefix, None
                     await asyncio.to_thread(hub.directory.watch, prefix)
-                    asyncio.create_task(ask_status(hub, prefix))
+                    spawn(ask_status(hub, prefix))
                 elif kind in ("point", "rect", "stop"):
                     async def answer(message: dict[str, Any] = message) -> None:
                         page.events.append(await run_command(hub, message))
                         page.wake.set()
-                    asyncio.create_task(answer())
+                    task = asyncio.create_task(answer())
+                    page.tasks.add(task)
+                    task.add_done_callback(page.tasks.discard)
                 else:
                     log.warning("event=page_message_unknown message=%.200s", message)
         except (WebSocketDisconnect, RuntimeError):
@@ -249,6 +267,8 @@ def create_app(hub: Hub) -> Starlette:
             await websocket.close(code=1003)
         finally:
             sender.cancel()
+            for task in page.tasks:
+                task.cancel()
             hub.pages.discard(page)
             if page.watching is not None:
                 await asyncio.to_thread(hub.directory.unwatch, page.watching)
@@ -262,7 +282,7 @@ def create_app(hub: Hub) -> Starlette:
                 page.events.append(message)
                 page.wake.set()
             for prefix in {p.watching for p in hub.pages if p.watching is not None}:
-                asyncio.create_task(ask_status(hub, prefix))
+                spawn(ask_status(hub, prefix))
 
     @contextlib.asynccontextmanager
     async def lifespan(_app: Starlette) -> AsyncIterator[None]:

@@ -318,5 +318,12 @@ function addMessage(text, cls) {
   while (list.children.length > 30) list.lastChild.remove();
 }
 
+// A stalled video says so (the last frame stays on screen, marked), instead of looking live.
+setInterval(() => {
+  if (!view.prefix || !bitmap || !frameTimes.length) return;
+  const age = (performance.now() - frameTimes[frameTimes.length - 1]) / 1000;
+  el("video-note").textContent = age > 2 ? `No video for ${age.toFixed(0)} s` : "";
+}, 500);
+
 draw();
 connect();

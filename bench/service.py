@@ -1,6 +1,6 @@
 """End-to-end benchmark of the daemon: latency from frame read to gimbal command, and CPU use.
 
-    python -m bench.service [--sequence UAVDT_S1301] [--trackers jsar-re,csrt] [--seconds 15]
+    python -m bench.service [--sequence UAVDT_S1301] [--trackers jsar-re,csrt] [--seconds 15] [--video off,on] [--rounds 1]
 
 A real shared sequence (JSAR_DATA_ROOT) is resized to 640x480 and written as an MJPG video at 30 fps
 (under out/bench/, git-ignored). For each tracker the daemon runs as a subprocess on that file
@@ -10,6 +10,12 @@ TRACK_RECTANGLE at the ground-truth box. Latency comes from the daemon's per-fra
 Zenoh (`latency_ms.total`: frame read by the capture thread -> gimbal command handed to the
 socket). CPU use is the daemon's user+system CPU time over the tracking window divided by its wall
 time (1.0 = one core busy). OpenCV's CSRT runs in the same session as the reference.
+
+Video (docs/video.md): `off` runs with the Zenoh preview and the RTP stream switched off; `on` with
+both on at config.yaml's settings (preview 640x480 JPEG, the stream at 640x480, 30 fps) and a
+viewer for each (a Zenoh subscriber to the preview, a UDP socket on the stream's port), so that
+their cost (encoding on the video threads, competing with tracking for the cores) shows in the
+tracking latency and the CPU use of the same tracker.
 """
 from __future__ import annotations
 
@@ -30,6 +36,9 @@ import yaml
 os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import common as dialect  # noqa: E402
+
+import jsar  # noqa: E402
+from jsar.api import SideBoundedTracker  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
@@ -128,18 +137,62 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path) -> dict:
-    """Run the daemon with `tracker` on the video; returns the measured numbers."""
+class UdpSink:
+    """A viewer of the RTP stream: a UDP socket on the stream's port counting datagrams and bytes."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.datagrams = 0
+        self.bytes = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._rx, daemon=True)
+        self._thread.start()
+
+    def _rx(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except socket.timeout:
+                continue
+            self.datagrams += 1
+            self.bytes += len(data)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+        self.sock.close()
+
+
+def video_counters(session: object) -> dict:
+    """The preview_* / stream_* counters of the daemon's status ({} without an answer)."""
+    replies = [r.ok for r in session.get("bench/status", timeout=5.0) if r.ok is not None]  # type: ignore[attr-defined]
+    if not replies:
+        return {}
+    counters = json.loads(replies[0].payload.to_string())["counters"]
+    return {k: v for k, v in counters.items() if k.startswith(("preview_", "stream_"))}
+
+
+def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path, video_out: bool = False) -> dict:
+    """Run the daemon with `tracker` on the video (video_out: preview and RTP stream on); the measured numbers."""
     import zenoh
 
     mav_port, zenoh_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
     config = yaml.safe_load((REPO / "config.yaml").read_text())
+    sink = UdpSink() if video_out else None
+    config["video"]["preview"]["enabled"] = video_out
+    config["video"]["stream"].update({"enabled": video_out, "host": "127.0.0.1", "port": sink.port if sink else 5600,
+                                      "max_width_px": WIDTH, "max_height_px": HEIGHT, "fps": FPS})
     config["tracker"].update({"name": tracker, "threads": 1})
+    if not isinstance(jsar.create(tracker), SideBoundedTracker):
+        config["tracker"]["range_size_band"] = 0  # OpenCV's trackers take no side bounds (the service refuses them)
     config["source"].update({"kind": "file", "path": str(video), "realtime": True, "loop": False})
     config["mavlink"]["url"] = f"udpout:127.0.0.1:{mav_port}"
     config["zenoh"].update({"enabled": True, "listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "bench"})
     config["logging"]["level"] = "WARNING"
-    config_file = out / f"config_{tracker}.yaml"
+    config_file = out / f"config_{tracker}_video_{'on' if video_out else 'off'}.yaml"
     config_file.write_text(yaml.safe_dump(config))
     autopilot = AutopilotStub(mav_port)
     proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file)], cwd=REPO,
@@ -156,12 +209,19 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
             reports.append(json.loads(sample.payload.to_string()))  # type: ignore[attr-defined]
             lock.notify_all()
 
+    previews = [0]
+
+    def on_preview(sample: object) -> None:
+        previews[0] += 1
+
     session = None
+    counters_end: dict = {}
     try:
         if not autopilot.heard.wait(60.0):
             raise SystemExit(f"{tracker}: no heartbeat from the daemon: {proc.stderr.read() if proc.poll() else ''}")
         session = zenoh.open(zc)
         subscriber = session.declare_subscriber("bench/track", on_sample)
+        preview_subscriber = session.declare_subscriber("bench/camera/preview", on_preview)
         with lock:
             if not lock.wait_for(lambda: len(reports) > 0, 30.0):
                 raise SystemExit(f"{tracker}: no telemetry from the daemon")
@@ -174,13 +234,18 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
         autopilot.track(gt[min(current + 1, len(gt) - 1)])
         with lock:
             lock.wait_for(lambda: any(r["state"] != "idle" for r in reports), 30.0)
+        counters_start = video_counters(session)
         start_wall, start_cpu = time.monotonic(), cpu_seconds(proc.pid)
+        stream_bytes_before = sink.bytes if sink else 0
         start_index = len(reports)
         with lock:
             lock.wait_for(lambda: proc.poll() is not None or (reports and reports[-1]["frame_id"] >= len(gt) - 2)
                           or time.monotonic() - start_wall > seconds, seconds + 5)
         wall, cpu = time.monotonic() - start_wall, cpu_seconds(proc.pid) - start_cpu
+        stream_kbit_s = (sink.bytes - stream_bytes_before) * 8 / 1000 / wall if sink else 0.0
+        counters_end = video_counters(session)
         subscriber.undeclare()
+        preview_subscriber.undeclare()
     finally:
         if session is not None:
             session.close()
@@ -188,6 +253,8 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
             proc.terminate()
             proc.wait(10)
         autopilot.close()
+        if sink is not None:
+            sink.close()
     window = [r for r in reports[start_index:] if r["state"] != "idle"]
     if not window:
         raise SystemExit(f"{tracker}: nothing tracked")
@@ -198,13 +265,19 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
     centre_err = [np.hypot(r["box_px"][0] + r["box_px"][2] / 2 - g[0] - g[2] / 2,
                            r["box_px"][1] + r["box_px"][3] / 2 - g[1] - g[3] / 2)
                   for r in window for g in [gt[r["frame_id"]]] if np.all(np.isfinite(g))]
-    return {"tracker": tracker, "frames_processed": len(window), "frames_offered": frames_seen,
+    return {"tracker": tracker, "video": "on" if video_out else "off", "frames_processed": len(window), "frames_offered": frames_seen,
             "processed_fps": len(window) / wall, "latency_p50_ms": float(np.percentile(total, 50)),
             "latency_p99_ms": float(np.percentile(total, 99)), "track_p50_ms": float(np.percentile(track, 50)),
             "queue_p50_ms": float(np.percentile(queue, 50)),
             "control_send_p50_ms": float(np.percentile(total - queue - track, 50)),
             "cpu_cores": cpu / wall, "idle_cpu_cores": idle_cores, "dropped_frames": window[-1]["dropped_frames"] - window[0]["dropped_frames"],
-            "gimbal_commands": autopilot.gimbal_commands,
+            "gimbal_commands": autopilot.gimbal_commands, "previews_received": previews[0],
+            "stream_datagrams_received": sink.datagrams if sink else 0,
+            "stream_kbit_s": stream_kbit_s,
+            "video_counters": counters_end,
+            # CPU time of each encoder's thread over the tracking window, in cores (contention does not inflate it)
+            "preview_encoder_cores": (counters_end.get("preview_cpu_ms", 0) - counters_start.get("preview_cpu_ms", 0)) / 1e3 / wall,
+            "stream_encoder_cores": (counters_end.get("stream_cpu_ms", 0) - counters_start.get("stream_cpu_ms", 0)) / 1e3 / wall,
             "centre_error_median_px": float(np.median(centre_err)) if centre_err else float("nan")}
 
 
@@ -214,6 +287,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sequence", default="UAVDT_S1301", help="folder under JSAR_DATA_ROOT")
     parser.add_argument("--trackers", default="jsar-re,csrt", help="comma-separated tracker names")
     parser.add_argument("--seconds", type=float, default=15.0, help="tracking window per tracker")
+    parser.add_argument("--video", default="off,on",
+                        help="comma-separated: off (preview and stream off), on (both on, each with a viewer)")
+    parser.add_argument("--rounds", type=int, default=1,
+                        help="repeat every tracker x video run this many times, interleaved (noisy shared machines)")
     parser.add_argument("--out", default=str(REPO / "out" / "bench"))
     args = parser.parse_args(argv)
     root = os.environ.get("JSAR_DATA_ROOT")
@@ -222,16 +299,36 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out = Path(args.out)
     video, gt = prepare_video(Path(root) / args.sequence, out, max_frames=int(FPS * (args.seconds + IDLE_S + 5)))
-    results = [run_one(name, video, gt, args.seconds, out) for name in args.trackers.split(",")]
+    modes = args.video.split(",")
+    if not modes or any(mode not in ("off", "on") for mode in modes):
+        parser.error(f"--video: a comma-separated list of off / on, got {args.video!r}")
+    if args.rounds < 1:
+        parser.error(f"--rounds: must be >= 1, got {args.rounds}")
+    results = [{**run_one(name, video, gt, args.seconds, out, video_out=mode == "on"), "round": index + 1}
+               for index in range(args.rounds) for name in args.trackers.split(",") for mode in modes]
     print(f"640x480 @ {FPS:.0f} fps, {args.sequence}, one thread; latency = frame read -> gimbal command")
-    print("| tracker | frames | fps | latency p50 ms | latency p99 ms | wait p50 ms | track p50 ms "
+    print("| tracker | video | round | frames | fps | latency p50 ms | latency p99 ms | wait p50 ms | track p50 ms "
           "| control+send p50 ms | CPU (cores) | idle CPU | dropped | centre error px |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
-        print(f"| {r['tracker']} | {r['frames_processed']} | {r['processed_fps']:.1f} | {r['latency_p50_ms']:.1f} "
+        print(f"| {r['tracker']} | {r['video']} | {r['round']} | {r['frames_processed']} | {r['processed_fps']:.1f} | {r['latency_p50_ms']:.1f} "
               f"| {r['latency_p99_ms']:.1f} | {r['queue_p50_ms']:.1f} | {r['track_p50_ms']:.1f} "
               f"| {r['control_send_p50_ms']:.2f} | {r['cpu_cores']:.2f} | {r['idle_cpu_cores']:.2f} | {r['dropped_frames']} "
               f"| {r['centre_error_median_px']:.1f} |")
+    video_on = [r for r in results if r["video"] == "on"]
+    if video_on:
+        print("\nvideo outputs: frames sent, dropped by a slow encoder, thinned by rate, received by the viewers over "
+              "the whole run (idle + tracking); bit rate and encoder threads' CPU over the tracking window")
+        print("| tracker | round | preview sent | preview dropped | preview rate-skipped | previews received "
+              "| stream sent | stream dropped | RTP datagrams received | stream kbit/s "
+              "| preview encoder CPU (cores) | stream encoder CPU (cores) |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for r in video_on:
+            c = r["video_counters"]
+            print(f"| {r['tracker']} | {r['round']} | {c.get('preview_sent')} | {c.get('preview_dropped')} | "
+                  f"{c.get('preview_rate_skipped')} | {r['previews_received']} | {c.get('stream_sent')} | "
+                  f"{c.get('stream_dropped')} | {r['stream_datagrams_received']} | {r['stream_kbit_s']:.0f} "
+                  f"| {r['preview_encoder_cores']:.3f} | {r['stream_encoder_cores']:.3f} |")
     (out / "results.json").write_text(json.dumps(results, indent=2))
     return 0
 

@@ -21,6 +21,7 @@ from service.sources import CaptureWorker, LatestSlot, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
+from service.video.rtp_stream import RtpH264Stream, check_destination
 from service.video.zenoh_preview import ZenohPreview
 
 SIGNAL_POLL_S = 0.1  # s: how often the main thread wakes to run pending signal handlers
@@ -47,6 +48,8 @@ class Service:
         if tracker_cfg.range_size_band != 0 and not isinstance(probe, SideBoundedTracker):
             raise ConfigError(f"tracker.range_size_band: tracker {tracker_cfg.name!r} cannot bound its box size; "
                               "set 0 to run it without the range size bound")
+        if config.video.stream.enabled:
+            check_destination(config.video.stream)
         self._session = open_session(config.zenoh) if config.zenoh.enabled else None
         try:
             self.mailbox: LatestSlot[Frame] = LatestSlot()
@@ -55,18 +58,21 @@ class Service:
             self.selections: LatestSlot = LatestSlot()
             self.link = MavlinkLink(config.mavlink, config.mavlink.system_id or config.mavlink.provisional_system_id)
             health = self.worker.health
+            self.stream = RtpH264Stream(config.video.stream, config.camera.hfov_deg) if config.video.stream.enabled else None
+            stream = self.stream
             self.camera = CameraComponent(
                 config, self.link, self.selections,
                 frame_size=lambda: health.last_frame_size,
                 source_ok=lambda: health.state == "ok",
-                source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}")
+                source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}",
+                video_stream=(lambda: stream.describe(health.last_frame_size)) if stream is not None else None)
             self.outputs = MavlinkOutputs(config, self.link, self.camera.autopilot, self.camera.time_boot_ms)
             self.telemetry = Telemetry(self._session, config.zenoh.prefix, self.status) if self._session else None
             self.preview = (ZenohPreview(self._session, config.zenoh.prefix, config.video.preview)
                             if self._session is not None and config.video.preview.enabled else None)
             if config.video.preview.enabled and self._session is None:
                 log.info("event=preview_off reason=zenoh_disabled")
-            self.video_outputs = [output for output in (self.preview,) if output is not None]
+            self.video_outputs = [output for output in (self.preview, self.stream) if output is not None]
             self.loop = TrackingLoop(
                 config, self.selections, lambda: jsar.create(tracker_cfg.name, **tracker_cfg.params),
                 self.outputs, self.camera.autopilot, publish_snapshot=self.camera.publish,
@@ -111,7 +117,8 @@ class Service:
                          "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors,
                          **{f"{output.worker.name}_{k}": v for output in self.video_outputs
                             for k, v in output.worker.counters().items()}},
-            "video": {"preview": self.preview.status() if self.preview is not None else None},
+            "video": {"preview": self.preview.status() if self.preview is not None else None,
+                      "stream": self.stream.status() if self.stream is not None else None},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
                           "custom_mode": view.custom_mode},
             "mavlink_system_id": self.link.system_id,

@@ -16,8 +16,9 @@ from typing import Callable
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.dialects.v20.common import (
     MAV_CMD_CAMERA_STOP_TRACKING, MAV_CMD_CAMERA_TRACK_POINT, MAV_CMD_CAMERA_TRACK_RECTANGLE, MAV_RESULT_ACCEPTED,
-    MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
+    MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_UNSUPPORTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
     MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+    MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
 )
 
 from service.config import ServiceConfig
@@ -29,6 +30,8 @@ from service.mavlink.commands import (
     is_for_us,
 )
 from service.mavlink.link import MavlinkLink
+from service.mavlink.video_stream import (VIDEO_STREAM_MESSAGES, VideoStreamDescription, video_stream_information,
+                                          video_stream_status)
 from service.sources.base import LatestSlot
 
 log = logging.getLogger("service.mavlink")
@@ -65,13 +68,16 @@ class CameraComponent:
 
     def __init__(self, config: ServiceConfig, link: MavlinkLink, selections: LatestSlot,
                  frame_size: Callable[[], tuple[int, int] | None], source_ok: Callable[[], bool],
-                 source_reason: Callable[[], str]) -> None:
+                 source_reason: Callable[[], str],
+                 video_stream: Callable[[], VideoStreamDescription | None] | None = None) -> None:
+        """video_stream: the RTP stream's description (None until frames arrive); None = no stream."""
         self.config = config
         self.link = link
         self.selections = selections
         self._frame_size = frame_size
         self._source_ok = source_ok
         self._source_reason = source_reason
+        self._video_stream = video_stream
         self._lock = threading.Lock()
         self._view = AutopilotView()
         self._snapshot = TrackSnapshot()
@@ -193,6 +199,11 @@ class CameraComponent:
             if self._frame_size() is None:
                 # the real frame size is part of the answer: ask again once the camera delivers frames
                 return Decision(MAV_RESULT_TEMPORARILY_REJECTED, f"no camera frames yet: {self._source_reason()}")
+        elif isinstance(intent, RequestMessage) and intent.message_id in VIDEO_STREAM_MESSAGES:
+            if self._video_stream is None:
+                return Decision(MAV_RESULT_UNSUPPORTED, "no video stream (video.stream.enabled is false)")
+            if self._video_stream() is None:
+                return Decision(MAV_RESULT_TEMPORARILY_REJECTED, f"no camera frames yet: {self._source_reason()}")
         elif isinstance(intent, StopTracking):
             self.selections.put(intent)
         elif isinstance(intent, SetMessageInterval):
@@ -211,6 +222,11 @@ class CameraComponent:
             self._send_image_status()
         elif message_id == MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS:
             self._send_geo_status()
+        elif message_id in VIDEO_STREAM_MESSAGES and self._video_stream is not None:
+            stream = self._video_stream()
+            if stream is not None:
+                build = video_stream_information if message_id == MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION else video_stream_status
+                self.link.send(build(self.link.mav, stream))
 
     def _send_camera_information(self) -> None:
         size = self._frame_size()
@@ -219,7 +235,7 @@ class CameraComponent:
         cam = self.config.camera
         self.link.send(messages.camera_information(
             self.link.mav, self.time_boot_ms(), cam.vendor_name, cam.model_name, size,
-            geo_status=self.config.guidance.mode == "follow_target"))
+            geo_status=self.config.guidance.mode == "follow_target", video_stream=self._video_stream is not None))
 
     def _send_image_status(self) -> None:
         with self._lock:

@@ -15,9 +15,12 @@ from pymavlink.dialects.v20.common import (
     MAV_CMD_REQUEST_CAMERA_INFORMATION, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED, MAV_RESULT_UNSUPPORTED,
     MAVLINK_MSG_ID_CAMERA_INFORMATION, MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
+    MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION, MAV_CMD_REQUEST_VIDEO_STREAM_STATUS, MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
+    MAVLINK_MSG_ID_VIDEO_STREAM_STATUS,
 )
 
 from service.domain import StopTracking, TrackPoint, TrackRectangle
+from service.mavlink.video_stream import VIDEO_STREAM_MESSAGES, stream_id_matches
 
 STREAMABLE_MESSAGES = (MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS)
 MIN_INTERVAL_US = 10_000  # 100 Hz: faster than any camera frame rate we serve
@@ -97,11 +100,19 @@ def decide(command: int, params: tuple[float, ...], own_component: int) -> Decis
         message_id = _as_message_id(p1)
         if message_id is None:
             return Decision(MAV_RESULT_DENIED, f"message id must be a whole number, got {p1}")
-        if message_id not in (MAVLINK_MSG_ID_CAMERA_INFORMATION, *STREAMABLE_MESSAGES):
+        if message_id not in (MAVLINK_MSG_ID_CAMERA_INFORMATION, *STREAMABLE_MESSAGES, *VIDEO_STREAM_MESSAGES):
             return Decision(MAV_RESULT_UNSUPPORTED, f"this camera does not provide message {message_id}")
+        if message_id in VIDEO_STREAM_MESSAGES and not stream_id_matches(p2):
+            return Decision(MAV_RESULT_DENIED, f"no video stream {p2:g} (this camera has stream 1)")
         return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(message_id))
     if command == MAV_CMD_REQUEST_CAMERA_INFORMATION:
         return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(MAVLINK_MSG_ID_CAMERA_INFORMATION))
+    if command in (MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION, MAV_CMD_REQUEST_VIDEO_STREAM_STATUS):  # older ground stations
+        if not stream_id_matches(p1):
+            return Decision(MAV_RESULT_DENIED, f"no video stream {p1:g} (this camera has stream 1)")
+        return Decision(MAV_RESULT_ACCEPTED, intent=RequestMessage(
+            MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION if command == MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION
+            else MAVLINK_MSG_ID_VIDEO_STREAM_STATUS))
     return Decision(MAV_RESULT_UNSUPPORTED, f"command {command} is not supported by this camera")
 
 

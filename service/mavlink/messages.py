@@ -10,11 +10,12 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20.common import (
     CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS, CAMERA_CAP_FLAGS_HAS_TRACKING_POINT, CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE,
+    CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM,
     CAMERA_TRACKING_MODE_NONE, CAMERA_TRACKING_MODE_POINT, CAMERA_TRACKING_MODE_RECTANGLE,
     CAMERA_TRACKING_STATUS_FLAGS_ACTIVE, CAMERA_TRACKING_STATUS_FLAGS_COASTING, CAMERA_TRACKING_STATUS_FLAGS_ERROR,
     CAMERA_TRACKING_STATUS_FLAGS_IDLE, CAMERA_TRACKING_TARGET_DATA_IN_STATUS, GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME,
     MAV_AUTOPILOT_INVALID, MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, MAV_FRAME_BODY_OFFSET_NED, MAV_STATE_ACTIVE,
-    MAV_STATE_CRITICAL, MAV_TYPE_CAMERA,
+    MAV_SEVERITY_WARNING, MAV_STATE_CRITICAL, MAV_TYPE_CAMERA,
 )
 
 from service.control.geo import GroundTarget
@@ -61,11 +62,14 @@ def heartbeat(mav: object, healthy: bool) -> object:
 
 
 def camera_information(mav: object, time_boot_ms: int, vendor: str, model: str, frame_size: tuple[int, int],
-                       geo_status: bool) -> object:
-    """CAMERA_INFORMATION with tracking flags and the real frame size (0x0 until a frame was seen)."""
+                       geo_status: bool, video_stream: bool = False) -> object:
+    """CAMERA_INFORMATION with tracking flags (and HAS_VIDEO_STREAM when the RTP stream is on) and the
+    real frame size (0x0 until a frame was seen)."""
     flags = CAMERA_CAP_FLAGS_HAS_TRACKING_POINT | CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE
     if geo_status:
         flags |= CAMERA_CAP_FLAGS_HAS_TRACKING_GEO_STATUS
+    if video_stream:
+        flags |= CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
     return mav.camera_information_encode(  # type: ignore[attr-defined]
         time_boot_ms, _fixed(vendor, 32), _fixed(model, 32), 0, NAN, NAN, NAN,
         frame_size[0], frame_size[1], 0, flags, 0, b"")
@@ -128,7 +132,6 @@ def follow_target(mav: object, timestamp_ms: int, target: GroundTarget) -> objec
 
 
 STATUSTEXT_CHUNK = 50  # bytes of text per STATUSTEXT
-MAV_SEVERITY_WARNING = 4
 
 
 def status_texts(mav: object, severity: int, text: str, text_id: int) -> list[object]:

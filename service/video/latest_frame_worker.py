@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -74,6 +75,7 @@ class LatestFrameWorker:
         self.rate_skipped = 0
         self.sent = 0
         self.errors = 0
+        self.cpu_s = 0.0  # CPU time (s) of the worker's thread in the sink: the encoder's own cost
         self.last_sent_frame_id: int | None = None
 
     @property
@@ -83,7 +85,7 @@ class LatestFrameWorker:
 
     def counters(self) -> dict[str, int]:
         return {"offered": self.offered, "rate_skipped": self.rate_skipped, "dropped": self.dropped,
-                "sent": self.sent, "errors": self.errors}
+                "sent": self.sent, "errors": self.errors, "cpu_ms": round(self.cpu_s * 1e3)}
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Wait until predicate() holds, re-checked after each sink call; False on timeout."""
@@ -116,6 +118,7 @@ class LatestFrameWorker:
                 frame = self._slot.take(timeout_s=0.1)
                 if frame is None:
                     continue
+                started = time.thread_time()
                 try:
                     self._sink(frame)
                 except Exception as exc:  # noqa: BLE001 - a failed encode must not stop the output
@@ -123,6 +126,7 @@ class LatestFrameWorker:
                             'event=video_output_failed output=%s frame_id=%d error="%s: %s"',
                             self.name, frame.frame_id, type(exc).__name__, exc)
                     failing = True
+                    self.cpu_s += time.thread_time() - started
                     with self._done:
                         self.errors += 1
                         self._done.notify_all()
@@ -130,6 +134,7 @@ class LatestFrameWorker:
                 if failing:
                     log.info("event=video_output_recovered output=%s errors=%d", self.name, self.errors)
                     failing = False
+                self.cpu_s += time.thread_time() - started
                 with self._done:
                     self.sent += 1
                     self.last_sent_frame_id = frame.frame_id

@@ -100,6 +100,7 @@ class DroneDirectory:
         self._watchers: dict[str, int] = {}
         self._preview_subs: dict[str, Any] = {}
         self._stop = threading.Event()
+        self.status_rounds = 0  # completed status queries: after one, the list holds every daemon that answers
         try:
             self.session = zenoh.open(self.settings.to_zenoh())
         except Exception as exc:  # zenoh.ZError: bad endpoint, port in use
@@ -186,6 +187,9 @@ class DroneDirectory:
                 drone.daemon_status = str(status.get("status"))
                 drone.last_status_s = time.monotonic()
                 self._changed.notify_all()
+        with self._changed:
+            self.status_rounds += 1
+            self._changed.notify_all()
 
     # ----- the pages' interest ------------------------------------------------------------------
     def watch(self, prefix: str) -> None:

@@ -135,7 +135,9 @@ class Hub:
         for drone in drones:
             drone["mavlink_heard"] = (drone["system_id"] is not None
                                       and self.station.heard(drone["system_id"], drone["component_id"]))
-        return {"type": "drones", "drones": finite(drones)}
+        # complete: every daemon that answers the status query is in the list (a page picks a lone drone by
+        # itself only then, not the first of a fleet that happened to answer first)
+        return {"type": "drones", "drones": finite(drones), "complete": self.directory.status_rounds > 0}
 
 
 async def page_sender(page: Page) -> None:

@@ -63,12 +63,12 @@ function send(message) {
 
 // ----- messages from the server ----------------------------------------------------------------
 function onJson(message) {
-  if (message.type === "drones") onDrones(message.drones);
+  if (message.type === "drones") onDrones(message.drones, message.complete);
   else if (message.type === "events") message.events.forEach(onEvent);
 }
 
 function onEvent(event) {
-  if (event.type === "drones") { onDrones(event.drones); return; }
+  if (event.type === "drones") { onDrones(event.drones, event.complete); return; }
   if (event.prefix !== view.prefix) return;  // from before the operator switched drones
   if (event.type === "track") onTrack(event.sample);
   else if (event.type === "status275") onStatus275(event.status);
@@ -76,7 +76,7 @@ function onEvent(event) {
   else if (event.type === "text") addMessage(event.text, event.severity <= 4 ? "warn" : "");
 }
 
-function onDrones(drones) {
+function onDrones(drones, complete) {
   view.drones = drones;
   const list = el("drones");
   list.replaceChildren();
@@ -105,7 +105,8 @@ function onDrones(drones) {
     item.append(button);
     list.append(item);
   }
-  if (!view.prefix && drones.length === 1) select(drones[0].prefix);  // one drone: nothing to choose
+  // one drone on the whole network (not merely the first to answer): nothing to choose
+  if (!view.prefix && complete && drones.length === 1) select(drones[0].prefix);
   const current = drones.find((d) => d.prefix === view.prefix);
   if (current) {
     setText("mavlink-id", current.system_id == null ? "unknown (status not answered yet)"

@@ -3,7 +3,8 @@ sim scene, the real daemon, the mock autopilot and `python -m gcs.web`, everythi
 
 1. One drone: video on the page, a click on the car -> TRACK_POINT ACCEPTED, 275 ACTIVE, the box drawn on
    the page on the car's true position (ground truth of the very frame shown), the gimbal centres the
-   car, the car under a canopy shows lost / coasting, Escape -> STOP_TRACKING ACCEPTED and IDLE.
+   car, the car under a canopy shows lost / coasting, Escape -> STOP_TRACKING ACCEPTED and IDLE; a refused
+   command is shown with the camera's reason.
 2. Two drones through one Zenoh router: both listed with their MAVLink ids, the operator picks the
    second, drags a rectangle on its car: only that drone tracks; the Stop button stops it.
 
@@ -172,6 +173,13 @@ def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path
                 wait_page(page, "window.gcsView.state === 'idle' && window.gcsView.box === null", 10,
                           "no box drawn after Stop", station)
                 page.screenshot(path=str(OUT / "stopped.png"))
+
+                # a refusal is shown with the camera's reason (the page itself never sends this: it clamps)
+                page.evaluate("send({type: 'point', prefix: 'jsar', x: 1.5, y: 0.5, radius: 0.03, id: 99})")
+                wait_page(page, "window.gcsView.lastAck.id === 99", 15, "the ACK of a bad point", station)
+                assert view(page)["lastAck"]["result_name"] == "DENIED"
+                assert page.locator("#ack").inner_text() == (
+                    "TRACK_POINT: DENIED (TRACK_POINT DENIED: x must be in 0..1 (normalised image coordinate), got 1.5)")
                 assert page.errors == [], page.errors
 
             # a page of another origin (any site open in the operator's browser) gets no WebSocket

@@ -16,6 +16,7 @@ COPY pyproject.toml README.md ./
 COPY jsar ./jsar
 COPY service ./service
 COPY sim ./sim
+COPY gcs ./gcs
 RUN python -m venv /opt/jsar/.venv \
     && /opt/jsar/.venv/bin/pip install --no-cache-dir --upgrade pip \
     && /opt/jsar/.venv/bin/pip install --no-cache-dir . \

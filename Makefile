@@ -15,7 +15,7 @@ export MAVLINK20 := 1
 $(STAMP): pyproject.toml jsar/features/_kernels.c
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,gcs]'
 	touch $(STAMP)
 
 run: $(STAMP)

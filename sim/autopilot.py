@@ -9,7 +9,9 @@ GIMBAL_DEVICE_ATTITUDE_STATUS and GIMBAL_MANAGER_STATUS from the model's state.
 Clocks: the model's clock (`model.time_s`, advanced only by `step`) stamps received commands and
 measures setpoint timeouts and link drops, so a lockstep closed loop is reproducible; heartbeats and
 telemetry streams go out on the wall clock (1 Hz / `stream_hz`) because the peers judge link health
-by wall time; a lockstep caller also sends them after every step (`send_state_now`). Each link answers whoever sent to it last (like pymavlink `udpin:`).
+by wall time; a lockstep caller also sends them after every step (`send_state_now`). Each link answers
+every peer heard on it in the last PEER_TIMEOUT_S (like a router's UDP server endpoint), so a
+command-line and a web ground station can share the ground-station link.
 
 Run alone: `python -m sim.autopilot --flavour px4 --service-port 14555 --gcs-port 14550`.
 """
@@ -34,6 +36,7 @@ from sim.vehicle_model import (ARDUCOPTER_MODES, FLAVOURS, PX4_MODES, ReceivedCo
 
 AUTOPILOT_COMPONENT = 1
 LINK_NAMES = ("service", "gcs")
+PEER_TIMEOUT_S = 10.0  # a link stops sending to a peer not heard for this long (ground stations beat at 1 Hz)
 RECORD_LIMIT = 200_000  # received-message record kept in memory (a ring: a 1 h soak must stay flat)
 NAN = float("nan")
 
@@ -66,12 +69,13 @@ def message_target(msg: mavlink.MAVLink_message) -> tuple[int, int] | None:
 
 @dataclass
 class Link:
-    """One UDP endpoint of the autopilot: its socket, its MAVLink codec and the last peer heard."""
+    """One UDP endpoint of the autopilot: its socket, its MAVLink codec and the peers heard (address ->
+    monotonic time last heard)."""
 
     name: str
     sock: socket.socket
     codec: mavlink.MAVLink
-    peer: tuple[str, int] | None = None
+    peers: dict[tuple[str, int], float] = field(default_factory=dict)
     rx_packets: int = 0
     tx_packets: int = 0
     dropped_packets: int = 0  # both ways (link drops, send errors)
@@ -217,7 +221,7 @@ class MockAutopilot:
                     link.dropped_incoming += 1
                     self.changed.notify_all()
                     continue
-                link.peer = addr
+                link.peers[addr] = time.monotonic()
                 link.rx_packets += 1
                 try:
                     messages = link.codec.parse_buffer(data) or []
@@ -400,21 +404,25 @@ class MockAutopilot:
                 self._send(link, msg)
 
     def _send(self, link: Link, msg: mavlink.MAVLink_message) -> None:
-        """Pack with the link's own sequence numbering and send to its last peer."""
+        """Pack with the link's own sequence numbering and send to its peers."""
         self._write(link, msg.pack(link.codec))
         link.codec.seq = (link.codec.seq + 1) % 256
 
     def _write(self, link: Link, data: bytes) -> None:
-        if link.peer is None:
+        now = time.monotonic()
+        for addr in [a for a, heard in link.peers.items() if now - heard > PEER_TIMEOUT_S]:
+            del link.peers[addr]
+        if not link.peers:
             return  # like udpin: nothing heard yet, nobody to send to
         if self.model.time_s < self._drop_until.get(link.name, -math.inf):
             link.dropped_packets += 1
             return
-        try:
-            link.sock.sendto(data, link.peer)
-            link.tx_packets += 1
-        except OSError:
-            link.dropped_packets += 1  # peer gone (ICMP unreachable): keep running like firmware
+        for addr in link.peers:
+            try:
+                link.sock.sendto(data, addr)
+                link.tx_packets += 1
+            except OSError:
+                link.dropped_packets += 1  # peer gone (ICMP unreachable): keep running like firmware
 
 
 def run_realtime(autopilot: MockAutopilot, stop: threading.Event, rate_hz: float = 50.0) -> None:

@@ -3,7 +3,7 @@
 Each frame: render the scene from the mock's vehicle + gimbal pose, publish it over Zenoh, (lockstep)
 wait for the daemon's telemetry of that frame and for its gimbal command, then step the mock's
 dynamics by one frame period of simulated time. The target is selected through the mavsdk ground
-station (sim.gcs) on the ground-station link, routed by the mock autopilot to the daemon.
+station (gcs.cli) on the ground-station link, routed by the mock autopilot to the daemon.
 
 One simulated timeline stamps every frame (the daemon's controllers integrate over capture-time
 intervals): startup and selection frames advance the sim clock by 1/fps each while the scene waits at
@@ -100,6 +100,11 @@ class ClosedLoopConfig:
     # A sim faster than real time would compress a 5 s link drop below the heartbeat timeout.
     lockstep_realtime_floor: bool = True
     gimbal_command_timeout_s: float = 2.0  # lockstep: wait this long (wall) for a frame's gimbal command
+    # Several drones at once: each its own autopilot system id and Zenoh key prefix; `zenoh_connect` adds
+    # endpoints the daemon also connects to (e.g. a Zenoh router that ground stations reach).
+    system_id: int = 1
+    zenoh_prefix: str = "jsar"
+    zenoh_connect: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.flavour not in ("ardupilot", "px4"):
@@ -238,8 +243,9 @@ def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
         "camera": {"hfov_deg": cfg.camera.hfov_deg},
         "gimbal": {"backend": cfg.flavour},
         "guidance": {"mode": cfg.guidance},
-        "zenoh": {"enabled": True, "mode": "peer", "listen": [], "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
-                  "multicast_scouting": False, "prefix": "jsar"},
+        "zenoh": {"enabled": True, "mode": "peer", "listen": [],
+                  "connect": [f"tcp/127.0.0.1:{zenoh_port}", *cfg.zenoh_connect],
+                  "multicast_scouting": False, "prefix": cfg.zenoh_prefix},
     }
     if cfg.tracker is not None:
         overrides["tracker"] = {"name": cfg.tracker, "params": {}}
@@ -286,9 +292,9 @@ class ClosedLoop:
         self.zenoh_port = free_port(1)  # SOCK_STREAM
         self.scene = Scene(cfg.scene, cfg.camera) if world is None else world
         self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
-                                                     start_altitude_m=cfg.altitude_m),
+                                                     start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
                                        self.service_port, self.gcs_port)
-        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",)))
+        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",), prefix=cfg.zenoh_prefix))
         self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
                              f"udpout:127.0.0.1:{self.service_port}")
         self.gcs = None
@@ -390,7 +396,7 @@ class ClosedLoop:
     def select_target(self, timeout_s: float = 30.0) -> str:
         """Select the car through the mavsdk ground station (TRACK_RECTANGLE on its ground-truth box),
         re-sending the t = 0 frame until the daemon reports tracking. Returns the command result."""
-        from sim.gcs import GroundStation
+        from gcs.cli import GroundStation
         self.gcs = GroundStation(f"udpout://127.0.0.1:{self.gcs_port}", discovery_timeout_s=timeout_s)
         frame, truth = self.render(0.0)
         # Keep frames flowing while mavsdk discovers the camera (CAMERA_INFORMATION needs a frame size).

@@ -2,16 +2,19 @@
 
 Starts the mock autopilot, the sim and the daemon (config.yaml + the sim's overrides), selects the
 target through the mavsdk ground station, runs about 30 s with a live status line, prints a summary
-and writes an annotated video under out/.
+and writes an annotated video under out/. The web ground station runs beside it: open the address it
+prints to watch the video with the track, click on the car to select it again, Escape to stop.
 
     python -m sim.demo                                  # closed loop, ArduPilot flavour, real time
     python -m sim.demo --flavour px4 --guidance velocity
     python -m sim.demo --replay UAVDT_S0310             # a shared sequence from $JSAR_DATA_ROOT
     python -m sim.demo --coast-s 0                      # hold the gimbal at once when lost (no coasting)
+    python -m sim.demo --duration 600 --web-port 8081   # ten minutes to click around, page on port 8081
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -19,9 +22,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.closed_loop import ClosedLoop, ClosedLoopConfig
-from sim.daemon import exit_on_sigterm
+from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
+from sim.daemon import deep_merge, exit_on_sigterm
 from sim.scene import CameraConfig, SceneConfig
+from sim.web_station import daemon_listen, web_station_beside
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "out"
 
@@ -33,15 +37,31 @@ def print_summary(title: str, summary: dict) -> None:
         print(f"  {key:26s} {value}")
 
 
+def web_station(args: argparse.Namespace, loop: ClosedLoop, daemon_zenoh_port: int) -> contextlib.AbstractContextManager:
+    """The web ground station beside the run (unless --no-web); prints its address."""
+    if args.no_web:
+        return contextlib.nullcontext()
+
+    @contextlib.contextmanager
+    def announced():
+        with web_station_beside(loop, daemon_zenoh_port, args.web_port) as station:
+            print(f"web ground station: {station.url}  (open it to watch; click the car to select it, "
+                  f"drag a box, Esc stops; it closes when the demo ends)", flush=True)
+            yield station
+    return announced()
+
+
 def run_closed_loop(args: argparse.Namespace) -> int:
     video = OUT_DIR / f"demo_closed_loop_{args.flavour}.avi"
     overrides = {"gimbal": {"coast_s": args.coast_s}} if args.coast_s is not None else {}
+    web_zenoh_port = free_port(1)
+    overrides = deep_merge(overrides, daemon_listen(web_zenoh_port))
     cfg = ClosedLoopConfig(flavour=args.flavour, duration_s=args.duration, pace=args.pace,
                            guidance=args.guidance, tracker=args.tracker, scene=SceneConfig(seed=args.seed),
                            video_path=video, daemon_overrides=overrides)
     print(f"closed loop: mock {args.flavour} autopilot, synthetic scene (seed {args.seed}), daemon with "
           f"guidance {args.guidance}, {args.pace} pacing, {args.duration:.0f} s", flush=True)
-    with ClosedLoop(cfg) as loop:
+    with ClosedLoop(cfg) as loop, web_station(args, loop, web_zenoh_port):
         print(f"ground texture: {loop.scene.texture_source}; selecting the car through the mavsdk ground station",
               flush=True)
         result = loop.run(live=True)
@@ -73,12 +93,14 @@ def run_replay(args: argparse.Namespace) -> int:
     duration = args.duration if args.loop else min(args.duration, (count - 1) / recording.fps)
     video = OUT_DIR / f"demo_replay_{path.name}.avi"
     # lockstep without the real-time floor: as fast as the daemon consumes (no link drops to keep real)
+    web_zenoh_port = free_port(1)
     cfg = ClosedLoopConfig(flavour=args.flavour, duration_s=duration, fps=recording.fps, pace=args.pace,
                            guidance=args.guidance, tracker=args.tracker, camera=CameraConfig(width, height),
-                           video_path=video, lockstep_realtime_floor=False)
+                           video_path=video, lockstep_realtime_floor=False,
+                           daemon_overrides=daemon_listen(web_zenoh_port))
     print(f"replay {path.name}: {count} frames {width}x{height} at {recording.fps:.0f} fps; selecting the first "
           "ground-truth box via the mavsdk ground station", flush=True)
-    with ClosedLoop(cfg, world=world) as loop:
+    with ClosedLoop(cfg, world=world) as loop, web_station(args, loop, web_zenoh_port):
         result = loop.run(live=True)
     summary, errors = result.summary(), result.box_error_px()
     print_summary(f"replay summary ({path.name})", {
@@ -104,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="closed loop: override config.yaml's gimbal.coast_s (0 = hold when lost)")
     parser.add_argument("--replay", default=None, help="sequence folder (or name under JSAR_DATA_ROOT) or video")
     parser.add_argument("--loop", action="store_true", help="replay: loop the sequence for the whole duration")
+    parser.add_argument("--web-port", type=int, default=8080,
+                        help="the web ground station's port on 127.0.0.1 (taken: any free port)")
+    parser.add_argument("--no-web", action="store_true", help="run without the web ground station")
     args = parser.parse_args(argv)
     exit_on_sigterm()
     cv2.setNumThreads(1)

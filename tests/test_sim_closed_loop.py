@@ -25,7 +25,7 @@ os.environ.setdefault("MAVLINK20", "1")
 import pytest
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, RunResult
-from sim.gcs import TrackingStatus
+from gcs.cli import TrackingStatus
 from sim.scene import SceneConfig
 from sim.soak import SoakCriteria, analyse
 
@@ -231,7 +231,7 @@ def test_the_demo_replays_a_real_sequence_through_the_closed_loop(data_root, tmp
     real_sequence(data_root, "OTB_Crossing")  # skip when the sequence is not there
     monkeypatch.setattr(demo, "OUT_DIR", tmp_path / "out")
     args = argparse.Namespace(replay=str(data_root / "OTB_Crossing"), flavour="ardupilot", duration=2.0,
-                              pace="lockstep", guidance="off", tracker=None, loop=False)
+                              pace="lockstep", guidance="off", tracker=None, loop=False, no_web=True, web_port=8080)
     assert demo.run_replay(args) == 0
     lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
 

@@ -15,8 +15,9 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.dialects.v20.common import (
-    MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
-    MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_UNSUPPORTED, MAVLINK_MSG_ID_CAMERA_INFORMATION,
+    MAV_CMD_CAMERA_STOP_TRACKING, MAV_CMD_CAMERA_TRACK_POINT, MAV_CMD_CAMERA_TRACK_RECTANGLE, MAV_CMD_REQUEST_MESSAGE,
+    MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED,
+    MAV_RESULT_UNSUPPORTED, MAV_SEVERITY_WARNING, MAVLINK_MSG_ID_CAMERA_INFORMATION,
     MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
     MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
 )
@@ -36,6 +37,10 @@ from service.sources.base import LatestSlot
 
 log = logging.getLogger("service.mavlink")
 RESULT_NAMES = {value: entry.name.removeprefix("MAV_RESULT_") for value, entry in mavlink.enums["MAV_RESULT"].items()}
+# The operator's commands: a refusal of one is also sent as STATUSTEXT with its reason (not the refusals of
+# what a ground station polls for, which would flood the operator's messages).
+OPERATOR_COMMANDS = {MAV_CMD_CAMERA_TRACK_POINT: "TRACK_POINT", MAV_CMD_CAMERA_TRACK_RECTANGLE: "TRACK_RECTANGLE",
+                     MAV_CMD_CAMERA_STOP_TRACKING: "STOP_TRACKING"}
 
 
 class RepeatedRefusals:
@@ -87,6 +92,7 @@ class CameraComponent:
         self._autopilot_alive = False
         self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "status_sent": 0}
         self._refusals = RepeatedRefusals()
+        self._text_id = 0  # id of the last chunked STATUSTEXT (1..65535)
         self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
                          threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)]
 
@@ -169,6 +175,13 @@ class CameraComponent:
             level, note = logging.DEBUG, ""
         log.log(level, 'event=command command=%d via=%s from=%d/%d result=%s reason="%s"%s', msg.command, kind,  # type: ignore[attr-defined]
                 source[0], source[1], RESULT_NAMES.get(decision.result, decision.result), decision.reason, note)
+        if decision.result != MAV_RESULT_ACCEPTED and msg.command in OPERATOR_COMMANDS:  # type: ignore[attr-defined]
+            # the reason, before the ACK, as ground stations show it (QGroundControl's messages, gcs.web)
+            self._text_id = self._text_id % 65535 + 1
+            text = (f"{OPERATOR_COMMANDS[msg.command]} {RESULT_NAMES.get(decision.result, decision.result)}: "  # type: ignore[attr-defined]
+                    f"{decision.reason}")
+            for message in messages.status_texts(self.link.mav, MAV_SEVERITY_WARNING, text, self._text_id):
+                self.link.send(message)
         self.link.send(self.link.mav.command_ack_encode(  # type: ignore[attr-defined]
             msg.command, decision.result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))  # type: ignore[attr-defined]
         if decision.result == MAV_RESULT_ACCEPTED and isinstance(decision.intent, RequestMessage):

@@ -131,6 +131,24 @@ def follow_target(mav: object, timestamp_ms: int, target: GroundTarget) -> objec
         target.alt_amsl_m, [0, 0, 0], [0, 0, 0], [1, 0, 0, 0], [0, 0, 0], [0, 0, 0], 0)
 
 
+STATUSTEXT_CHUNK = 50  # bytes of text per STATUSTEXT
+
+
+def status_texts(mav: object, severity: int, text: str, text_id: int) -> list[object]:
+    """STATUSTEXT (253) messages carrying `text` (ASCII): one with id 0 when it fits in 50 bytes, else
+    MAVLink 2 chunks under `text_id` (1..65535, chunk_seq from 0) ending with a chunk that holds a NUL."""
+    data = text.encode("ascii", "replace")
+    if len(data) <= STATUSTEXT_CHUNK:
+        return [mav.statustext_encode(severity, data, 0, 0)]  # type: ignore[attr-defined]
+    if not 1 <= text_id <= 65535:
+        raise ValueError(f"a chunked STATUSTEXT needs an id in 1..65535, got {text_id}")
+    chunks = [data[i:i + STATUSTEXT_CHUNK] for i in range(0, len(data), STATUSTEXT_CHUNK)]
+    if len(chunks[-1]) == STATUSTEXT_CHUNK:
+        chunks.append(b"")  # the last chunk must hold a NUL: an empty one ends a text of whole chunks
+    return [mav.statustext_encode(severity, chunk, text_id, seq)  # type: ignore[attr-defined]
+            for seq, chunk in enumerate(chunks)]
+
+
 def _fixed(text: str, size: int) -> list[int]:
     data = text.encode("ascii", "replace")[:size]
     return list(data) + [0] * (size - len(data))

@@ -1,0 +1,322 @@
+"""The web station's server (Starlette on uvicorn): one page, one WebSocket per page.
+
+- `GET /`: the page (static/index.html + app.js + style.css: plain HTML and JS, no build step).
+- `GET /api/drones`: the drone list as JSON (also pushed to the pages every second).
+- `WS /ws`: server -> page: binary messages are preview samples as the daemon sent them (32-byte "JFR1"
+  header + JPEG; the page reads the frame id from the header), text messages are JSON
+  `{"type": "events", "events": [...]}` (track samples of the watched drone, its 275 status, command
+  outcomes, camera texts) and `{"type": "drones", ...}`. Page -> server: JSON `{"type": "watch", "prefix"}`,
+  `{"type": "point", "prefix", "x", "y", "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1",
+  "y1", "id"}`, `{"type": "stop", "prefix", "id"}` (coordinates normalised 0..1, top-left origin).
+
+Latest frame wins towards each page: a page that reads slowly gets the newest preview, the ones it
+missed are counted (`dropped_frames` in /api/drones' `pages`), nothing queues up. A WebSocket whose
+Origin is not this server's own address is refused (another site open in the operator's browser must not
+drive the drone).
+"""
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from typing import Any, AsyncIterator
+from urllib.parse import urlsplit
+
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response
+from starlette.routing import Mount, Route, WebSocketRoute
+from starlette.staticfiles import StaticFiles
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from gcs.drones import DroneDirectory, ZenohSettings
+from gcs.mavlink_station import CommandOutcome, ImageStatus, MavlinkStation
+from gcs.preview import PreviewFrame
+
+log = logging.getLogger("gcs.web")
+STATIC = resources.files("gcs.web") / "static"
+EVENT_LIMIT = 600  # queued events per page (20 s of 30 Hz telemetry): the oldest go first when a page stalls
+
+
+def finite(value: Any) -> Any:
+    """A copy of a JSON-like value with NaN / infinities as None (JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite(item) for item in value]
+    return value
+
+
+def same_origin(origin: str | None, host: str | None) -> bool:
+    """True if a WebSocket's Origin header names the host it connected to (or there is no Origin: not a
+    browser page, e.g. a script on this machine)."""
+    if origin is None:
+        return True
+    if host is None:
+        return False
+    return urlsplit(origin).netloc.lower() == host.lower()
+
+
+@dataclass(eq=False)
+class Page:
+    """One connected page: what it watches, its newest unsent frame, its queued events."""
+
+    websocket: WebSocket
+    watching: str | None = None
+    frame: bytes | None = None
+    events: collections.deque = field(default_factory=lambda: collections.deque(maxlen=EVENT_LIMIT))
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    frames_sent: int = 0
+    dropped_frames: int = 0
+    tasks: set = field(default_factory=set)  # commands in flight (referenced until done)
+
+
+class Hub:
+    """Between the Zenoh / MAVLink threads and the pages (everything here runs on the event loop)."""
+
+    def __init__(self) -> None:
+        self.loop: asyncio.AbstractEventLoop | None = None  # set when the server starts
+        self.pages: set[Page] = set()
+        self.directory: DroneDirectory | None = None
+        self.station: MavlinkStation | None = None
+
+    # called from the Zenoh / MAVLink threads: hop onto the loop (nothing to do before the server runs)
+    def _hop(self, callback: Any, *args: Any) -> None:
+        loop = self.loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(callback, *args)
+
+    def on_track(self, prefix: str, sample: dict[str, Any]) -> None:
+        self._hop(self._event_for, prefix, {"type": "track", "prefix": prefix, "sample": finite(sample)})
+
+    def on_preview(self, prefix: str, frame: PreviewFrame, payload: bytes) -> None:
+        self._hop(self._frame_for, prefix, payload)
+
+    def on_status(self, status: ImageStatus) -> None:
+        self._hop(self._camera_event, status.system_id, status.component_id,
+                  {"type": "status275", "status": finite(status.as_json())})
+
+    def on_text(self, system_id: int, component_id: int, severity: int, text: str) -> None:
+        self._hop(self._camera_event, system_id, component_id,
+                  {"type": "text", "system_id": system_id, "component_id": component_id, "severity": severity,
+                   "text": text})
+
+    # on the loop
+    def _event_for(self, prefix: str, event: dict[str, Any]) -> None:
+        for page in self.pages:
+            if page.watching == prefix:
+                page.events.append(event)
+                page.wake.set()
+
+    def _frame_for(self, prefix: str, payload: bytes) -> None:
+        for page in self.pages:
+            if page.watching == prefix:
+                if page.frame is not None:
+                    page.dropped_frames += 1
+                page.frame = payload
+                page.wake.set()
+
+    def _camera_event(self, system_id: int, component_id: int, event: dict[str, Any]) -> None:
+        assert self.directory is not None
+        for drone in self.directory.summaries():
+            if (drone["system_id"], drone["component_id"]) == (system_id, component_id):
+                self._event_for(drone["prefix"], {**event, "prefix": drone["prefix"]})
+
+    def drones_message(self) -> dict[str, Any]:
+        assert self.directory is not None and self.station is not None
+        drones = self.directory.summaries()
+        for drone in drones:
+            drone["mavlink_heard"] = (drone["system_id"] is not None
+                                      and self.station.heard(drone["system_id"], drone["component_id"]))
+        # complete: every daemon that answers the status query is in the list (a page picks a lone drone by
+        # itself only then, not the first of a fleet that happened to answer first)
+        return {"type": "drones", "drones": finite(drones), "complete": self.directory.status_rounds > 0}
+
+
+async def page_sender(page: Page) -> None:
+    """Send the page its queued events (one message), then the newest frame; wait for more. Ends when the
+    page goes away (the receiving side notices and cleans up)."""
+    try:
+        while True:
+            await page.wake.wait()
+            page.wake.clear()
+            if page.events:
+                events = list(page.events)
+                page.events.clear()
+                await page.websocket.send_text(json.dumps({"type": "events", "events": events}, allow_nan=False))
+            frame, page.frame = page.frame, None
+            if frame is not None:
+                await page.websocket.send_bytes(frame)
+                page.frames_sent += 1
+    except (WebSocketDisconnect, RuntimeError, OSError):
+        return  # closed under us
+
+
+def number(message: dict[str, Any], name: str) -> float:
+    """A finite number from a page's message; ValueError naming the field otherwise."""
+    value = message.get(name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+async def run_command(hub: Hub, message: dict[str, Any]) -> dict[str, Any]:
+    """Carry out a page's point / rect / stop on the drone it names; the outcome as an `ack` event."""
+    assert hub.directory is not None and hub.station is not None
+    prefix = str(message.get("prefix"))
+    kind = message.get("type")
+    base = {"type": "ack", "id": message.get("id"), "prefix": prefix,
+            "command": {"point": "TRACK_POINT", "rect": "TRACK_RECTANGLE", "stop": "STOP_TRACKING"}[kind]}
+    try:
+        system_id, component_id = hub.directory.target(prefix)
+        station = hub.station
+        if kind == "point":
+            args = (number(message, "x"), number(message, "y"), number(message, "radius"))
+            outcome: CommandOutcome = await asyncio.to_thread(station.track_point, system_id, component_id, *args)
+        elif kind == "rect":
+            corners = tuple(number(message, name) for name in ("x0", "y0", "x1", "y1"))
+            outcome = await asyncio.to_thread(station.track_rectangle, system_id, component_id, *corners)
+        else:
+            outcome = await asyncio.to_thread(station.stop_tracking, system_id, component_id)
+    except (LookupError, ValueError) as exc:
+        return {**base, "result": None, "result_name": "NOT_SENT", "reason": str(exc)}
+    log.info("event=command prefix=%s command=%s result=%s reason=%s", prefix, base["command"],
+             outcome.result_name, outcome.reason)
+    if outcome.accepted and kind != "stop":
+        # as QGroundControl does after a track command: ask for the camera's 275 (2 Hz)
+        await asyncio.to_thread(station.request_status, system_id, component_id, 0.5, 0.0)
+    return {**base, **outcome.as_json(), "command": base["command"]}
+
+
+async def ask_status(hub: Hub, prefix: str) -> None:
+    """Ask the watched drone's camera for its 275 at 2 Hz (not more than every 10 s)."""
+    assert hub.directory is not None and hub.station is not None
+    try:
+        system_id, component_id = hub.directory.target(prefix)
+    except LookupError:
+        return  # identity not known yet: the next drone-list tick asks again
+    await asyncio.to_thread(hub.station.request_status, system_id, component_id)
+
+
+def create_app(hub: Hub) -> Starlette:
+    """The Starlette app serving `hub` (built with build_hub; closed by its owner after the server stops)."""
+    state: dict[str, Any] = {"hub": hub}
+    background: set[asyncio.Task] = set()  # referenced until done (the loop keeps only weak references)
+
+    def spawn(coroutine: Any) -> None:
+        task = asyncio.create_task(coroutine)
+        background.add(task)
+        task.add_done_callback(background.discard)
+
+    async def index(_request: Request) -> Response:
+        return FileResponse(str(STATIC / "index.html"), headers={"Cache-Control": "no-store"})
+
+    async def drones(_request: Request) -> Response:
+        hub: Hub = state["hub"]
+        body = hub.drones_message()
+        body["pages"] = [{"watching": p.watching, "frames_sent": p.frames_sent, "dropped_frames": p.dropped_frames}
+                         for p in hub.pages]
+        return JSONResponse(body)
+
+    async def socket(websocket: WebSocket) -> None:
+        hub: Hub = state["hub"]
+        if not same_origin(websocket.headers.get("origin"), websocket.headers.get("host")):
+            log.warning("event=websocket_refused origin=%s host=%s", websocket.headers.get("origin"),
+                        websocket.headers.get("host"))
+            await websocket.close(code=1008)
+            return
+        await websocket.accept()
+        page = Page(websocket)
+        hub.pages.add(page)
+        page.events.append(hub.drones_message())
+        page.wake.set()
+        sender = asyncio.create_task(page_sender(page))
+        try:
+            while True:
+                message = json.loads(await websocket.receive_text())
+                kind = message.get("type") if isinstance(message, dict) else None
+                if kind == "watch":
+                    prefix = str(message.get("prefix"))
+                    if prefix not in {d["prefix"] for d in hub.directory.summaries()}:
+                        page.events.append({"type": "text", "prefix": prefix, "severity": 4,
+                                            "text": f"no drone {prefix!r} on the Zenoh network"})
+                        page.wake.set()
+                        continue
+                    if page.watching is not None:
+                        await asyncio.to_thread(hub.directory.unwatch, page.watching)
+                    page.watching, page.frame = prefix, None
+                    await asyncio.to_thread(hub.directory.watch, prefix)
+                    spawn(ask_status(hub, prefix))
+                elif kind in ("point", "rect", "stop"):
+                    async def answer(message: dict[str, Any] = message) -> None:
+                        page.events.append(await run_command(hub, message))
+                        page.wake.set()
+                    task = asyncio.create_task(answer())
+                    page.tasks.add(task)
+                    task.add_done_callback(page.tasks.discard)
+                else:
+                    log.warning("event=page_message_unknown message=%.200s", message)
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+        except json.JSONDecodeError:
+            await websocket.close(code=1003)
+        finally:
+            sender.cancel()
+            for task in page.tasks:
+                task.cancel()
+            hub.pages.discard(page)
+            if page.watching is not None:
+                await asyncio.to_thread(hub.directory.unwatch, page.watching)
+
+    async def ticker(hub: Hub) -> None:
+        """Every second: the drone list to every page, and the watched cameras' 275 asked for."""
+        while True:
+            await asyncio.sleep(1.0)  # a periodic refresh, not a synchronisation
+            message = hub.drones_message()
+            for page in hub.pages:
+                page.events.append(message)
+                page.wake.set()
+            for prefix in {p.watching for p in hub.pages if p.watching is not None}:
+                spawn(ask_status(hub, prefix))
+
+    @contextlib.asynccontextmanager
+    async def lifespan(_app: Starlette) -> AsyncIterator[None]:
+        hub.loop = asyncio.get_running_loop()
+        tick = asyncio.create_task(ticker(hub))
+        try:
+            yield
+        finally:
+            tick.cancel()
+            hub.loop = None
+
+    routes = [Route("/", index), Route("/api/drones", drones), WebSocketRoute("/ws", socket),
+              Mount("/static", StaticFiles(directory=str(STATIC)), name="static")]
+    return Starlette(routes=routes, lifespan=lifespan)
+
+
+def build_hub(zenoh_settings: ZenohSettings, mavlink_urls: list[str], system_id: int = 255,
+              component_id: int = 190) -> Hub:
+    """The Hub with its MAVLink station and Zenoh directory open; ConnectionError naming what failed."""
+    hub = Hub()
+    hub.station = MavlinkStation(mavlink_urls, system_id, component_id, on_status=hub.on_status, on_text=hub.on_text)
+    try:
+        hub.directory = DroneDirectory(zenoh_settings, on_track=hub.on_track, on_preview=hub.on_preview)
+    except BaseException:
+        hub.station.close()
+        raise
+    return hub
+
+
+def close_hub(hub: Hub) -> None:
+    """Close the Zenoh session and the MAVLink links."""
+    if hub.directory is not None:
+        hub.directory.close()
+    if hub.station is not None:
+        hub.station.close()

@@ -1,0 +1,262 @@
+"""The web ground station in a real browser: Playwright drives Debian's Chromium (headless) against the
+sim scene, the real daemon, the mock autopilot and `python -m gcs.web`, everything on loopback.
+
+1. One drone: video on the page, a click on the car -> TRACK_POINT ACCEPTED, 275 ACTIVE, the box drawn on
+   the page on the car's true position (ground truth of the very frame shown), the gimbal centres the
+   car, the car under a canopy shows lost / coasting, Escape -> STOP_TRACKING ACCEPTED and IDLE; a refused
+   command is shown with the camera's reason.
+2. Two drones through one Zenoh router: both listed with their MAVLink ids, the operator picks the
+   second, drags a rectangle on its car: only that drone tracks; the Stop button stops it.
+
+Screenshots (test artifacts, git-ignored): out/gcs-web/*.png. Without Chromium the tests skip
+(`apt-get install chromium`; .ci/run installs it). The scene is the closed-loop tests' (ground textured
+from real frames: JSAR_DATA_ROOT).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Iterator
+
+os.environ.setdefault("MAVLINK20", "1")
+
+import pytest
+
+from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
+from sim.scene import GroundTruth, SceneConfig
+from sim.web_station import OperatorRun, WebStation
+
+pytestmark = pytest.mark.slow
+
+OUT = Path(__file__).resolve().parent.parent / "out" / "gcs-web"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+WIDTH, HEIGHT = 640, 480  # the sim camera's frames (the preview is not scaled at this size)
+# The car starts 8 m east of the camera's aim: about 130 px right of the image centre, outside the
+# central 20 % until the gimbal turns to it.
+START_EAST_M = 8.0
+
+
+def chromium_path() -> str:
+    path = shutil.which("chromium") or shutil.which("chromium-browser")
+    if path is None:
+        pytest.skip("Chromium is not installed (apt-get install chromium; .ci/run installs it): "
+                    "the browser tests need a real browser")
+    return path
+
+
+@contextlib.contextmanager
+def browser_page(tmp_path: Path) -> Iterator:
+    """A Chromium page (fresh profile, 1280x760), console errors collected in page.errors."""
+    from playwright.sync_api import sync_playwright
+    with sync_playwright() as playwright:
+        context = playwright.chromium.launch_persistent_context(
+            str(tmp_path / "chromium-profile"), executable_path=chromium_path(), headless=True,
+            args=CHROMIUM_ARGS, viewport={"width": 1280, "height": 760})
+        try:
+            page = context.pages[0] if context.pages else context.new_page()
+            page.errors = []
+            page.on("pageerror", lambda error: page.errors.append(str(error)))
+            yield page
+        finally:
+            context.close()
+
+
+def view(page) -> dict:
+    """What the page shows (window.gcsView), read at one instant."""
+    return page.evaluate("JSON.parse(JSON.stringify(window.gcsView))")
+
+
+def click_point(page, x_px: float, y_px: float) -> tuple[float, float]:
+    """Where on the screen the image pixel (x_px, y_px) of the video canvas is."""
+    box = page.locator("#video").bounding_box()
+    return box["x"] + x_px / WIDTH * box["width"], box["y"] + y_px / HEIGHT * box["height"]
+
+
+def overlap(drawn_norm: list[float], truth: GroundTruth) -> tuple[float, bool]:
+    """(fraction of the drawn box inside the car's true box, drawn centre inside the true box)."""
+    x, y, w, h = drawn_norm[0] * WIDTH, drawn_norm[1] * HEIGHT, drawn_norm[2] * WIDTH, drawn_norm[3] * HEIGHT
+    tx, ty, tw, th = truth.box
+    ix = max(0.0, min(x + w, tx + tw) - max(x, tx))
+    iy = max(0.0, min(y + h, ty + th) - max(y, ty))
+    cx, cy = x + w / 2, y + h / 2
+    return ix * iy / max(w * h, 1e-9), tx <= cx <= tx + tw and ty <= cy <= ty + th
+
+
+def centred(truth: GroundTruth) -> bool:
+    """The closed-loop tests' definition: the car's centre within the central 20 % of the image."""
+    cx, cy = truth.centre
+    return abs(cx - WIDTH / 2) <= 0.1 * WIDTH and abs(cy - HEIGHT / 2) <= 0.1 * HEIGHT
+
+
+def wait_page(page, expression: str, timeout_s: float, what: str, station: WebStation) -> None:
+    """Wait (Playwright, event-driven) for a page condition; fail with the page's view and the station's log."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+    try:
+        page.wait_for_function(expression, timeout=timeout_s * 1000)
+    except PlaywrightTimeout:
+        pytest.fail(f"{what}: not within {timeout_s} s\npage: {json.dumps(view(page))[:3000]}\n"
+                    f"page errors: {page.errors}\nstation:\n{station.output()[-3000:]}")
+
+
+def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path) -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    daemon_zenoh = free_port(1)  # the daemon listens here, as on a drone (config.yaml zenoh.listen)
+    cfg = ClosedLoopConfig(flavour="ardupilot", guidance="off",
+                           scene=SceneConfig(texture="data", target_start_east_m=START_EAST_M,
+                                             occlusion_times_s=(6.0,)),
+                           daemon_overrides={"zenoh": {"listen": [f"tcp/127.0.0.1:{daemon_zenoh}"]}})
+    with ClosedLoop(cfg) as loop:
+        run = OperatorRun(loop).start()
+        station = WebStation([f"udpout:127.0.0.1:{loop.gcs_port}"], [f"tcp/127.0.0.1:{daemon_zenoh}"]).start()
+        try:
+            with browser_page(tmp_path) as page:
+                page.goto(station.url)
+                # one drone on the network: selected by itself; video drawn
+                wait_page(page, "window.gcsView.prefix === 'jsar' && window.gcsView.drawnFrames >= 5", 60,
+                          "video on the page", station)
+                shown = view(page)
+                truth = run.truth(shown["frameId"])
+                assert truth is not None and truth.visible and not centred(truth)
+                assert shown["frameSize"] == [WIDTH, HEIGHT]
+
+                page.mouse.click(*click_point(page, *truth.centre))
+                wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the click", station)
+                ack = view(page)["lastAck"]
+                assert (ack["command"], ack["result_name"], ack["system_id"], ack["component_id"]) == \
+                    ("TRACK_POINT", "ACCEPTED", 1, 100)
+                assert page.locator("#ack").inner_text().startswith("TRACK_POINT: ACCEPTED")
+                wait_page(page, "document.getElementById('status275').textContent.startsWith('ACTIVE')", 10,
+                          "275 ACTIVE on the page", station)
+                assert "POINT" in page.locator("#status275").inner_text()
+
+                # the box drawn on each shown frame lies on the car of that very frame
+                checked = 0
+                last_id = -1
+                for _ in range(8):
+                    wait_page(page, f"window.gcsView.box !== null && window.gcsView.frameId > {last_id}", 10,
+                              "a tracked frame drawn", station)
+                    shown = view(page)
+                    last_id = shown["frameId"]
+                    truth = run.truth(last_id)
+                    if shown["box"] is None or truth is None:
+                        continue
+                    inside, centre_in = overlap(shown["box"], truth)
+                    assert shown["state"] in ("tracking", "recovered")
+                    assert inside >= 0.5 and centre_in, (shown, truth.box)
+                    checked += 1
+                assert checked >= 6
+
+                # the gimbal turns to the car: centred on 15 frames in a row
+                def centred_lately() -> bool:
+                    recent = list(run.truths.values())[-15:]
+                    return len(recent) == 15 and all(centred(t) for t in recent) and run.scene_time_s > 0
+                assert run.wait_for(centred_lately, 20.0), "the gimbal did not centre the car"
+                wait_page(page, f"window.gcsView.frameId > {last_id} + 10 && window.gcsView.box !== null", 10,
+                          "a frame of the centred stretch", station)
+                page.screenshot(path=str(OUT / "tracking.png"))
+
+                # the car under the canopy (scene time 6 s): lost, drawn as such
+                wait_page(page, "window.gcsView.state === 'lost'", 20, "the lost state on the page", station)
+                assert page.locator("#state").inner_text().startswith("lost")
+                page.screenshot(path=str(OUT / "lost.png"))
+
+                page.keyboard.press("Escape")
+                wait_page(page, "window.gcsView.lastAck.command === 'STOP_TRACKING'", 15, "the ACK of Stop", station)
+                assert view(page)["lastAck"]["result_name"] == "ACCEPTED"
+                wait_page(page, "document.getElementById('status275').textContent.startsWith('IDLE')", 10,
+                          "275 IDLE after Stop", station)
+                assert run.wait_for(lambda: (loop.camera.telemetry.last or {}).get("state") == "idle", 10.0)
+                wait_page(page, "window.gcsView.state === 'idle' && window.gcsView.box === null", 10,
+                          "no box drawn after Stop", station)
+                page.screenshot(path=str(OUT / "stopped.png"))
+
+                # a refusal is shown with the camera's reason (the page itself never sends this: it clamps)
+                page.evaluate("send({type: 'point', prefix: 'jsar', x: 1.5, y: 0.5, radius: 0.03, id: 99})")
+                wait_page(page, "window.gcsView.lastAck.id === 99", 15, "the ACK of a bad point", station)
+                assert view(page)["lastAck"]["result_name"] == "DENIED"
+                assert page.locator("#ack").inner_text() == (
+                    "TRACK_POINT: DENIED (TRACK_POINT DENIED: x must be in 0..1 (normalised image coordinate), got 1.5)")
+                assert page.errors == [], page.errors
+
+            # a page of another origin (any site open in the operator's browser) gets no WebSocket
+            from websockets.exceptions import InvalidStatus
+            from websockets.sync.client import connect
+            ws_url = station.url.replace("http://", "ws://") + "ws"
+            with pytest.raises(InvalidStatus):
+                connect(ws_url, origin="http://evil.example", open_timeout=5).close()
+            with connect(ws_url, origin=station.url.rstrip("/"), open_timeout=5) as ws:
+                assert json.loads(ws.recv(timeout=5))["type"] == "events"
+        finally:
+            station.stop()
+            run.stop()
+
+
+def test_two_drones_through_one_router_select_the_second(data_root, tmp_path: Path) -> None:
+    import zenoh
+
+    from gcs.router import router_config
+    OUT.mkdir(parents=True, exist_ok=True)
+    router_endpoint = f"tcp/127.0.0.1:{free_port(1)}"
+    router = zenoh.open(router_config([router_endpoint], multicast_scouting=False))  # what python -m gcs.router runs
+    loops: list[ClosedLoop] = []
+    runs: list[OperatorRun] = []
+    try:
+        for system_id in (1, 2):  # ten frames a second: two sims, two daemons and a browser on two cores
+            cfg = ClosedLoopConfig(flavour="ardupilot", guidance="off", fps=10.0, system_id=system_id,
+                                   zenoh_prefix=f"drone{system_id}", zenoh_connect=(router_endpoint,),
+                                   scene=SceneConfig(texture="data", seed=system_id, target_start_east_m=4.0,
+                                                     occlusion_times_s=(30.0,)))
+            loops.append(ClosedLoop(cfg))
+            loops[-1].__enter__()
+        runs.extend(OperatorRun(loop).start() for loop in loops)
+        station = WebStation([f"udpout:127.0.0.1:{loop.gcs_port}" for loop in loops], [router_endpoint],
+                             extra_args=("--zenoh-mode", "client")).start()
+        try:
+            with browser_page(tmp_path) as page:
+                page.goto(station.url)
+                both = ("window.gcsView.drones.length === 2 && window.gcsView.drones.every(d => d.mavlink_heard "
+                        "&& !d.conflict && d.system_id === Number(d.prefix.slice(5)))")
+                wait_page(page, both, 60, "both drones listed with their own MAVLink ids", station)
+                assert view(page)["prefix"] is None  # two drones: the operator picks
+                assert page.locator("#video-note").inner_text() == "Pick a drone"
+                page.click("#drones button[data-prefix='drone2']")
+                wait_page(page, "window.gcsView.prefix === 'drone2' && window.gcsView.drawnFrames >= 3", 30,
+                          "drone2's video", station)
+                truth = runs[1].truth(view(page)["frameId"])
+                assert truth is not None and truth.visible
+                x, y, w, h = truth.box
+                page.mouse.move(*click_point(page, x - 4, y - 4))
+                page.mouse.down()
+                page.mouse.move(*click_point(page, x + w / 2, y + h / 2), steps=4)
+                page.mouse.move(*click_point(page, x + w + 4, y + h + 4), steps=4)
+                page.mouse.up()
+                wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the drag", station)
+                ack = view(page)["lastAck"]
+                assert (ack["command"], ack["result_name"], ack["system_id"]) == ("TRACK_RECTANGLE", "ACCEPTED", 2)
+                wait_page(page, "document.getElementById('status275').textContent.startsWith('ACTIVE · RECTANGLE')",
+                          10, "drone2's 275 ACTIVE, rectangle", station)
+                assert runs[1].wait_for(lambda: (loops[1].camera.telemetry.last or {}).get("state") == "tracking", 10)
+                wait_page(page, "window.gcsView.box !== null", 10, "drone2's box drawn", station)
+                shown = view(page)
+                inside, centre_in = overlap(shown["box"], runs[1].truth(shown["frameId"]))
+                assert inside >= 0.5 and centre_in
+                assert (loops[0].camera.telemetry.last or {}).get("state") == "idle"  # drone1 untouched
+                page.screenshot(path=str(OUT / "two-drones.png"))
+
+                page.click("#stop")
+                wait_page(page, "window.gcsView.lastAck.command === 'STOP_TRACKING'", 15, "the ACK of Stop", station)
+                assert view(page)["lastAck"]["result_name"] == "ACCEPTED" and view(page)["lastAck"]["system_id"] == 2
+                assert runs[1].wait_for(lambda: (loops[1].camera.telemetry.last or {}).get("state") == "idle", 10)
+                assert page.errors == [], page.errors
+        finally:
+            station.stop()
+    finally:
+        for run in runs:
+            run.stop()
+        for loop in loops:
+            loop.__exit__(None, None, None)
+        router.close()

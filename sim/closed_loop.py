@@ -79,6 +79,7 @@ class ClosedLoopConfig:
     start_mode: str = ""  # "" = GUIDED / OFFBOARD
     altitude_m: float = 30.0  # vehicle height above the ground plane
     daemon_overrides: dict = field(default_factory=dict)
+    daemon_module: str = "service"  # run as `python -m daemon_module` (tests: an instrumented service)
     telemetry_timeout_s: float = 15.0
     startup_timeout_s: float = 60.0
     video_path: Path | None = None  # annotated video (MJPG .avi)
@@ -265,7 +266,7 @@ class ClosedLoop:
                                        self.service_port, self.gcs_port)
         self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",)))
         self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
-                             f"udpout:127.0.0.1:{self.service_port}")
+                             f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
         self.gcs = None
         self.frame_id = 0
         self.clock_s = SIM_CLOCK_EPOCH_S  # capture stamp of the next startup / selection frame

@@ -63,8 +63,9 @@ def rss_kib(pid: int) -> int:
 class Daemon:
     """The service subprocess: start(), alive(), rss_kib(), stop() (SIGTERM, then kill after a grace)."""
 
-    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str) -> None:
+    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str, module: str = "service") -> None:
         self.workdir = workdir
+        self.module = module  # `python -m module`: the service, or a test's instrumented wrapper of it
         self.config_path = workdir / "service-config.yaml"
         self.log_path = workdir / "service.log"
         self.config = write_config(self.config_path, overrides)
@@ -77,7 +78,7 @@ class Daemon:
                    MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
         self._log_handle = open(self.log_path, "w", encoding="utf-8")
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "service", "--config", str(self.config_path), "--source", "zenoh",
+            [sys.executable, "-m", self.module, "--config", str(self.config_path), "--source", "zenoh",
              "--mavlink", self.mavlink_url],
             cwd=REPO_ROOT, env=env, stdout=self._log_handle, stderr=subprocess.STDOUT)
         return self

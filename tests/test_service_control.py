@@ -295,6 +295,24 @@ def test_ardupilot_backend_sends_287_rates() -> None:
     assert math.isnan(msg.pitch) and math.isnan(msg.yaw)
 
 
+def test_287_on_the_wire_is_a_vehicle_frame_rate_command() -> None:
+    """What a gimbal manager decodes from our 287: rates set, angles NaN ("ignore"), and flags that
+    state the yaw rate's frame (vehicle) and ask for nothing else (no retract / neutral / earth lock)."""
+    from service.mavlink import messages
+    sender, receiver = mavlink.MAVLink(None, srcSystem=1, srcComponent=100), mavlink.MAVLink(None)
+    built = messages.gimbal_rates_ardupilot(sender, (7, 1), 0, yaw_rate=0.25, pitch_rate=-0.125)
+    (msg,) = receiver.parse_buffer(built.pack(sender))
+    assert (msg.get_type(), msg.target_system, msg.target_component, msg.gimbal_device_id) == \
+        ("GIMBAL_MANAGER_SET_PITCHYAW", 7, 1, 0)
+    assert msg.flags == mavlink.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME
+    assert not msg.flags & (mavlink.GIMBAL_MANAGER_FLAGS_RETRACT | mavlink.GIMBAL_MANAGER_FLAGS_NEUTRAL
+                            | mavlink.GIMBAL_MANAGER_FLAGS_YAW_LOCK | mavlink.GIMBAL_MANAGER_FLAGS_YAW_IN_EARTH_FRAME)
+    assert math.isnan(msg.pitch) and math.isnan(msg.yaw)
+    assert (msg.yaw_rate, msg.pitch_rate) == (0.25, -0.125)
+    with pytest.raises(ValueError, match="finite"):  # NaN rates with NaN angles would ask for nothing
+        messages.gimbal_rates_ardupilot(sender, (7, 1), 0, yaw_rate=math.nan, pitch_rate=0.0)
+
+
 def test_px4_backend_claims_then_sends_282_only_when_primary() -> None:
     view = AutopilotView(system_id=1, gimbal_primary=(0, 0))
     outputs, link = _outputs({"gimbal": {"backend": "px4", "claim_interval_s": 1.0}}, view)

@@ -152,6 +152,11 @@ def test_gimbal_commands_per_firmware(autopilot_with_peers):
     pitchyaw, attitude = ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")[0], ap.commands("GIMBAL_MANAGER_SET_ATTITUDE")[0]
     if ap.flavour == "ardupilot":  # ArduPilot takes both, from anyone; the later one wins
         assert pitchyaw.outcome == "applied: rates" and attitude.outcome == "applied: rates"
+        service.mav.gimbal_manager_set_pitchyaw_send(1, 1, 1, 0, math.nan, math.nan, 0.1, 0.2)  # RETRACT
+        service.mav.gimbal_manager_set_pitchyaw_send(1, 1, 16, 0, math.nan, math.nan, 0.1, 0.2)  # YAW_LOCK
+        assert ap.wait_for(lambda: len(ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")) >= 3, 5.0)
+        retract, earth = ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")[1:3]
+        assert "retract / neutral" in retract.outcome and "earth frame" in earth.outcome
     else:
         assert pitchyaw.outcome.startswith("ignored")
         assert attitude.outcome.startswith("ignored: (1, 100) is not the primary")

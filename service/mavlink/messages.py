@@ -91,9 +91,18 @@ def tracking_geo_status(mav: object, status: int, target: GroundTarget | None, v
 
 def gimbal_rates_ardupilot(mav: object, target: tuple[int, int], device_id: int, yaw_rate: float,
                            pitch_rate: float) -> object:
-    """GIMBAL_MANAGER_SET_PITCHYAW (287): both angles NaN, both rates set (what ArduPilot accepts)."""
-    return mav.gimbal_manager_set_pitchyaw_encode(target[0], target[1], 0, device_id, NAN, NAN,  # type: ignore[attr-defined]
-                                                  pitch_rate, yaw_rate)
+    """GIMBAL_MANAGER_SET_PITCHYAW (287) as a rate command (rad/s, positive = pitch up / yaw right).
+
+    Per the message's definition NaN means "ignore this field": both angles NaN, both rates finite
+    (ArduPilot acts on both rates or both angles, never a mix). flags = YAW_IN_VEHICLE_FRAME: the yaw
+    rate is relative to the vehicle's heading, as the image error it comes from; no RETRACT / NEUTRAL
+    (which ArduPilot acts on before reading any field) and no YAW_LOCK (earth frame). ValueError on a
+    non-finite rate: with NaN rates too the message would ask for nothing.
+    """
+    if not (math.isfinite(yaw_rate) and math.isfinite(pitch_rate)):
+        raise ValueError(f"gimbal rates must be finite, got yaw {yaw_rate}, pitch {pitch_rate}")
+    return mav.gimbal_manager_set_pitchyaw_encode(  # type: ignore[attr-defined]
+        target[0], target[1], GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME, device_id, NAN, NAN, pitch_rate, yaw_rate)
 
 
 def gimbal_rates_px4(mav: object, target: tuple[int, int], device_id: int, yaw_rate: float, pitch_rate: float) -> object:

@@ -313,6 +313,23 @@ def test_287_on_the_wire_is_a_vehicle_frame_rate_command() -> None:
         messages.gimbal_rates_ardupilot(sender, (7, 1), 0, yaw_rate=math.nan, pitch_rate=0.0)
 
 
+def test_276_without_a_ground_estimate_is_idle_not_active_at_0_0() -> None:
+    from service.control.geo import GroundTarget
+    from service.mavlink import messages
+    sender, receiver = mavlink.MAVLink(None, srcSystem=1, srcComponent=100), mavlink.MAVLink(None)
+
+    def decoded(status: int, target: GroundTarget | None):
+        built = messages.tracking_geo_status(sender, status, target, 80.0)
+        return receiver.parse_buffer(built.pack(sender))[0]
+    unknown = decoded(messages.TRACKING_STATUS_ACTIVE, None)
+    assert unknown.tracking_status == messages.TRACKING_STATUS_IDLE and (unknown.lat, unknown.lon) == (0, 0)
+    assert math.isnan(unknown.alt) and math.isnan(unknown.dist)
+    known = decoded(messages.TRACKING_STATUS_ACTIVE, GroundTarget(47.3977, 8.5456, 50.0, 40.0, 0.5))
+    assert known.tracking_status == messages.TRACKING_STATUS_ACTIVE
+    assert (known.lat, known.lon, known.alt) == (473_977_000, 85_456_000, 50.0)
+    assert known.dist == pytest.approx(50.0)  # 40 m over the ground, 30 m below
+
+
 def test_px4_backend_claims_then_sends_282_only_when_primary() -> None:
     view = AutopilotView(system_id=1, gimbal_primary=(0, 0))
     outputs, link = _outputs({"gimbal": {"backend": "px4", "claim_interval_s": 1.0}}, view)

@@ -231,19 +231,65 @@ def test_status_query_reports_counters(rig: Rig) -> None:
 
 
 def test_follow_target_mode_streams_geo_status_and_announces_it(frames_dir: Path) -> None:
+    """276 is IDLE (lat, lon 0: nothing to read) until there is a ground estimate, also while the image
+    track is active; ACTIVE with the target's position once the vehicle's position, attitude and the
+    gimbal's attitude are known."""
     rig = Rig({"source": {"path": str(frames_dir), "loop": True},
                "guidance": {"mode": "follow_target", "rate_hz": 20.0}})
     try:
-        geo = lambda: rig.gcs.received.of("CAMERA_TRACKING_GEO_STATUS")  # noqa: E731
+        assert rig.service.status()["autopilot"]["state"] == "connected"
+        geo = lambda: [r.msg for r in rig.gcs.received.of("CAMERA_TRACKING_GEO_STATUS")]  # noqa: E731
         assert rig.gcs.received.wait_for(lambda: len(geo()) >= 3, 5.0)
-        assert geo()[-1].msg.tracking_status == 0  # idle: no estimate yet
+        assert geo()[-1].tracking_status == 0  # idle: no estimate yet
         rig.gcs.command_long(REQUEST, [259, 0, 0, 0, 0, 0, 0], target=CAM)
         assert rig.gcs.received.wait_for(lambda: any(r.msg.get_srcSystem() == AP_SYSID
                                                      for r in rig.gcs.received.of("CAMERA_INFORMATION")), 5.0)
         info = [r.msg for r in rig.gcs.received.of("CAMERA_INFORMATION") if r.msg.get_srcSystem() == AP_SYSID][-1]
         assert info.flags & 2048  # HAS_TRACKING_GEO_STATUS
+        # tracking, but the autopilot has sent no position: still idle, never ACTIVE at 0, 0
+        rig.gcs.command_long(TRACK_RECT, [0.55, 0.2, 0.8, 0.5, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(TRACK_RECT, 0).result == ACCEPTED and rig.wait_tracking()
+        seen = len(geo())
+        assert rig.gcs.received.wait_for(lambda: len(geo()) >= seen + 10, 5.0)
+        assert all(m.tracking_status == 0 and m.lat == 0 and m.lon == 0 for m in geo()[seen:])
+        # the vehicle's position and attitude, and a gimbal looking 45 degrees down: an estimate exists
+        down = [math.cos(math.radians(-22.5)), 0.0, math.sin(math.radians(-22.5)), 0.0]
+        rig.autopilot.extra_periodic += [
+            lambda mav: mav.global_position_int_encode(0, 473_977_420, 85_455_940, 520_000, 30_000, 0, 0, 0, 0),
+            lambda mav: mav.attitude_encode(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+            lambda mav: mav.gimbal_device_attitude_status_encode(0, 0, 0, 0, down, NAN, NAN, NAN, 0)]
+        assert rig.gcs.received.wait_for(lambda: any(m.tracking_status == 1 for m in geo()), 5.0)
+        active = [m for m in geo() if m.tracking_status == 1][-1]
+        assert abs(active.lat - 473_977_420) < 10_000 and abs(active.lon - 85_455_940) < 10_000  # within ~100 m
+        assert 0.0 < active.dist < 100.0
     finally:
         rig.close()
+
+
+def test_waiting_for_the_autopilots_heartbeat_is_logged_and_reported(frames_dir: Path, caplog) -> None:
+    """Until the autopilot's heartbeat arrives no gimbal command can go out (no system id to send to):
+    the log says so once at start, and the status query reports it until the heartbeat comes."""
+    import logging
+    caplog.set_level(logging.INFO, logger="service")
+    service_port, gcs_port = free_udp_port(), free_udp_port()
+    autopilot = AutopilotPeer(service_port, gcs_port, system_id=AP_SYSID)
+    autopilot.heartbeats_on = False
+    autopilot.start()
+    running = RunningService(Service(service_config(service_port, {"source": {"path": str(frames_dir), "loop": True}}))).start()
+    service: Service = running.service  # type: ignore[assignment]
+    try:
+        assert service.worker.health.wait_for(lambda h: h.frames >= 3, 5.0)
+        assert service.status()["autopilot"]["state"] == "waiting_for_heartbeat"
+        waiting = [r for r in caplog.records if "waiting for the autopilot's heartbeat" in r.getMessage()]
+        assert len(waiting) == 1 and "gimbal and guidance commands are held" in waiting[0].getMessage()
+        autopilot.heartbeats_on = True
+        assert autopilot.from_service.wait_for(lambda: service.status()["autopilot"]["state"] == "connected", 5.0)
+        autopilot.heartbeats_on = False
+        assert autopilot.from_service.wait_for(lambda: service.status()["autopilot"]["state"] == "heartbeat_lost", 5.0)
+        assert len([r for r in caplog.records if "waiting for the autopilot's heartbeat" in r.getMessage()]) == 1
+    finally:
+        running.stop()
+        autopilot.close()
 
 
 def test_serial_link_to_the_autopilot(frames_dir: Path) -> None:

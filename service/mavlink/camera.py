@@ -108,7 +108,18 @@ class CameraComponent:
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._started) * 1000) & 0xFFFFFFFF
 
+    def autopilot_state(self, now_s: float | None = None) -> str:
+        """`waiting_for_heartbeat` (never heard), `connected`, or `heartbeat_lost` (for the status query)."""
+        view = self.autopilot()
+        if view.last_heartbeat_s is None:
+            return "waiting_for_heartbeat"
+        return "connected" if self.autopilot_alive(now_s) else "heartbeat_lost"
+
     def start(self) -> None:
+        mav = self.config.mavlink
+        held = ("gimbal and guidance commands" if not mav.system_id else "guidance commands") + " are held until it arrives"
+        log.info('event=waiting_for_autopilot detail="waiting for the autopilot\'s heartbeat on %s (system id %s); '
+                 '%s"', mav.url, mav.system_id or "any", held)
         for thread in self._threads:
             thread.start()
 

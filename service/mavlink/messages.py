@@ -79,10 +79,14 @@ def tracking_image_status(mav: object, status: TrackingStatus) -> object:
 
 
 def tracking_geo_status(mav: object, status: int, target: GroundTarget | None, vehicle_alt_amsl_m: float | None) -> object:
-    """CAMERA_TRACKING_GEO_STATUS (276) from a ground estimate; NaN / 0 where unknown."""
+    """CAMERA_TRACKING_GEO_STATUS (276) from a ground estimate; NaN where unknown.
+
+    Without an estimate (no vehicle position / attitude / gimbal attitude yet, or the ray misses the
+    ground) the status is IDLE whatever the image track does: lat / lon are integers with no "unknown"
+    value, and ACTIVE with 0, 0 would place the target off the coast of Africa."""
     if target is None:
-        return mav.camera_tracking_geo_status_encode(status, 0, 0, NAN, NAN, NAN, NAN, NAN, NAN, NAN,  # type: ignore[attr-defined]
-                                                      NAN, NAN, NAN)
+        return mav.camera_tracking_geo_status_encode(TRACKING_STATUS_IDLE, 0, 0, NAN, NAN, NAN, NAN, NAN, NAN,  # type: ignore[attr-defined]
+                                                      NAN, NAN, NAN, NAN)
     dist = math.hypot(target.ground_range_m, (vehicle_alt_amsl_m or target.alt_amsl_m) - target.alt_amsl_m)
     return mav.camera_tracking_geo_status_encode(  # type: ignore[attr-defined]
         status, round(target.lat_deg * 1e7), round(target.lon_deg * 1e7), target.alt_amsl_m,

@@ -85,7 +85,7 @@ class CameraConfig:
     hfov_deg: float = _checked(70.0, _in_range(1.0, 179.0))  # horizontal field of view
     default_point_radius: float = _checked(0.04, _in_range(0.001, 0.5))  # fraction of width when radius = 0
     min_box_px: float = _checked(12.0, _positive)  # smallest initial box side from a point
-    point_proposal: bool = False  # refine a point's box with an EdgeBoxes proposal around it
+    point_proposal: bool = True  # a point's box: the EdgeBoxes proposal around the object under it (else the square)
     vendor_name: str = "JSAR"
     model_name: str = "jsar-tracker"
 

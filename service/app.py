@@ -98,6 +98,7 @@ class Service:
                          "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
                           "state": self.camera.autopilot_state(), "custom_mode": view.custom_mode},
+            "mavlink_refusals": self.camera.refusals(),
             "mavlink_system_id": self.link.system_id,
             "config": as_plain(self.config),
         }

@@ -383,6 +383,17 @@ def test_repeated_refusals_warn_once_per_kind_and_source() -> None:
     assert refusals.first(2005, 0.5, (245, 190), 2) and not refusals.first(2005, 0.7, (245, 190), 2)
     assert refusals.first(512, NAN, (245, 190), 3) and not refusals.first(512, NAN, (245, 190), 3)
 
+    for _ in range(3):
+        refusals.count(512, 260.0, 3, "this camera does not provide message 260")
+    refusals.count(2005, 0.5, 2, "rectangle inverted")
+    assert refusals.summary() == [
+        {"result": "UNSUPPORTED", "command": 512, "message": 260, "count": 3,
+         "reason": "this camera does not provide message 260"},
+        {"result": "DENIED", "command": 2005, "message": None, "count": 1, "reason": "rectangle inverted"}]
+    for message in range(1000, 1100):  # junk from a peer: the kinds counted stay bounded
+        refusals.count(512, float(message), 3, "junk")
+    assert len(refusals.summary()) == RepeatedRefusals.MAX_KINDS
+
 
 def test_a_polled_unsupported_request_is_answered_every_time_but_warned_once(
         rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
@@ -394,4 +405,10 @@ def test_a_polled_unsupported_request_is_answered_every_time_but_warned_once(
     # The camera logs a command before it sends the ACK: all three are in by now.
     refusals = [r for r in caplog.records if "message 260" in r.getMessage()]
     assert [r.levelname for r in refusals] == ["WARNING", "DEBUG", "DEBUG"]
-    assert rig.service.camera.counters["rejected"] >= 3
+    counters = rig.service.status()["counters"]
+    assert counters["mavlink_rejected"] >= 3 and counters["mavlink_rejected_unsupported"] >= 3
+    assert counters["mavlink_rejected"] == sum(counters[f"mavlink_rejected_{kind}"]
+                                               for kind in ("unsupported", "denied", "temporarily", "failed"))
+    (polled,) = [r for r in rig.service.status()["mavlink_refusals"] if r["message"] == 260]
+    assert (polled["result"], polled["command"], polled["count"]) == ("UNSUPPORTED", REQUEST, 3)
+    assert "does not provide message 260" in polled["reason"]

@@ -28,6 +28,7 @@ from service.sources.base import LatestSlot
 
 log = logging.getLogger("service.mavlink")
 RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED"}
+REJECTED_COUNTERS = {1: "rejected_temporarily", 2: "rejected_denied", 3: "rejected_unsupported", 4: "rejected_failed"}
 
 
 class RepeatedRefusals:
@@ -37,17 +38,40 @@ class RepeatedRefusals:
     not five warnings every few seconds for the whole flight. Keyed by (command, requested message id for
     511 / 512, source system, source component, result)."""
 
+    MAX_KINDS = 64  # counted kinds (result, command, message); a peer sending junk cannot grow it further
+
     def __init__(self) -> None:
         self._seen: set[tuple[int, int | None, int, int, int]] = set()
+        self._counts: dict[tuple[int, int, int | None], list] = {}  # kind -> [count, first reason]
 
     def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
         """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
-        message = int(param1) if command in (511, 512) and math.isfinite(param1) else None
-        key = (command, message, source[0], source[1], result)
+        key = (command, _requested_message(command, param1), source[0], source[1], result)
         if key in self._seen:
             return False
         self._seen.add(key)
         return True
+
+    def count(self, command: int, param1: float, result: int, reason: str) -> None:
+        """Count a refusal by kind (all sources together), keeping the first reason given for it."""
+        key = (result, command, _requested_message(command, param1))
+        if key in self._counts:
+            self._counts[key][0] += 1
+        elif len(self._counts) < self.MAX_KINDS:
+            self._counts[key] = [1, reason]
+
+    def summary(self) -> list[dict]:
+        """Refusals by kind, most frequent first: result name, command, requested message id (511 / 512
+        only, else None), count, reason (for the status query and the demo's summary)."""
+        rows = [{"result": RESULT_NAMES.get(result, str(result)), "command": command, "message": message,
+                 "count": count, "reason": reason}
+                for (result, command, message), (count, reason) in self._counts.items()]
+        return sorted(rows, key=lambda row: -row["count"])
+
+
+def _requested_message(command: int, param1: float) -> int | None:
+    """The message id a MAV_CMD_SET_MESSAGE_INTERVAL (511) / MAV_CMD_REQUEST_MESSAGE (512) is about."""
+    return int(param1) if command in (511, 512) and math.isfinite(param1) else None
 
 
 @dataclass(frozen=True)
@@ -82,7 +106,10 @@ class CameraComponent:
         self._started = time.monotonic()
         self._stop = threading.Event()
         self._autopilot_alive = False
-        self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "status_sent": 0}
+        # rejected = the sum of the rejected_* by result (unsupported: this camera does not have what was
+        # asked, as when a ground station polls for every camera feature; denied: bad parameters)
+        self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "rejected_unsupported": 0, "rejected_denied": 0,
+                         "rejected_temporarily": 0, "rejected_failed": 0, "status_sent": 0}
         self._refusals = RepeatedRefusals()
         self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
                          threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)]
@@ -107,6 +134,10 @@ class CameraComponent:
 
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._started) * 1000) & 0xFFFFFFFF
+
+    def refusals(self) -> list[dict]:
+        """Refused commands by kind (RepeatedRefusals.summary)."""
+        return self._refusals.summary()
 
     def autopilot_state(self, now_s: float | None = None) -> str:
         """`waiting_for_heartbeat` (never heard), `connected`, or `heartbeat_lost` (for the status query)."""
@@ -169,6 +200,10 @@ class CameraComponent:
         self.counters["commands"] += 1
         self.counters["accepted" if decision.result == MAV_RESULT_ACCEPTED else "rejected"] += 1
         source = (msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[attr-defined]
+        if decision.result != MAV_RESULT_ACCEPTED:
+            kind = REJECTED_COUNTERS.get(decision.result, "rejected_failed")
+            self.counters[kind] += 1
+            self._refusals.count(msg.command, params[0], decision.result, decision.reason)  # type: ignore[attr-defined]
         if decision.result == MAV_RESULT_ACCEPTED:
             level, note = logging.INFO, ""
         elif self._refusals.first(msg.command, params[0], source, decision.result):  # type: ignore[attr-defined]

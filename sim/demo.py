@@ -12,7 +12,6 @@ and writes an annotated video under out/.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import tempfile
@@ -23,18 +22,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
+from sim.closed_loop import (BOX_COLOUR, LEGEND, LOST_COLOUR, TRUTH_COLOUR, ClosedLoop, ClosedLoopConfig, draw_legend,
+                              draw_status_line, free_port)
 from sim.daemon import exit_on_sigterm
 from sim.scene import SceneConfig
+from sim.summary import camera_command_rows, counter_rows, format_rows, run_rows
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "out"
+REPLAY_LEGEND = tuple((colour, label.replace("car", "target")) for colour, label in LEGEND[:3])  # no centring goal
 
 
-def print_summary(title: str, summary: dict) -> None:
-    """Aligned key: value lines."""
-    print(f"\n== {title} ==")
-    for key, value in summary.items():
-        print(f"  {key:26s} {value}")
+def print_summary(title: str, summary: dict, status: dict | None = None) -> None:
+    """Each figure with what it means, then the daemon's counters (sim.summary); status: the daemon's
+    status answer (counters, mavlink_refusals)."""
+    status = status or {}
+    counters = status.get("counters", {})
+    rows = run_rows(summary) + camera_command_rows(counters, status.get("mavlink_refusals", [])) + counter_rows(counters)
+    print("\n" + format_rows(title, rows))
 
 
 def run_closed_loop(args: argparse.Namespace) -> int:
@@ -50,10 +54,9 @@ def run_closed_loop(args: argparse.Namespace) -> int:
               flush=True)
         result = loop.run(live=True)
         summary = result.summary()
-        summary["daemon_counters"] = json.dumps(result.counters)
         summary["autopilot_events"] = "; ".join(e for _, e in loop.autopilot.model.events[-5:]) or "none"
         summary["annotated_video"] = str(video.relative_to(OUT_DIR.parent))
-        print_summary("closed loop summary", summary)
+        print_summary("closed loop summary", summary, {"counters": result.counters, "mavlink_refusals": result.refusals})
     return 0 if result.daemon_alive else 1
 
 
@@ -157,17 +160,19 @@ def run_replay(args: argparse.Namespace) -> int:
                 truth = recording.groundtruth[index] if index < len(recording.groundtruth) else (math.nan,) * 4
                 if all(math.isfinite(v) for v in truth):
                     tx, ty, tw, th = truth
-                    cv2.rectangle(image, (int(tx), int(ty)), (int(tx + tw), int(ty + th)), (0, 255, 0), 2)
+                    cv2.rectangle(image, (int(tx), int(ty)), (int(tx + tw), int(ty + th)), TRUTH_COLOUR, 2)
                 if sample is not None:
                     answered += 1
                     states.append(sample.get("state"))
                     if sample.get("box_px"):
                         bx, by, bw, bh = sample["box_px"]
-                        colour = (0, 0, 255) if sample.get("state") == "lost" else (0, 255, 255)
+                        colour = LOST_COLOUR if sample.get("state") == "lost" else BOX_COLOUR
                         cv2.rectangle(image, (int(bx), int(by)), (int(bx + bw), int(by + bh)), colour, 2)
                         if all(math.isfinite(v) for v in truth):
                             errors.append(math.hypot(bx + bw / 2 - truth[0] - truth[2] / 2,
                                                      by + bh / 2 - truth[1] - truth[3] / 2))
+                draw_legend(image, REPLAY_LEGEND)
+                draw_status_line(image, f"frame {index}  {(sample or {}).get('state') or 'not answered'}")
                 writer.write(image)
             writer.release()
             lost = sum(1 for a, b in zip(states, states[1:]) if b == "lost" and a != "lost")
@@ -177,9 +182,8 @@ def run_replay(args: argparse.Namespace) -> int:
                 "send_fps": round(len(ids) / wall, 1), "processed_fps": round(answered / wall, 1),
                 "dropped_frames": (camera.telemetry.last or {}).get("dropped_frames"),
                 "lost": lost, "recovered": recovered,
-                "centre_error_px_median (box vs ground truth)": round(float(np.median(errors)), 1) if errors else None,
-                "daemon_counters": json.dumps(status.get("counters", {})),
-                "annotated_video": str(video.relative_to(OUT_DIR.parent))})
+                "centre_error_px_median": round(float(np.median(errors)), 1) if errors else None,
+                "annotated_video": str(video.relative_to(OUT_DIR.parent))}, status)
         finally:
             stop.set()
             daemon.stop()

@@ -228,6 +228,9 @@ def test_status_query_reports_counters(rig: Rig) -> None:
     assert status["status"] == "ok" and status["source"]["frames"] >= 3
     assert status["config"]["mavlink"]["component_id"] == 100
     assert math.isfinite(status["uptime_s"])
+    # every counter the daemon reports is explained in the demo's summary (sim.summary)
+    from sim.summary import CAMERA_COMMAND_KEYS, COUNTER_MEANINGS
+    assert set(status["counters"]) <= set(COUNTER_MEANINGS) | CAMERA_COMMAND_KEYS
 
 
 def test_follow_target_mode_streams_geo_status_and_announces_it(frames_dir: Path) -> None:

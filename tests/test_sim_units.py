@@ -463,3 +463,58 @@ def test_run_summary_measures_the_car_from_the_box_while_lost():
     summary = result.summary()
     assert summary["lost_visible_frames"] == 3 and summary["lost_car_to_box_px_median"] == 60.0
     assert summary["lost_visible_frames_first_3s"] == 2 and summary["lost_car_to_box_px_median_first_3s"] == 45.0
+
+
+# ----- annotated video ---------------------------------------------------------------------------
+def test_annotated_frame_has_a_legend_and_a_clean_status_line():
+    import cv2
+    import numpy as np
+    from sim.closed_loop import LEGEND, TEXT_FONT, FrameRecord, annotate, draw_status_line
+    from sim.scene import GroundTruth, TargetPose
+
+    truth = GroundTruth((300.0, 200.0, 40.0, 20.0), 1.0, 1.0, TargetPose(32.9, 0.0, 0.0, 5.0))
+    record = FrameRecord(1, 12.3, truth, "lost", (295.0, 198.0, 45.0, 25.0), 10.0, (0.0, 0.0), 3.0, "GUIDED", True)
+    out = annotate(np.full((480, 640, 3), 90, np.uint8), record)
+    corner = out[:100, :40]
+    for colour, label in LEGEND:  # every colour used has its swatch and its words in the key
+        assert np.all(corner == colour, axis=2).sum() >= 50, label
+    # the status line: white on a dark bar, drawn once; its text spans what one rendering measures
+    for text, width in (("t=12.3 s  tracking  car 32.9 m away", 640), ("t=123.4 s  recovered  mode OFFBOARD  LINK DOWN  car 132.9 m away", 320)):
+        image = np.full((120, width, 3), 90, np.uint8)
+        draw_status_line(image, text)
+        bar = image[-30:]
+        lit = np.flatnonzero((bar > 128).all(axis=2).any(axis=0))  # columns with text (white on black)
+        (full_w, _), _ = cv2.getTextSize(text, TEXT_FONT, 0.45, 1)
+        expected = min(full_w, width - 16)
+        assert lit.min() >= 8 and lit.max() <= 8 + expected + 2, (text[:20], lit.min(), lit.max(), expected)
+        assert lit.max() - lit.min() >= expected * 0.9  # the whole text is there, shrunk to fit if needed
+        # past the text's end its rows hold nothing more (an outline drawn thicker ran on: "32.9 m m")
+        rows = np.flatnonzero((bar > 128).all(axis=2).any(axis=1))
+        after = bar[rows, lit.max() + 3:]
+        assert (after == after[0, 0]).all(), text[:20]
+
+
+# ----- demo summary ------------------------------------------------------------------------------
+def test_demo_summary_explains_every_figure_and_reads_polling_as_normal():
+    from sim.closed_loop import FrameRecord, RunResult
+    from sim.scene import GroundTruth, TargetPose
+    from sim.summary import camera_command_rows, counter_rows, format_rows, run_rows
+
+    truth = GroundTruth((90.0, 90.0, 20.0, 20.0), 1.0, 1.0, TargetPose(0.0, 0.0, 0.0, 5.0))
+    records = [FrameRecord(k, k / 30, truth, "tracking", (90.0, 90.0, 20.0, 20.0), 10.0, (0.0, 0.0), 0.0,
+                           "GUIDED", False) for k in range(30)]
+    result = RunResult(records, 200, 200, [], 1.0, 0, {}, True, None, "SUCCESS")
+    rows = run_rows(result.summary())
+    assert rows and all(meaning for _, _, meaning in rows), [key for key, _, meaning in rows if not meaning]
+    counters = {"frames": 900, "mavlink_commands": 130, "mavlink_accepted": 5, "mavlink_rejected": 125,
+                "mavlink_rejected_unsupported": 125, "mavlink_rejected_denied": 0, "out_gimbal": 890,
+                "brand_new_counter": 3}
+    refusals = [{"result": "UNSUPPORTED", "command": 512, "message": 260, "count": 25,
+                 "reason": "this camera does not provide message 260"}]
+    text = format_rows("summary", camera_command_rows(counters, refusals) + counter_rows(counters))
+    assert "camera commands" in text and "5 accepted, 125 refused" in text
+    assert "refused: not offered" in text and "expected" in text and "bad parameters" not in text  # 0: not shown
+    assert "REQUEST_MESSAGE CAMERA_SETTINGS" in text and "UNSUPPORTED: this camera does not provide message 260" in text
+    assert "daemon out_gimbal" in text and "gimbal rate commands sent" in text
+    assert "daemon brand_new_counter" in text  # an unexplained counter is shown, not dropped
+    assert "daemon mavlink_rejected" not in text  # the camera commands are shown once, split by reason

@@ -83,7 +83,7 @@ class ClosedLoopConfig:
     telemetry_timeout_s: float = 15.0
     startup_timeout_s: float = 60.0
     video_path: Path | None = None  # annotated video (MJPG .avi)
-    rss_every_s: float = 5.0  # sample the daemon's RSS this often (simulated seconds)
+    rss_every_s: float = 5.0  # sample the daemon's RSS and CPU time this often (simulated seconds)
     # Lockstep never runs faster than real time. The daemon's controllers run on the frames' capture
     # stamps (simulated time), but link health is judged on wall clocks: the daemon's autopilot
     # heartbeat timeout (mavlink.heartbeat_timeout_s, 1 Hz heartbeats) and its no-frames hold (0.5 s).
@@ -146,6 +146,7 @@ class RunResult:
     selection_result: str
     gimbal_command_timeouts: int = 0  # lockstep frames stepped without their gimbal command (see log)
     refusals: list = field(default_factory=list)  # the daemon's refused camera commands by kind (status query)
+    cpu_s: list[tuple[float, float]] = field(default_factory=list)  # (time_s, daemon CPU seconds), with the RSS
 
     def centring_ratio(self, exclude: tuple[tuple[float, float], ...] = ()) -> float:
         """Fraction of visible frames with the car in the central 20 %, outside the `exclude` windows."""
@@ -444,6 +445,7 @@ class ClosedLoop:
         records: list[FrameRecord] = []
         pending: list[tuple[int, FrameRecord, np.ndarray | None]] = []  # realtime: matched later
         rss: list[tuple[float, int]] = []
+        cpu: list[tuple[float, float]] = []
         drops = sorted(cfg.link_drops)
         modes = sorted(cfg.operator_modes)
         next_rss = 0.0
@@ -465,6 +467,7 @@ class ClosedLoop:
                         self.autopilot.model.events.append((t, f"operator switch to {mode} refused: {exc}"))
             if t >= next_rss and self.daemon.alive():
                 rss.append((t, self.daemon.rss_kib()))
+                cpu.append((t, self.daemon.cpu_s()))
                 next_rss += cfg.rss_every_s
             frame, truth = self.render(t)
             gimbal_before = self.gimbal_outputs()
@@ -516,7 +519,7 @@ class ClosedLoop:
         return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
                          int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
                          self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
-                         selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []))
+                         selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []), cpu)
 
     def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
                  final: bool) -> None:

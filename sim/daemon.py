@@ -60,6 +60,17 @@ def rss_kib(pid: int) -> int:
     raise ValueError(f"no VmRSS for process {pid}")
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process `pid` (all its threads) in seconds (Linux /proc), ValueError if
+    it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as handle:
+            fields = handle.read().rsplit(")", 1)[1].split()  # after the command name, which may hold spaces
+    except FileNotFoundError as exc:
+        raise ValueError(f"process {pid} is gone") from exc
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (fields 14, 15)
+
+
 class Daemon:
     """The service subprocess: start(), alive(), rss_kib(), stop() (SIGTERM, then kill after a grace)."""
 
@@ -96,6 +107,10 @@ class Daemon:
     def rss_kib(self) -> int:
         """Current RSS of the daemon in KiB."""
         return rss_kib(self.pid)
+
+    def cpu_s(self) -> float:
+        """CPU seconds the daemon has used so far."""
+        return cpu_seconds(self.pid)
 
     def log_tail(self, lines: int = 40) -> str:
         """The last lines of the daemon's log (for failure messages)."""

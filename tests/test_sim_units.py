@@ -403,7 +403,7 @@ def test_soak_rss_one_off_step_passes_a_per_frame_leak_fails():
     criteria = SoakCriteria()
 
     def report(rss):
-        return SoakReport(1350, rss_trend(rss, warm_s=10.0), 12.0, 12.5, True, {})
+        return SoakReport(1350, rss_trend(rss, warm_s=10.0), 9.0, 9.5, 12.0, 12.5, True, {})
 
     observed = [(10.0 + 0.5 * i, kib) for i, kib in enumerate(OBSERVED_STEP_KIB)]
     trend = rss_trend(observed, warm_s=10.0)
@@ -424,10 +424,29 @@ def test_soak_rss_one_off_step_passes_a_per_frame_leak_fails():
     slow = [(float(t), 200_000 + 15 * (t - 10)) for t in range(10, 46)]
     assert report(slow).failures(criteria) == []
     # memory and latency flat, but the car left the image for good (a track that went onto background)
-    wandered = SoakReport(900, rss_trend(observed, warm_s=10.0), 12.0, 12.5, True, {}, in_view_ratio=0.17)
+    wandered = SoakReport(900, rss_trend(observed, warm_s=10.0), 9.0, 9.5, 12.0, 12.5, True, {}, in_view_ratio=0.17)
     problems = wandered.failures(criteria)
     assert len(problems) == 1 and "car in view on 17.0 %" in problems[0]
     assert "+24.4 MiB at 34.0 s" in report(observed).describe()
+
+
+def test_soak_judges_per_frame_cpu_not_wall_latency():
+    """A busy machine doubles the wall latency of a quarter, not the daemon's CPU per frame: that passes;
+    per-frame work that grows fails."""
+    from sim.soak import SoakCriteria, SoakReport, cpu_quarters, rss_trend
+    flat_rss = rss_trend([(float(t), 200_000) for t in range(10, 46)], warm_s=10.0)
+    # 0.3 CPU s per simulated second at 30 fps = 10 ms a frame; a re-detection spike at 33 s
+    steady = [(float(t), 0.3 * t + (2.5 if t >= 33 else 0.0)) for t in range(0, 46)]
+    q2, q4 = cpu_quarters(steady, 45.0, 30.0)
+    assert q2 == pytest.approx(10.0) and q4 == pytest.approx(10.0)
+    busy = SoakReport(1350, flat_rss, q2, q4, 10.9, 22.3, True, {})  # wall latency doubled by another process
+    assert busy.failures(SoakCriteria()) == []
+    growing = [(float(t), 0.3 * t + 0.01 * t * t) for t in range(0, 46)]  # +0.6 ms a frame every second
+    q2, q4 = cpu_quarters(growing, 45.0, 30.0)
+    problems = SoakReport(1350, flat_rss, q2, q4, 10.0, 10.0, True, {}).failures(SoakCriteria())
+    assert len(problems) == 1 and problems[0].startswith("per-frame work grew"), problems
+    with pytest.raises(ValueError, match="CPU samples"):
+        cpu_quarters([(0.0, 0.0), (20.0, 6.0), (45.0, 13.5)], 45.0, 30.0)
 
 
 def test_soak_needs_enough_samples():

@@ -22,7 +22,7 @@ run: $(STAMP)
 	$(PY) -m sim.demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -rs  # -rs: say why tests were skipped (e.g. no JSAR_DATA_ROOT)
 
 # Research: the tracker on the shared real sequences (DATA defaults to the shared data beside the repo).
 DATA ?= ../shared/data/uav

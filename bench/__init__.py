@@ -5,5 +5,6 @@
 - `tracking`: tracker fps against OpenCV's trackers on the real sequences (`python -m bench.tracking`);
 - `redetect`: JSAR-Re's re-detection cost and re-initialisation size study (`python -m bench.redetect`);
 - `service`: the daemon's frame-to-command latency and CPU against a recorded video (`python -m bench.service`);
-- `scene`: the closed-loop synthetic scene's render cost (`python -m bench.scene`).
+- `scene`: the closed-loop synthetic scene's render cost (`python -m bench.scene`);
+- `click`: a click's initial box (square or object proposal) against the true box (`python -m bench.click DATA_ROOT`).
 """

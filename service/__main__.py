@@ -7,7 +7,7 @@ import signal
 import sys
 import threading
 
-from service.config import ConfigError, load_config, with_overrides
+from service.config import ConfigError, load_config
 from service.logs import setup_logging
 
 log = logging.getLogger("service")
@@ -17,18 +17,24 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="jsar-service", description=__doc__)
     parser.add_argument("--config", required=True, help="YAML configuration (see config.yaml)")
     parser.add_argument("--source", help="override source: /dev/videoN, a video file or image folder, or 'zenoh'")
-    parser.add_argument("--mavlink", help="override mavlink.url (pymavlink connection string)")
+    parser.add_argument("--mavlink", help="override mavlink.url: udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, "
+                        "tcpin:HOST:PORT or a serial device path")
     return parser.parse_args(argv)
+
+
+def configuration_error(exc: ConfigError) -> int:
+    """Report a configuration error in the one form for all of them (stderr, names the key); exit code 2."""
+    print(f"jsar-service: configuration error: {exc}", file=sys.stderr, flush=True)
+    return 2
 
 
 def main(argv: list[str] | None = None) -> int:
     """Load and validate the config, run until SIGTERM / SIGINT; exit 2 on a config error."""
     args = parse_args(argv)
     try:
-        config = with_overrides(load_config(args.config), args.source, args.mavlink)
+        config = load_config(args.config, args.source, args.mavlink)
     except ConfigError as exc:
-        print(f"jsar-service: configuration error: {exc}", file=sys.stderr)
-        return 2
+        return configuration_error(exc)
     setup_logging(config.logging)
     stop = threading.Event()
 
@@ -42,9 +48,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         daemon = Service(config)
-    except ConfigError as exc:
-        log.error('event=configuration_error error="%s"', exc)
-        return 2
+    except ConfigError as exc:  # found while building the parts (e.g. tracker.params the tracker refuses)
+        return configuration_error(exc)
     except (ConnectionError, ValueError) as exc:
         log.error('event=startup_failed error="%s"', exc)
         return 1

@@ -120,7 +120,8 @@ class Service:
             "video": {"preview": self.preview.status() if self.preview is not None else None,
                       "stream": self.stream.status() if self.stream is not None else None},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
-                          "custom_mode": view.custom_mode},
+                          "state": self.camera.autopilot_state(), "custom_mode": view.custom_mode},
+            "mavlink_refusals": self.camera.refusals(),
             "mavlink_system_id": self.link.system_id,
             "config": as_plain(self.config),
         }

@@ -85,7 +85,7 @@ class CameraConfig:
     hfov_deg: float = _checked(70.0, _in_range(1.0, 179.0))  # horizontal field of view
     default_point_radius: float = _checked(0.04, _in_range(0.001, 0.5))  # fraction of width when radius = 0
     min_box_px: float = _checked(12.0, _positive)  # smallest initial box side from a point
-    point_proposal: bool = False  # refine a point's box with an EdgeBoxes proposal around it
+    point_proposal: bool = True  # a point's box: the EdgeBoxes proposal around the object under it (else the square)
     vendor_name: str = "JSAR"
     model_name: str = "jsar-tracker"
 
@@ -213,8 +213,10 @@ class ServiceConfig:
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 
 
-def load_config(path: str | Path) -> ServiceConfig:
-    """Read and validate a YAML file; ConfigError naming the file or the key path on any problem."""
+def load_config(path: str | Path, source: str | None = None, mavlink_url: str | None = None) -> ServiceConfig:
+    """Read a YAML file, apply the command-line overrides (see `apply_overrides`), then validate the
+    result: ConfigError naming the file or the key path on any problem. Overrides come before the checks,
+    so `source: {kind: file}` without a path plus `--source FILE` is a complete configuration."""
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
@@ -223,7 +225,7 @@ def load_config(path: str | Path) -> ServiceConfig:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
-    return config_from_mapping({} if raw is None else raw)
+    return config_from_mapping(apply_overrides({} if raw is None else raw, source, mavlink_url))
 
 
 def config_from_mapping(raw: object) -> ServiceConfig:
@@ -233,16 +235,38 @@ def config_from_mapping(raw: object) -> ServiceConfig:
     return config
 
 
+def source_override(source: str) -> dict[str, str]:
+    """--source value -> source keys: `zenoh`, a /dev/video* device (v4l2), else a file or image folder."""
+    if source == "zenoh":
+        return {"kind": "zenoh"}
+    if source.startswith("/dev/video"):
+        return {"kind": "v4l2", "device": source}
+    return {"kind": "file", "path": source}
+
+
+def apply_overrides(raw: object, source: str | None = None, mavlink_url: str | None = None) -> object:
+    """A copy of the parsed YAML with the command-line overrides (--source, --mavlink) put into its
+    `source` and `mavlink` sections; a section that is not a mapping is left for validation to report."""
+    if not isinstance(raw, Mapping):
+        return raw
+    merged = dict(raw)
+    for section, values in (("source", source_override(source) if source is not None else None),
+                            ("mavlink", {"url": mavlink_url} if mavlink_url is not None else None)):
+        if values is None:
+            continue
+        current = merged.get(section)
+        if current is None:
+            current = {}
+        if isinstance(current, Mapping):
+            merged[section] = {**current, **values}
+    return merged
+
+
 def with_overrides(config: ServiceConfig, source: str | None = None, mavlink_url: str | None = None) -> ServiceConfig:
-    """Apply the command-line overrides: --source (device, file/folder or `zenoh`) and --mavlink URL."""
+    """Apply the command-line overrides to a built config: --source (device, file/folder or `zenoh`) and
+    --mavlink URL (the daemon uses load_config(path, source, mavlink_url), which validates after them)."""
     if source is not None:
-        if source == "zenoh":
-            src = dataclasses.replace(config.source, kind="zenoh")
-        elif source.startswith("/dev/video"):
-            src = dataclasses.replace(config.source, kind="v4l2", device=source)
-        else:
-            src = dataclasses.replace(config.source, kind="file", path=source)
-        config = dataclasses.replace(config, source=src)
+        config = dataclasses.replace(config, source=dataclasses.replace(config.source, **source_override(source)))
     if mavlink_url is not None:
         config = dataclasses.replace(config, mavlink=dataclasses.replace(config.mavlink, url=mavlink_url))
     _check_cross_fields(config)
@@ -274,8 +298,9 @@ def _check_cross_fields(config: ServiceConfig) -> None:
     if src.retry_max_s < src.retry_initial_s:
         raise ConfigError(f"source.retry_max_s: must be >= source.retry_initial_s ({src.retry_initial_s}), "
                           f"got {src.retry_max_s}")
-    if not config.mavlink.url:
-        raise ConfigError("mavlink.url: must not be empty")
+    problem = mavlink_url_problem(config.mavlink.url)
+    if problem:
+        raise ConfigError(f"mavlink.url: {problem}")
     if not config.zenoh.prefix or config.zenoh.prefix.strip("/") != config.zenoh.prefix:
         raise ConfigError(f"zenoh.prefix: must be non-empty without leading/trailing '/', got {config.zenoh.prefix!r}")
     if src.kind == "zenoh" and not config.zenoh.enabled:
@@ -291,6 +316,31 @@ def _check_cross_fields(config: ServiceConfig) -> None:
     names = available()
     if config.tracker.name not in names:
         raise ConfigError(f"tracker.name: unknown tracker {config.tracker.name!r}; available: {', '.join(names)}")
+
+
+MAVLINK_URL_FORMS = ("udpout:HOST:PORT (send to HOST)", "udpin:HOST:PORT (listen; answer whoever sent last)",
+                     "tcp:HOST:PORT (connect)", "tcpin:HOST:PORT (listen)", "a serial device path such as /dev/ttyACM0")
+_NETWORK_SCHEMES = ("udpout", "udpin", "tcp", "tcpin")
+
+
+def parse_network_url(url: str) -> tuple[str, str, int] | None:
+    """`scheme:HOST:PORT` with one of the network schemes -> (scheme, host, port); None for anything else."""
+    parts = url.split(":")
+    if len(parts) != 3 or parts[0] not in _NETWORK_SCHEMES:
+        return None
+    scheme, host, port = parts
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        return None
+    return scheme, host, int(port)
+
+
+def mavlink_url_problem(url: str) -> str | None:
+    """Why `url` is not one of the MAVLink link forms the service accepts (MAVLINK_URL_FORMS), or None."""
+    if url.startswith("/") and ":" not in url:
+        return None  # a serial device; whether it exists is checked when the link opens
+    if parse_network_url(url) is not None:
+        return None
+    return f"{url!r} is not a MAVLink link; accepted forms: {'; '.join(MAVLINK_URL_FORMS)}"
 
 
 def _build(cls: type, raw: object, path: str) -> Any:

@@ -190,7 +190,7 @@ class TrackingLoop:
         elif isinstance(selection, TrackPoint):
             box, mode, how = point_box(selection, size, self.config.camera), SelectionKind.POINT, "point"
             if self.config.camera.point_proposal:
-                proposal = proposal_box(image, selection, box)
+                proposal = proposal_box(image, selection, box, self.config.camera.min_box_px)
                 how = "point+proposal" if proposal is not None else "point,no_proposal_qualified"
                 box = proposal or box
         else:

@@ -272,6 +272,10 @@ class MockAutopilot:
             return "ignored: PX4 does not take GIMBAL_MANAGER_SET_PITCHYAW from outside"
         if msg.gimbal_device_id not in (0, 1):
             return f"ignored: no gimbal device {msg.gimbal_device_id}"
+        if msg.flags & (mavlink.GIMBAL_MANAGER_FLAGS_RETRACT | mavlink.GIMBAL_MANAGER_FLAGS_NEUTRAL):
+            return f"ignored: flags {msg.flags} ask for retract / neutral (ArduPilot then reads no angle or rate)"
+        if msg.flags & (mavlink.GIMBAL_MANAGER_FLAGS_YAW_LOCK | mavlink.GIMBAL_MANAGER_FLAGS_YAW_IN_EARTH_FRAME):
+            return f"ignored: flags {msg.flags} put yaw in the earth frame (not modelled)"
         angles_nan = math.isnan(msg.pitch) and math.isnan(msg.yaw)
         if angles_nan and math.isfinite(msg.pitch_rate) and math.isfinite(msg.yaw_rate):
             self.model.set_gimbal_rates(msg.pitch_rate, msg.yaw_rate)

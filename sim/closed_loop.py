@@ -90,10 +90,11 @@ class ClosedLoopConfig:
     start_mode: str = ""  # "" = GUIDED / OFFBOARD
     altitude_m: float = 30.0  # vehicle height above the ground plane
     daemon_overrides: dict = field(default_factory=dict)
+    daemon_module: str = "service"  # run as `python -m daemon_module` (tests: an instrumented service)
     telemetry_timeout_s: float = 15.0
     startup_timeout_s: float = 60.0
     video_path: Path | None = None  # annotated video (MJPG .avi)
-    rss_every_s: float = 5.0  # sample the daemon's RSS this often (simulated seconds)
+    rss_every_s: float = 5.0  # sample the daemon's RSS and CPU time this often (simulated seconds)
     # Lockstep never runs faster than real time. The daemon's controllers run on the frames' capture
     # stamps (simulated time), but link health is judged on wall clocks: the daemon's autopilot
     # heartbeat timeout (mavlink.heartbeat_timeout_s, 1 Hz heartbeats) and its no-frames hold (0.5 s).
@@ -162,6 +163,8 @@ class RunResult:
     daemon_exit: int | None
     selection_result: str
     gimbal_command_timeouts: int = 0  # lockstep frames stepped without their gimbal command (see log)
+    refusals: list = field(default_factory=list)  # the daemon's refused camera commands by kind (status query)
+    cpu_s: list[tuple[float, float]] = field(default_factory=list)  # (time_s, daemon CPU seconds), with the RSS
 
     def centring_ratio(self, exclude: tuple[tuple[float, float], ...] = ()) -> float:
         """Fraction of visible frames with the car in the central 20 %, outside the `exclude` windows."""
@@ -254,23 +257,52 @@ def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
     return deep_merge(overrides, cfg.daemon_overrides)
 
 
+# Colours (BGR) of the annotated videos, and what each one marks.
+TRUTH_COLOUR, BOX_COLOUR, LOST_COLOUR, CENTRE_COLOUR = (0, 255, 0), (0, 255, 255), (0, 0, 255), (255, 255, 255)
+LEGEND = ((TRUTH_COLOUR, "car (ground truth)"), (BOX_COLOUR, "daemon's box"),
+          (LOST_COLOUR, "daemon's box, lost (last known)"), (CENTRE_COLOUR, "central 20 % (centring goal)"))
+TEXT_FONT, TEXT_SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.45
+
+
+def draw_status_line(image: np.ndarray, text: str) -> None:
+    """White text on a dark bar along the bottom of the image, in place; the font shrinks to fit the width.
+    One rendering of the text: an outline drawn thicker advances wider and smears the line."""
+    h, w = image.shape[:2]
+    (text_w, text_h), baseline = cv2.getTextSize(text, TEXT_FONT, TEXT_SCALE, 1)
+    scale = TEXT_SCALE * min(1.0, (w - 16) / max(text_w, 1))
+    (text_w, text_h), baseline = cv2.getTextSize(text, TEXT_FONT, scale, 1)
+    top = h - text_h - baseline - 8
+    cv2.rectangle(image, (0, top), (w - 1, h - 1), (0, 0, 0), -1)
+    cv2.putText(image, text, (8, h - baseline - 4), TEXT_FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def draw_legend(image: np.ndarray, entries: tuple[tuple[tuple[int, int, int], str], ...] = LEGEND) -> None:
+    """A key in the top-left corner, in place: a colour swatch and what it marks, one entry a line."""
+    line_h, swatch = 16, 10
+    width = 16 + swatch + max(cv2.getTextSize(label, TEXT_FONT, 0.4, 1)[0][0] for _, label in entries)
+    cv2.rectangle(image, (0, 0), (width, 6 + line_h * len(entries)), (0, 0, 0), -1)
+    for i, (colour, label) in enumerate(entries):
+        y = 6 + i * line_h
+        cv2.rectangle(image, (6, y + 2), (6 + swatch, y + 2 + swatch), colour, -1)
+        cv2.putText(image, label, (12 + swatch, y + 11), TEXT_FONT, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+
+
 def annotate(frame: np.ndarray, record: FrameRecord) -> np.ndarray:
-    """Copy of the frame with the ground truth (green), the daemon's box (yellow / red when lost), the
-    central 20 % window and a status line."""
+    """Copy of the frame with the ground truth, the daemon's box (normal / lost), the central 20 % window,
+    a legend of those colours and a status line (time, state, flight mode, link, distance to the car)."""
     out = frame.copy()
     h, w = out.shape[:2]
-    cv2.rectangle(out, (int(0.4 * w), int(0.4 * h)), (int(0.6 * w), int(0.6 * h)), (255, 255, 255), 1)
+    cv2.rectangle(out, (int(0.4 * w), int(0.4 * h)), (int(0.6 * w), int(0.6 * h)), CENTRE_COLOUR, 1)
     if record.truth.visible:
         x, y, bw, bh = record.truth.box
-        cv2.rectangle(out, (int(x), int(y)), (int(x + bw), int(y + bh)), (0, 255, 0), 1)
+        cv2.rectangle(out, (int(x), int(y)), (int(x + bw), int(y + bh)), TRUTH_COLOUR, 1)
     if record.box is not None:
         x, y, bw, bh = record.box
-        colour = (0, 0, 255) if record.state == "lost" else (0, 255, 255)
+        colour = LOST_COLOUR if record.state == "lost" else BOX_COLOUR
         cv2.rectangle(out, (int(x), int(y)), (int(x + bw), int(y + bh)), colour, 2)
-    text = (f"t={record.time_s:5.1f}s  {record.state or '-':9s} mode {record.mode}"
-            f"{'  LINK DOWN' if record.link_down else ''}{_distance_text(record)}")
-    cv2.putText(out, text, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(out, text, (8, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    draw_legend(out)
+    draw_status_line(out, f"t={record.time_s:.1f} s  {record.state or 'not answered (daemon took a newer frame)'}  mode {record.mode}"
+                          f"{'  LINK DOWN' if record.link_down else ''}{_distance_text(record)}")
     return out
 
 
@@ -296,7 +328,7 @@ class ClosedLoop:
                                        self.service_port, self.gcs_port)
         self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",), prefix=cfg.zenoh_prefix))
         self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
-                             f"udpout:127.0.0.1:{self.service_port}")
+                             f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
         self.gcs = None
         self.frame_id = 0
         self.clock_s = SIM_CLOCK_EPOCH_S  # capture stamp of the next startup / selection frame
@@ -444,6 +476,7 @@ class ClosedLoop:
         records: list[FrameRecord] = []
         pending: list[tuple[int, FrameRecord, np.ndarray | None]] = []  # realtime: matched later
         rss: list[tuple[float, int]] = []
+        cpu: list[tuple[float, float]] = []
         drops = sorted(cfg.link_drops)
         modes = sorted(cfg.operator_modes)
         next_rss = 0.0
@@ -465,6 +498,7 @@ class ClosedLoop:
                         self.autopilot.model.events.append((t, f"operator switch to {mode} refused: {exc}"))
             if t >= next_rss and self.daemon.alive():
                 rss.append((t, self.daemon.rss_kib()))
+                cpu.append((t, self.daemon.cpu_s()))
                 next_rss += cfg.rss_every_s
             frame, truth = self.render(t)
             gimbal_before = self.gimbal_outputs()
@@ -516,7 +550,7 @@ class ClosedLoop:
         return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
                          int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
                          self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
-                         selection, self.gimbal_command_timeouts)
+                         selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []), cpu)
 
     def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
                  final: bool) -> None:

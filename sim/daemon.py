@@ -60,11 +60,23 @@ def rss_kib(pid: int) -> int:
     raise ValueError(f"no VmRSS for process {pid}")
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process `pid` (all its threads) in seconds (Linux /proc), ValueError if
+    it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as handle:
+            fields = handle.read().rsplit(")", 1)[1].split()  # after the command name, which may hold spaces
+    except FileNotFoundError as exc:
+        raise ValueError(f"process {pid} is gone") from exc
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (fields 14, 15)
+
+
 class Daemon:
     """The service subprocess: start(), alive(), rss_kib(), stop() (SIGTERM, then kill after a grace)."""
 
-    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str) -> None:
+    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str, module: str = "service") -> None:
         self.workdir = workdir
+        self.module = module  # `python -m module`: the service, or a test's instrumented wrapper of it
         self.config_path = workdir / "service-config.yaml"
         self.log_path = workdir / "service.log"
         self.config = write_config(self.config_path, overrides)
@@ -77,7 +89,7 @@ class Daemon:
                    MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
         self._log_handle = open(self.log_path, "w", encoding="utf-8")
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "service", "--config", str(self.config_path), "--source", "zenoh",
+            [sys.executable, "-m", self.module, "--config", str(self.config_path), "--source", "zenoh",
              "--mavlink", self.mavlink_url],
             cwd=REPO_ROOT, env=env, stdout=self._log_handle, stderr=subprocess.STDOUT)
         return self
@@ -95,6 +107,10 @@ class Daemon:
     def rss_kib(self) -> int:
         """Current RSS of the daemon in KiB."""
         return rss_kib(self.pid)
+
+    def cpu_s(self) -> float:
+        """CPU seconds the daemon has used so far."""
+        return cpu_seconds(self.pid)
 
     def log_tail(self, lines: int = 40) -> str:
         """The last lines of the daemon's log (for failure messages)."""

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 from pathlib import Path
 
@@ -25,16 +24,19 @@ import numpy as np
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
 from sim.daemon import deep_merge, exit_on_sigterm
 from sim.scene import CameraConfig, SceneConfig
+from sim.summary import camera_command_rows, counter_rows, format_rows, run_rows
 from sim.web_station import daemon_listen, web_station_beside
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "out"
 
 
-def print_summary(title: str, summary: dict) -> None:
-    """Aligned key: value lines."""
-    print(f"\n== {title} ==")
-    for key, value in summary.items():
-        print(f"  {key:26s} {value}")
+def print_summary(title: str, summary: dict, status: dict | None = None) -> None:
+    """Each figure with what it means, then the daemon's counters (sim.summary); status: the daemon's
+    status answer (counters, mavlink_refusals)."""
+    status = status or {}
+    counters = status.get("counters", {})
+    rows = run_rows(summary) + camera_command_rows(counters, status.get("mavlink_refusals", [])) + counter_rows(counters)
+    print("\n" + format_rows(title, rows))
 
 
 def web_station(args: argparse.Namespace, loop: ClosedLoop, daemon_zenoh_port: int) -> contextlib.AbstractContextManager:
@@ -66,10 +68,9 @@ def run_closed_loop(args: argparse.Namespace) -> int:
               flush=True)
         result = loop.run(live=True)
         summary = result.summary()
-        summary["daemon_counters"] = json.dumps(result.counters)
         summary["autopilot_events"] = "; ".join(e for _, e in loop.autopilot.model.events[-5:]) or "none"
         summary["annotated_video"] = str(video.relative_to(OUT_DIR.parent))
-        print_summary("closed loop summary", summary)
+        print_summary("closed loop summary", summary, {"counters": result.counters, "mavlink_refusals": result.refusals})
     return 0 if result.daemon_alive else 1
 
 
@@ -108,9 +109,9 @@ def run_replay(args: argparse.Namespace) -> int:
         "frames_processed": summary["answered"], "wall_s": summary["wall_s"], "send_fps": summary["sent_fps"],
         "processed_fps": summary["processed_fps"], "dropped_frames": summary["dropped_frames"],
         "lost": summary["lost"], "recovered": summary["recovered"],
-        "centre_error_px_median (box vs ground truth)": round(float(np.median(errors)), 1) if errors else None,
-        "daemon_counters": json.dumps(result.counters),
-        "annotated_video": str(video.relative_to(OUT_DIR.parent))})
+        "centre_error_px_median": round(float(np.median(errors)), 1) if errors else None,
+        "annotated_video": str(video.relative_to(OUT_DIR.parent))},
+        {"counters": result.counters, "mavlink_refusals": result.refusals})
     return 0 if result.daemon_alive else 1
 
 

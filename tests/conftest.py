@@ -15,7 +15,8 @@ def data_root() -> Path:
     """The shared UAV sequences (OTB layout) from JSAR_DATA_ROOT; skip with a message when absent."""
     root = os.environ.get("JSAR_DATA_ROOT")
     if not root:
-        pytest.skip("JSAR_DATA_ROOT is not set: real-sequence tests need the shared UAV data")
+        pytest.skip("JSAR_DATA_ROOT is not set: real-sequence tests need the shared UAV data (set it to a folder "
+                    "of OTB-layout sequences: <name>/img/*.jpg + <name>/groundtruth_rect.txt)")
     path = Path(root)
     if not path.is_dir():
         pytest.skip(f"JSAR_DATA_ROOT={root} is not a directory")

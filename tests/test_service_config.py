@@ -1,6 +1,7 @@
 """Configuration: the documented default loads; every bad key / value stops with its key path."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -39,7 +40,11 @@ def test_documented_default_config_loads_and_matches_dataclass_defaults() -> Non
     ({"mavlink": {"component_id": 1}}, "mavlink.component_id: must be in [100, 105], got 1"),
     ({"mavlink": {"signing": {"link_id": 300}}}, "mavlink.signing.link_id: must be in [0, 255], got 300"),
     ({"mavlink": {"system_id": 1.5}}, "mavlink.system_id: must be an integer"),
-    ({"mavlink": {"url": ""}}, "mavlink.url: must not be empty"),
+    ({"mavlink": {"url": ""}}, "mavlink.url: '' is not a MAVLink link; accepted forms: udpout:HOST:PORT"),
+    ({"mavlink": {"url": "foo:bar"}}, "mavlink.url: 'foo:bar' is not a MAVLink link; accepted forms: udpout:HOST:PORT"),
+    ({"mavlink": {"url": "udpout:10.0.0.1"}}, "mavlink.url: 'udpout:10.0.0.1' is not a MAVLink link"),
+    ({"mavlink": {"url": "udpout:10.0.0.1:70000"}}, "mavlink.url: 'udpout:10.0.0.1:70000' is not a MAVLink link"),
+    ({"mavlink": {"url": "tcp::5760"}}, "mavlink.url: 'tcp::5760' is not a MAVLink link"),
     ({"source": {"kind": "file"}}, "source.path: must name a video file or an image folder"),
     ({"source": {"kind": "v4l2", "fourcc": "MJPEG"}}, "source.fourcc: must be 4 characters"),
     ({"source": {"retry_initial_s": 2.0, "retry_max_s": 1.0}}, "source.retry_max_s: must be >= source.retry_initial_s"),
@@ -65,6 +70,50 @@ def test_command_line_overrides_pick_the_source_kind() -> None:
     assert with_overrides(base, source="zenoh").source.kind == "zenoh"
     as_file = with_overrides(base, source="clip.avi", mavlink_url="tcp:10.0.0.1:5760")
     assert (as_file.source.kind, as_file.source.path, as_file.mavlink.url) == ("file", "clip.avi", "tcp:10.0.0.1:5760")
+
+
+@pytest.mark.parametrize("url", ["udpout:127.0.0.1:14555", "udpin:0.0.0.0:14550", "tcp:10.0.0.1:5760",
+                                 "tcpin:0.0.0.0:5760", "/dev/ttyAMA0", "/dev/serial/by-id/usb-ArduPilot"])
+def test_accepted_mavlink_url_forms(url: str) -> None:
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "mavlink": {"url": url}})
+    assert config.mavlink.url == url
+
+
+def test_command_line_overrides_are_applied_before_validation(tmp_path: Path) -> None:
+    """`source: {kind: file}` with its path on the command line, and a bad URL in the file replaced by a
+    good one on the command line: both complete only after the overrides."""
+    path = tmp_path / "partial.yaml"
+    path.write_text("source:\n  kind: file\nmavlink:\n  url: not-a-url\ntracker:\n  name: csrt\n  range_size_band: 0\n")
+    config = load_config(path, source="clip.avi", mavlink_url="udpout:127.0.0.1:14550")
+    assert (config.source.kind, config.source.path, config.mavlink.url) == ("file", "clip.avi", "udpout:127.0.0.1:14550")
+    with pytest.raises(ConfigError, match="source.path: must name a video file"):
+        load_config(path, mavlink_url="udpout:127.0.0.1:14550")  # no --source: the file alone is incomplete
+    with pytest.raises(ConfigError, match="mavlink.url: 'not-a-url'"):
+        load_config(path, source="clip.avi")
+
+
+def _run_service(args: list[str], timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "service", *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout_s, env=dict(os.environ, MAVLINK20="1"))
+
+
+def test_daemon_reports_every_configuration_error_in_one_form(tmp_path: Path) -> None:
+    """A malformed --mavlink URL (found while loading) and tracker.params the tracker refuses (found while
+    building the parts): both `jsar-service: configuration error: <key>: ...` on stderr, exit code 2."""
+    clip = tmp_path / "frames"
+    clip.mkdir()
+    base = tmp_path / "base.yaml"
+    base.write_text("source:\n  kind: file\nzenoh:\n  enabled: false\ntracker:\n  name: csrt\n  range_size_band: 0\n")
+    url = _run_service(["--config", str(base), "--source", str(clip), "--mavlink", "foo:bar"])
+    assert url.returncode == 2, url.stderr
+    assert url.stderr.startswith("jsar-service: configuration error: mavlink.url: 'foo:bar' is not a MAVLink link; "
+                                 "accepted forms: udpout:HOST:PORT"), url.stderr
+    params = tmp_path / "params.yaml"
+    params.write_text(base.read_text().replace("  range_size_band: 0\n", "  range_size_band: 0\n  params: {foo: 1}\n"))
+    bad = _run_service(["--config", str(params), "--source", str(clip)])
+    assert bad.returncode == 2, bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].startswith("jsar-service: configuration error: tracker.params: "), bad.stderr
+    assert "foo" in bad.stderr
 
 
 def test_daemon_exits_2_naming_the_key_on_a_bad_config(tmp_path: Path) -> None:

@@ -103,6 +103,8 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
                 if status["source"]["frames"] > 0:
                     break
         assert status is not None and status["status"] == "ok"
+        # no autopilot on this link: the status says what the daemon waits for
+        assert status["autopilot"]["state"] == "waiting_for_heartbeat" and status["autopilot"]["alive"] is False
         assert status["config"]["zenoh"]["prefix"] == "daemontest" and status["config"]["source"]["kind"] == "file"
         sent = time.monotonic()
         proc.send_signal(signum)
@@ -126,6 +128,47 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
         notify.close()
     stderr = proc.stderr.read() if proc.stderr else ""
     assert "event=started" in stderr and "event=stopped" in stderr and "Traceback" not in stderr
+    assert stderr.count("waiting for the autopilot's heartbeat") == 1, stderr
+
+
+# The daemon with the name resolver and UDP connect faked (tests stay on loopback): the resolver knows
+# no.such.host.invalid as unknown, and 10.255.255.1 has no route.
+FAKE_NETWORK = """
+import errno, socket, sys
+real_getaddrinfo, real_connect = socket.getaddrinfo, socket.socket.connect
+def getaddrinfo(host, *args, **kwargs):
+    if host == "no.such.host.invalid":
+        raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+    return real_getaddrinfo(host, *args, **kwargs)
+def connect(self, address):
+    if address[0] == "10.255.255.1":
+        raise OSError(errno.ENETUNREACH, "Network is unreachable")
+    return real_connect(self, address)
+socket.getaddrinfo, socket.socket.connect = getaddrinfo, connect
+from service.__main__ import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("url, error", [
+    ("udpout:no.such.host.invalid:14550",
+     "mavlink.url: cannot resolve host 'no.such.host.invalid' of udpout:no.such.host.invalid:14550: Name or service not known"),
+    ("udpout:10.255.255.1:14550", "mavlink.url: udpout:10.255.255.1:14550 is unreachable: Network is unreachable"),
+    ("udpin:no.such.host.invalid:14550", "mavlink.url: cannot resolve host 'no.such.host.invalid'"),
+])
+def test_unresolvable_or_unreachable_link_stops_the_daemon_at_start(tmp_path: Path, frames_dir: Path, url: str,
+                                                                    error: str) -> None:
+    """pymavlink's udpout opens whatever the host; without the start-up check every message was lost
+    in silence while the daemon tracked on."""
+    config = {"tracker": {"name": "csrt", "range_size_band": 0}, "zenoh": {"enabled": False}}
+    config_file = tmp_path / "config.yaml"
+    config_file.write_text(yaml.safe_dump(config))
+    proc = subprocess.run([sys.executable, "-c", FAKE_NETWORK, "--config", str(config_file), "--source", str(frames_dir),
+                           "--mavlink", url], cwd=REPO, env={**os.environ, "MAVLINK20": "1"}, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    assert "event=startup_failed" in proc.stderr and error in proc.stderr, proc.stderr
+    assert "event=started" not in proc.stderr
 
 
 def test_stop_is_prompt_even_while_the_tracker_is_stuck_in_a_frame(frames_dir: Path) -> None:

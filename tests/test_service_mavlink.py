@@ -228,22 +228,71 @@ def test_status_query_reports_counters(rig: Rig) -> None:
     assert status["status"] == "ok" and status["source"]["frames"] >= 3
     assert status["config"]["mavlink"]["component_id"] == 100
     assert math.isfinite(status["uptime_s"])
+    # every counter the daemon reports is explained in the demo's summary (sim.summary)
+    from sim.summary import CAMERA_COMMAND_KEYS, COUNTER_MEANINGS
+    assert set(status["counters"]) <= set(COUNTER_MEANINGS) | CAMERA_COMMAND_KEYS
 
 
 def test_follow_target_mode_streams_geo_status_and_announces_it(frames_dir: Path) -> None:
+    """276 is IDLE (lat, lon 0: nothing to read) until there is a ground estimate, also while the image
+    track is active; ACTIVE with the target's position once the vehicle's position, attitude and the
+    gimbal's attitude are known."""
     rig = Rig({"source": {"path": str(frames_dir), "loop": True},
                "guidance": {"mode": "follow_target", "rate_hz": 20.0}})
     try:
-        geo = lambda: rig.gcs.received.of("CAMERA_TRACKING_GEO_STATUS")  # noqa: E731
+        assert rig.service.status()["autopilot"]["state"] == "connected"
+        geo = lambda: [r.msg for r in rig.gcs.received.of("CAMERA_TRACKING_GEO_STATUS")]  # noqa: E731
         assert rig.gcs.received.wait_for(lambda: len(geo()) >= 3, 5.0)
-        assert geo()[-1].msg.tracking_status == 0  # idle: no estimate yet
+        assert geo()[-1].tracking_status == 0  # idle: no estimate yet
         rig.gcs.command_long(REQUEST, [259, 0, 0, 0, 0, 0, 0], target=CAM)
         assert rig.gcs.received.wait_for(lambda: any(r.msg.get_srcSystem() == AP_SYSID
                                                      for r in rig.gcs.received.of("CAMERA_INFORMATION")), 5.0)
         info = [r.msg for r in rig.gcs.received.of("CAMERA_INFORMATION") if r.msg.get_srcSystem() == AP_SYSID][-1]
         assert info.flags & 2048  # HAS_TRACKING_GEO_STATUS
+        # tracking, but the autopilot has sent no position: still idle, never ACTIVE at 0, 0
+        rig.gcs.command_long(TRACK_RECT, [0.55, 0.2, 0.8, 0.5, 0, 0, 0], target=CAM)
+        assert rig.gcs.wait_ack(TRACK_RECT, 0).result == ACCEPTED and rig.wait_tracking()
+        seen = len(geo())
+        assert rig.gcs.received.wait_for(lambda: len(geo()) >= seen + 10, 5.0)
+        assert all(m.tracking_status == 0 and m.lat == 0 and m.lon == 0 for m in geo()[seen:])
+        # the vehicle's position and attitude, and a gimbal looking 45 degrees down: an estimate exists
+        down = [math.cos(math.radians(-22.5)), 0.0, math.sin(math.radians(-22.5)), 0.0]
+        rig.autopilot.extra_periodic += [
+            lambda mav: mav.global_position_int_encode(0, 473_977_420, 85_455_940, 520_000, 30_000, 0, 0, 0, 0),
+            lambda mav: mav.attitude_encode(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+            lambda mav: mav.gimbal_device_attitude_status_encode(0, 0, 0, 0, down, NAN, NAN, NAN, 0)]
+        assert rig.gcs.received.wait_for(lambda: any(m.tracking_status == 1 for m in geo()), 5.0)
+        active = [m for m in geo() if m.tracking_status == 1][-1]
+        assert abs(active.lat - 473_977_420) < 10_000 and abs(active.lon - 85_455_940) < 10_000  # within ~100 m
+        assert 0.0 < active.dist < 100.0
     finally:
         rig.close()
+
+
+def test_waiting_for_the_autopilots_heartbeat_is_logged_and_reported(frames_dir: Path, caplog) -> None:
+    """Until the autopilot's heartbeat arrives no gimbal command can go out (no system id to send to):
+    the log says so once at start, and the status query reports it until the heartbeat comes."""
+    import logging
+    caplog.set_level(logging.INFO, logger="service")
+    service_port, gcs_port = free_udp_port(), free_udp_port()
+    autopilot = AutopilotPeer(service_port, gcs_port, system_id=AP_SYSID)
+    autopilot.heartbeats_on = False
+    autopilot.start()
+    running = RunningService(Service(service_config(service_port, {"source": {"path": str(frames_dir), "loop": True}}))).start()
+    service: Service = running.service  # type: ignore[assignment]
+    try:
+        assert service.worker.health.wait_for(lambda h: h.frames >= 3, 5.0)
+        assert service.status()["autopilot"]["state"] == "waiting_for_heartbeat"
+        waiting = [r for r in caplog.records if "waiting for the autopilot's heartbeat" in r.getMessage()]
+        assert len(waiting) == 1 and "gimbal and guidance commands are held" in waiting[0].getMessage()
+        autopilot.heartbeats_on = True
+        assert autopilot.from_service.wait_for(lambda: service.status()["autopilot"]["state"] == "connected", 5.0)
+        autopilot.heartbeats_on = False
+        assert autopilot.from_service.wait_for(lambda: service.status()["autopilot"]["state"] == "heartbeat_lost", 5.0)
+        assert len([r for r in caplog.records if "waiting for the autopilot's heartbeat" in r.getMessage()]) == 1
+    finally:
+        running.stop()
+        autopilot.close()
 
 
 def test_serial_link_to_the_autopilot(frames_dir: Path) -> None:
@@ -337,6 +386,17 @@ def test_repeated_refusals_warn_once_per_kind_and_source() -> None:
     assert refusals.first(2005, 0.5, (245, 190), 2) and not refusals.first(2005, 0.7, (245, 190), 2)
     assert refusals.first(512, NAN, (245, 190), 3) and not refusals.first(512, NAN, (245, 190), 3)
 
+    for _ in range(3):
+        refusals.count(512, 260.0, 3, "this camera does not provide message 260")
+    refusals.count(2005, 0.5, 2, "rectangle inverted")
+    assert refusals.summary() == [
+        {"result": "UNSUPPORTED", "command": 512, "message": 260, "count": 3,
+         "reason": "this camera does not provide message 260"},
+        {"result": "DENIED", "command": 2005, "message": None, "count": 1, "reason": "rectangle inverted"}]
+    for message in range(1000, 1100):  # junk from a peer: the kinds counted stay bounded
+        refusals.count(512, float(message), 3, "junk")
+    assert len(refusals.summary()) == RepeatedRefusals.MAX_KINDS
+
 
 def test_a_polled_unsupported_request_is_answered_every_time_but_warned_once(
         rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
@@ -348,4 +408,10 @@ def test_a_polled_unsupported_request_is_answered_every_time_but_warned_once(
     # The camera logs a command before it sends the ACK: all three are in by now.
     refusals = [r for r in caplog.records if "message 260" in r.getMessage()]
     assert [r.levelname for r in refusals] == ["WARNING", "DEBUG", "DEBUG"]
-    assert rig.service.camera.counters["rejected"] >= 3
+    counters = rig.service.status()["counters"]
+    assert counters["mavlink_rejected"] >= 3 and counters["mavlink_rejected_unsupported"] >= 3
+    assert counters["mavlink_rejected"] == sum(counters[f"mavlink_rejected_{kind}"]
+                                               for kind in ("unsupported", "denied", "temporarily", "failed"))
+    (polled,) = [r for r in rig.service.status()["mavlink_refusals"] if r["message"] == 260]
+    assert (polled["result"], polled["command"], polled["count"]) == ("UNSUPPORTED", REQUEST, 3)
+    assert "does not provide message 260" in polled["reason"]

@@ -195,16 +195,37 @@ def test_mavsdk_ground_station_selects_gets_status_and_stops(scenario):
 
 
 def test_soak_flat_memory_and_latency(data_root):
-    """A bounded soak (45 s simulated, lockstep): RSS flat after warm-up, latency not growing, the car
-    in view. The one-hour soak: `python -m sim.soak --minutes 60`."""
+    """A bounded soak (45 s simulated, lockstep): RSS not sloping after warm-up (a one-off step, e.g.
+    the first large re-detection, is not a leak), per-frame CPU (hence latency) not growing, the car in
+    view; all judged so that another process on the machine does not decide (see sim.soak). The one-hour
+    soak: `python -m sim.soak --minutes 60`."""
     duration = 45.0
-    cfg = ClosedLoopConfig(duration_s=duration, guidance="velocity", rss_every_s=5.0,
+    cfg = ClosedLoopConfig(duration_s=duration, guidance="velocity", rss_every_s=1.0,
                            scene=SceneConfig(texture="data"))
     with ClosedLoop(cfg) as loop:
         result = loop.run()
-    report = analyse(result, duration)
+    report = analyse(result, duration, cfg.fps)
     problems = report.failures(SoakCriteria())
-    assert not problems, f"{problems}; rss {result.rss_kib}"
+    assert not problems, f"{problems}; {report.describe()}; rss {result.rss_kib}; cpu {result.cpu_s}"
+
+
+def test_soak_memory_criterion_catches_an_injected_per_frame_leak():
+    """The same criterion on the daemon with 16 KiB leaked per frame (tests.leaky_service, about 1690 MiB/h
+    at 30 fps): it fails. The RSS shows only part of a leak at first (seen: 331 MiB/h of 844 injected),
+    as malloc hands out freed heap that is still resident before touching new pages; and with no
+    occlusion in this scene, as a re-detection leaves up to ~24 MiB of such heap (see sim.soak)."""
+    from tests.leaky_service import LEAK_BYTES_PER_FRAME
+    duration = 20.0
+    cfg = ClosedLoopConfig(duration_s=duration, guidance="velocity", rss_every_s=1.0,
+                           scene=SceneConfig(occlusion_times_s=(), occlusion_period_s=0.0),
+                           daemon_module="tests.leaky_service")
+    with ClosedLoop(cfg) as loop:
+        result = loop.run()
+    report = analyse(result, duration, cfg.fps)
+    problems = report.failures(SoakCriteria())
+    leak_mib_h = LEAK_BYTES_PER_FRAME * cfg.fps * 3600.0 / 2 ** 20
+    assert any("RSS keeps growing" in p for p in problems), f"{problems}; {report.describe()}"
+    assert report.rss.slope_mib_h <= 1.3 * leak_mib_h, report.describe()  # no more than was leaked
 
 
 def test_lockstep_run_is_reproducible():

@@ -152,6 +152,11 @@ def test_gimbal_commands_per_firmware(autopilot_with_peers):
     pitchyaw, attitude = ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")[0], ap.commands("GIMBAL_MANAGER_SET_ATTITUDE")[0]
     if ap.flavour == "ardupilot":  # ArduPilot takes both, from anyone; the later one wins
         assert pitchyaw.outcome == "applied: rates" and attitude.outcome == "applied: rates"
+        service.mav.gimbal_manager_set_pitchyaw_send(1, 1, 1, 0, math.nan, math.nan, 0.1, 0.2)  # RETRACT
+        service.mav.gimbal_manager_set_pitchyaw_send(1, 1, 16, 0, math.nan, math.nan, 0.1, 0.2)  # YAW_LOCK
+        assert ap.wait_for(lambda: len(ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")) >= 3, 5.0)
+        retract, earth = ap.commands("GIMBAL_MANAGER_SET_PITCHYAW")[1:3]
+        assert "retract / neutral" in retract.outcome and "earth frame" in earth.outcome
     else:
         assert pitchyaw.outcome.startswith("ignored")
         assert attitude.outcome.startswith("ignored: (1, 100) is not the primary")
@@ -387,32 +392,77 @@ def test_sim_clock_intervals_do_not_depend_on_the_frames_before_the_run(tmp_path
 
 
 # ----- soak criteria ----------------------------------------------------------------------------
-def test_soak_rss_one_off_step_then_flat_passes_a_steady_ramp_fails():
+def test_theil_sen_slope_and_largest_step():
+    from sim.soak import theil_sen_slope, without_largest_step
+    line = [(float(t), 3.0 * t + 7.0) for t in range(10)]
+    assert theil_sen_slope(line) == pytest.approx(3.0)
+    outlier = list(line)
+    outlier[4] = (4.0, 500.0)  # one wild sample moves least squares, not the median of pairwise slopes
+    assert theil_sen_slope(outlier) == pytest.approx(3.0)
+    with pytest.raises(ValueError, match="2 distinct times"):
+        theil_sen_slope([(1.0, 2.0), (1.0, 3.0)])
+    flat_step = [(float(t), 10.0 if t < 5 else 30.0) for t in range(10)]
+    stepless, step, at = without_largest_step(flat_step)
+    assert step == 20.0 and at == 5.0 and all(v == 10.0 for _, v in stepless)
+    falling = [(float(t), 10.0 - t) for t in range(5)]  # no rise: nothing taken out
+    assert without_largest_step(falling) == (falling, 0.0, 1.0)
+
+
+# The 45-s CI soak's daemon RSS (KiB) from the end of its 10 s warm-up, sampled every 0.5 simulated s:
+# flat, one +24.4 MiB step at 33.5-34 s (the second occlusion's re-detection; glibc keeps the freed
+# heap, see sim.soak), flat.
+OBSERVED_STEP_KIB = [206896] + [206900] * 18 + [206904] * 26 + [207896, 209144, 207472, 232412] + [232416] * 22
+
+
+def test_soak_rss_one_off_step_passes_a_per_frame_leak_fails():
     from sim.soak import SoakCriteria, SoakReport, rss_trend
-    mib = 1024
-    # the step the closed-loop soak showed: +30 MiB when re-detection first runs, then flat (slightly down)
-    step = [(0.0, 137 * mib), (5.0, 141 * mib), (10.0, 142 * mib), (15.0, 172 * mib), (20.0, 165 * mib),
-            (25.0, 165 * mib), (30.0, 165 * mib), (35.0, 165 * mib), (40.0, 165 * mib), (45.0, 165 * mib)]
-    flat = rss_trend(step, warm_s=10.0)
-    assert flat.samples == 8 and flat.reference_kib == 172 * mib and flat.growth_mib == pytest.approx(-7.0)
-    assert flat.slope_mib_h == pytest.approx(0.0)
-    # a leak: 2 MiB every 5 s keeps growing past the first half's maximum
-    ramp = [(5.0 * i, 140 * mib + 2 * mib * i) for i in range(30)]
-    leak = rss_trend(ramp, warm_s=30.0)
-    assert leak.growth_mib == pytest.approx(2.0 * (29 - (6 + 12 - 1)))
-    assert leak.slope_mib_h == pytest.approx(2.0 / 5.0 * 3600.0)
     criteria = SoakCriteria()
 
-    def report(trend):
-        return SoakReport(900, trend, 12.0, 12.5, True, {})
-    assert report(flat).failures(criteria) == []
+    def report(rss):
+        return SoakReport(1350, rss_trend(rss, warm_s=10.0), 9.0, 9.5, 12.0, 12.5, True, {})
+
+    observed = [(10.0 + 0.5 * i, kib) for i, kib in enumerate(OBSERVED_STEP_KIB)]
+    trend = rss_trend(observed, warm_s=10.0)
+    assert trend.step_mib == pytest.approx((232412 - 207472) / 1024) and trend.step_at_s == 34.0
+    assert abs(trend.slope_mib_h) < 1.0 and trend.growth_mib > 20.0
+    assert report(observed).failures(criteria) == []
+    # the same step in the very middle of the judged half, where plain Theil-Sen would see a slope
+    middle = [(float(t), 200_000 if t < 37 else 225_000) for t in range(10, 46)]
+    assert report(middle).failures(criteria) == []
+    # a per-frame leak: 2 KiB a frame at 30 fps (about 211 MiB/h), page-granular, with allocator wobble
+    leak = [(float(t), 200_000 + 4 * ((60 * (t - 10)) // 4) + (512 if t % 3 == 0 else 0)) for t in range(10, 46)]
     problems = report(leak).failures(criteria)
-    assert len(problems) == 1 and "RSS grew 24.0 MiB" in problems[0]
-    assert "-7.0 MiB" in report(flat).describe()
+    assert len(problems) == 1 and "RSS keeps growing: 2" in problems[0], problems
+    # ... and the same leak hidden behind a one-off step is still a leak
+    stepped_leak = [(t, kib + (30_000 if t >= 30 else 0)) for t, kib in leak]
+    assert report(stepped_leak).rss.slope_mib_h == pytest.approx(211, rel=0.05)
+    # a slow leak under the bound (0.5 KiB a frame) passes: the bound is about 1 KiB a frame
+    slow = [(float(t), 200_000 + 15 * (t - 10)) for t in range(10, 46)]
+    assert report(slow).failures(criteria) == []
     # memory and latency flat, but the car left the image for good (a track that went onto background)
-    wandered = SoakReport(900, flat, 12.0, 12.5, True, {}, in_view_ratio=0.17)
+    wandered = SoakReport(900, rss_trend(observed, warm_s=10.0), 9.0, 9.5, 12.0, 12.5, True, {}, in_view_ratio=0.17)
     problems = wandered.failures(criteria)
     assert len(problems) == 1 and "car in view on 17.0 %" in problems[0]
+    assert "+24.4 MiB at 34.0 s" in report(observed).describe()
+
+
+def test_soak_judges_per_frame_cpu_not_wall_latency():
+    """A busy machine doubles the wall latency of a quarter, not the daemon's CPU per frame: that passes;
+    per-frame work that grows fails."""
+    from sim.soak import SoakCriteria, SoakReport, cpu_quarters, rss_trend
+    flat_rss = rss_trend([(float(t), 200_000) for t in range(10, 46)], warm_s=10.0)
+    # 0.3 CPU s per simulated second at 30 fps = 10 ms a frame; a re-detection spike at 33 s
+    steady = [(float(t), 0.3 * t + (2.5 if t >= 33 else 0.0)) for t in range(0, 46)]
+    q2, q4 = cpu_quarters(steady, 45.0, 30.0)
+    assert q2 == pytest.approx(10.0) and q4 == pytest.approx(10.0)
+    busy = SoakReport(1350, flat_rss, q2, q4, 10.9, 22.3, True, {})  # wall latency doubled by another process
+    assert busy.failures(SoakCriteria()) == []
+    growing = [(float(t), 0.3 * t + 0.01 * t * t) for t in range(0, 46)]  # +0.6 ms a frame every second
+    q2, q4 = cpu_quarters(growing, 45.0, 30.0)
+    problems = SoakReport(1350, flat_rss, q2, q4, 10.0, 10.0, True, {}).failures(SoakCriteria())
+    assert len(problems) == 1 and problems[0].startswith("per-frame work grew"), problems
+    with pytest.raises(ValueError, match="CPU samples"):
+        cpu_quarters([(0.0, 0.0), (20.0, 6.0), (45.0, 13.5)], 45.0, 30.0)
 
 
 def test_soak_needs_enough_samples():
@@ -448,3 +498,58 @@ def test_run_summary_measures_the_car_from_the_box_while_lost():
     summary = result.summary()
     assert summary["lost_visible_frames"] == 3 and summary["lost_car_to_box_px_median"] == 60.0
     assert summary["lost_visible_frames_first_3s"] == 2 and summary["lost_car_to_box_px_median_first_3s"] == 45.0
+
+
+# ----- annotated video ---------------------------------------------------------------------------
+def test_annotated_frame_has_a_legend_and_a_clean_status_line():
+    import cv2
+    import numpy as np
+    from sim.closed_loop import LEGEND, TEXT_FONT, FrameRecord, annotate, draw_status_line
+    from sim.scene import GroundTruth, TargetPose
+
+    truth = GroundTruth((300.0, 200.0, 40.0, 20.0), 1.0, 1.0, TargetPose(32.9, 0.0, 0.0, 5.0))
+    record = FrameRecord(1, 12.3, truth, "lost", (295.0, 198.0, 45.0, 25.0), 10.0, (0.0, 0.0), 3.0, "GUIDED", True)
+    out = annotate(np.full((480, 640, 3), 90, np.uint8), record)
+    corner = out[:100, :40]
+    for colour, label in LEGEND:  # every colour used has its swatch and its words in the key
+        assert np.all(corner == colour, axis=2).sum() >= 50, label
+    # the status line: white on a dark bar, drawn once; its text spans what one rendering measures
+    for text, width in (("t=12.3 s  tracking  car 32.9 m away", 640), ("t=123.4 s  recovered  mode OFFBOARD  LINK DOWN  car 132.9 m away", 320)):
+        image = np.full((120, width, 3), 90, np.uint8)
+        draw_status_line(image, text)
+        bar = image[-30:]
+        lit = np.flatnonzero((bar > 128).all(axis=2).any(axis=0))  # columns with text (white on black)
+        (full_w, _), _ = cv2.getTextSize(text, TEXT_FONT, 0.45, 1)
+        expected = min(full_w, width - 16)
+        assert lit.min() >= 8 and lit.max() <= 8 + expected + 2, (text[:20], lit.min(), lit.max(), expected)
+        assert lit.max() - lit.min() >= expected * 0.9  # the whole text is there, shrunk to fit if needed
+        # past the text's end its rows hold nothing more (an outline drawn thicker ran on: "32.9 m m")
+        rows = np.flatnonzero((bar > 128).all(axis=2).any(axis=1))
+        after = bar[rows, lit.max() + 3:]
+        assert (after == after[0, 0]).all(), text[:20]
+
+
+# ----- demo summary ------------------------------------------------------------------------------
+def test_demo_summary_explains_every_figure_and_reads_polling_as_normal():
+    from sim.closed_loop import FrameRecord, RunResult
+    from sim.scene import GroundTruth, TargetPose
+    from sim.summary import camera_command_rows, counter_rows, format_rows, run_rows
+
+    truth = GroundTruth((90.0, 90.0, 20.0, 20.0), 1.0, 1.0, TargetPose(0.0, 0.0, 0.0, 5.0))
+    records = [FrameRecord(k, k / 30, truth, "tracking", (90.0, 90.0, 20.0, 20.0), 10.0, (0.0, 0.0), 0.0,
+                           "GUIDED", False) for k in range(30)]
+    result = RunResult(records, 200, 200, [], 1.0, 0, {}, True, None, "SUCCESS")
+    rows = run_rows(result.summary())
+    assert rows and all(meaning for _, _, meaning in rows), [key for key, _, meaning in rows if not meaning]
+    counters = {"frames": 900, "mavlink_commands": 130, "mavlink_accepted": 5, "mavlink_rejected": 125,
+                "mavlink_rejected_unsupported": 125, "mavlink_rejected_denied": 0, "out_gimbal": 890,
+                "brand_new_counter": 3}
+    refusals = [{"result": "UNSUPPORTED", "command": 512, "message": 260, "count": 25,
+                 "reason": "this camera does not provide message 260"}]
+    text = format_rows("summary", camera_command_rows(counters, refusals) + counter_rows(counters))
+    assert "camera commands" in text and "5 accepted, 125 refused" in text
+    assert "refused: not offered" in text and "expected" in text and "bad parameters" not in text  # 0: not shown
+    assert "REQUEST_MESSAGE CAMERA_SETTINGS" in text and "UNSUPPORTED: this camera does not provide message 260" in text
+    assert "daemon out_gimbal" in text and "gimbal rate commands sent" in text
+    assert "daemon brand_new_counter" in text  # an unexplained counter is shown, not dropped
+    assert "daemon mavlink_rejected" not in text  # the camera commands are shown once, split by reason

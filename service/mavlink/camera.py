@@ -16,8 +16,8 @@ from typing import Callable
 from pymavlink.dialects.v20 import common as mavlink
 from pymavlink.dialects.v20.common import (
     MAV_CMD_CAMERA_STOP_TRACKING, MAV_CMD_CAMERA_TRACK_POINT, MAV_CMD_CAMERA_TRACK_RECTANGLE, MAV_CMD_REQUEST_MESSAGE,
-    MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_TEMPORARILY_REJECTED,
-    MAV_RESULT_UNSUPPORTED, MAV_SEVERITY_WARNING, MAVLINK_MSG_ID_CAMERA_INFORMATION,
+    MAV_CMD_SET_MESSAGE_INTERVAL, MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, MAV_RESULT_FAILED,
+    MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_UNSUPPORTED, MAV_SEVERITY_WARNING, MAVLINK_MSG_ID_CAMERA_INFORMATION,
     MAVLINK_MSG_ID_CAMERA_TRACKING_GEO_STATUS, MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS,
     MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
 )
@@ -41,6 +41,8 @@ RESULT_NAMES = {value: entry.name.removeprefix("MAV_RESULT_") for value, entry i
 # what a ground station polls for, which would flood the operator's messages).
 OPERATOR_COMMANDS = {MAV_CMD_CAMERA_TRACK_POINT: "TRACK_POINT", MAV_CMD_CAMERA_TRACK_RECTANGLE: "TRACK_RECTANGLE",
                      MAV_CMD_CAMERA_STOP_TRACKING: "STOP_TRACKING"}
+REJECTED_COUNTERS = {MAV_RESULT_TEMPORARILY_REJECTED: "rejected_temporarily", MAV_RESULT_DENIED: "rejected_denied",
+                     MAV_RESULT_UNSUPPORTED: "rejected_unsupported", MAV_RESULT_FAILED: "rejected_failed"}
 
 
 class RepeatedRefusals:
@@ -50,18 +52,41 @@ class RepeatedRefusals:
     not five warnings every few seconds for the whole flight. Keyed by (command, requested message id for
     511 / 512, source system, source component, result)."""
 
+    MAX_KINDS = 64  # counted kinds (result, command, message); a peer sending junk cannot grow it further
+
     def __init__(self) -> None:
         self._seen: set[tuple[int, int | None, int, int, int]] = set()
+        self._counts: dict[tuple[int, int, int | None], list] = {}  # kind -> [count, first reason]
 
     def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
         """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
-        asks_for_message = command in (MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE)
-        message = int(param1) if asks_for_message and math.isfinite(param1) else None
-        key = (command, message, source[0], source[1], result)
+        key = (command, _requested_message(command, param1), source[0], source[1], result)
         if key in self._seen:
             return False
         self._seen.add(key)
         return True
+
+    def count(self, command: int, param1: float, result: int, reason: str) -> None:
+        """Count a refusal by kind (all sources together), keeping the first reason given for it."""
+        key = (result, command, _requested_message(command, param1))
+        if key in self._counts:
+            self._counts[key][0] += 1
+        elif len(self._counts) < self.MAX_KINDS:
+            self._counts[key] = [1, reason]
+
+    def summary(self) -> list[dict]:
+        """Refusals by kind, most frequent first: result name, command, requested message id (511 / 512
+        only, else None), count, reason (for the status query and the demo's summary)."""
+        rows = [{"result": RESULT_NAMES.get(result, str(result)), "command": command, "message": message,
+                 "count": count, "reason": reason}
+                for (result, command, message), (count, reason) in self._counts.items()]
+        return sorted(rows, key=lambda row: -row["count"])
+
+
+def _requested_message(command: int, param1: float) -> int | None:
+    """The message id a MAV_CMD_SET_MESSAGE_INTERVAL (511) / MAV_CMD_REQUEST_MESSAGE (512) is about."""
+    asks_for_message = command in (MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE)
+    return int(param1) if asks_for_message and math.isfinite(param1) else None
 
 
 class CameraComponent:
@@ -90,7 +115,10 @@ class CameraComponent:
         self._started = time.monotonic()
         self._stop = threading.Event()
         self._autopilot_alive = False
-        self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "status_sent": 0}
+        # rejected = the sum of the rejected_* by result (unsupported: this camera does not have what was
+        # asked, as when a ground station polls for every camera feature; denied: bad parameters)
+        self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "rejected_unsupported": 0, "rejected_denied": 0,
+                         "rejected_temporarily": 0, "rejected_failed": 0, "status_sent": 0}
         self._refusals = RepeatedRefusals()
         self._text_id = 0  # id of the last chunked STATUSTEXT (1..65535)
         self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
@@ -117,7 +145,22 @@ class CameraComponent:
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._started) * 1000) & 0xFFFFFFFF
 
+    def refusals(self) -> list[dict]:
+        """Refused commands by kind (RepeatedRefusals.summary)."""
+        return self._refusals.summary()
+
+    def autopilot_state(self, now_s: float | None = None) -> str:
+        """`waiting_for_heartbeat` (never heard), `connected`, or `heartbeat_lost` (for the status query)."""
+        view = self.autopilot()
+        if view.last_heartbeat_s is None:
+            return "waiting_for_heartbeat"
+        return "connected" if self.autopilot_alive(now_s) else "heartbeat_lost"
+
     def start(self) -> None:
+        mav = self.config.mavlink
+        held = ("gimbal and guidance commands" if not mav.system_id else "guidance commands") + " are held until it arrives"
+        log.info('event=waiting_for_autopilot detail="waiting for the autopilot\'s heartbeat on %s (system id %s); '
+                 '%s"', mav.url, mav.system_id or "any", held)
         for thread in self._threads:
             thread.start()
 
@@ -167,6 +210,10 @@ class CameraComponent:
         self.counters["commands"] += 1
         self.counters["accepted" if decision.result == MAV_RESULT_ACCEPTED else "rejected"] += 1
         source = (msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[attr-defined]
+        if decision.result != MAV_RESULT_ACCEPTED:
+            kind = REJECTED_COUNTERS.get(decision.result, "rejected_failed")
+            self.counters[kind] += 1
+            self._refusals.count(msg.command, params[0], decision.result, decision.reason)  # type: ignore[attr-defined]
         if decision.result == MAV_RESULT_ACCEPTED:
             level, note = logging.INFO, ""
         elif self._refusals.first(msg.command, params[0], source, decision.result):  # type: ignore[attr-defined]

@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import threading
 import time
 from pathlib import Path
 
 from pymavlink import mavutil
 
-from service.config import MavlinkConfig, SigningConfig
+from service.config import MavlinkConfig, SigningConfig, parse_network_url
 
 log = logging.getLogger("service.mavlink")
 # pymavlink counts signing time in 10 us units since 2015-01-01
@@ -34,6 +35,29 @@ def read_signing_key(path: str) -> bytes:
                      f"got {len(data)} bytes")
 
 
+def check_destination(url: str) -> None:
+    """Start-up check of a network link (`udpout:HOST:PORT` etc.): the host resolves, and for udpout the
+    OS has a route to it (connecting a UDP socket sends nothing). ConnectionError naming mavlink.url
+    otherwise: pymavlink's udpout would start regardless and lose every message without a word.
+    Serial devices are checked by opening them."""
+    parsed = parse_network_url(url)
+    if parsed is None:
+        return
+    scheme, host, port = parsed
+    kind = socket.SOCK_STREAM if scheme.startswith("tcp") else socket.SOCK_DGRAM
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, socket.AF_INET, kind)[0]
+    except (socket.gaierror, IndexError) as exc:
+        reason = exc.strerror if isinstance(exc, socket.gaierror) else "no IPv4 address"
+        raise ConnectionError(f"mavlink.url: cannot resolve host {host!r} of {url}: {reason}") from exc
+    if scheme == "udpout":
+        with socket.socket(family, kind, proto) as probe:
+            try:
+                probe.connect(address)
+            except OSError as exc:
+                raise ConnectionError(f"mavlink.url: {url} is unreachable: {exc.strerror}") from exc
+
+
 class MavlinkLink:
     """A pymavlink connection with a send lock; `recv` is called from one receive thread only."""
 
@@ -43,6 +67,8 @@ class MavlinkLink:
         self.send_errors = 0
         self.sent = 0
         self.bad_packets = 0  # undecodable, or rejected by signing
+        self._sending_fails = False  # the last send failed (the first failure of a run is a warning)
+        check_destination(config.url)
         try:
             self._conn = mavutil.mavlink_connection(
                 config.url, baud=config.baud, source_system=source_system,
@@ -73,8 +99,14 @@ class MavlinkLink:
                 self._conn.mav.send(msg)
             except OSError as exc:
                 self.send_errors += 1
-                log.debug("event=send_failed error=%s", exc)
+                # a link that starts failing is worth a warning; each further failure only at debug
+                log.log(logging.DEBUG if self._sending_fails else logging.WARNING,
+                        'event=send_failed url=%s error="%s" errors=%d', self.config.url, exc, self.send_errors)
+                self._sending_fails = True
                 return False
+            if self._sending_fails:
+                log.info("event=send_recovered url=%s errors=%d", self.config.url, self.send_errors)
+            self._sending_fails = False
             self.sent += 1
             return True
 

@@ -87,10 +87,14 @@ def tracking_image_status(mav: object, status: TrackingStatus) -> object:
 
 
 def tracking_geo_status(mav: object, status: int, target: GroundTarget | None, vehicle_alt_amsl_m: float | None) -> object:
-    """CAMERA_TRACKING_GEO_STATUS (276) from a ground estimate; NaN / 0 where unknown."""
+    """CAMERA_TRACKING_GEO_STATUS (276) from a ground estimate; NaN where unknown.
+
+    Without an estimate (no vehicle position / attitude / gimbal attitude yet, or the ray misses the
+    ground) the status is IDLE whatever the image track does: lat / lon are integers with no "unknown"
+    value, and ACTIVE with 0, 0 would place the target off the coast of Africa."""
     if target is None:
-        return mav.camera_tracking_geo_status_encode(status, 0, 0, NAN, NAN, NAN, NAN, NAN, NAN, NAN,  # type: ignore[attr-defined]
-                                                      NAN, NAN, NAN)
+        return mav.camera_tracking_geo_status_encode(CAMERA_TRACKING_STATUS_FLAGS_IDLE, 0, 0, NAN, NAN, NAN, NAN, NAN, NAN,  # type: ignore[attr-defined]
+                                                      NAN, NAN, NAN, NAN)
     dist = math.hypot(target.ground_range_m, (vehicle_alt_amsl_m or target.alt_amsl_m) - target.alt_amsl_m)
     return mav.camera_tracking_geo_status_encode(  # type: ignore[attr-defined]
         status, round(target.lat_deg * 1e7), round(target.lon_deg * 1e7), target.alt_amsl_m,
@@ -99,9 +103,18 @@ def tracking_geo_status(mav: object, status: int, target: GroundTarget | None, v
 
 def gimbal_rates_ardupilot(mav: object, target: tuple[int, int], device_id: int, yaw_rate: float,
                            pitch_rate: float) -> object:
-    """GIMBAL_MANAGER_SET_PITCHYAW (287): both angles NaN, both rates set (what ArduPilot accepts)."""
-    return mav.gimbal_manager_set_pitchyaw_encode(target[0], target[1], 0, device_id, NAN, NAN,  # type: ignore[attr-defined]
-                                                  pitch_rate, yaw_rate)
+    """GIMBAL_MANAGER_SET_PITCHYAW (287) as a rate command (rad/s, positive = pitch up / yaw right).
+
+    Per the message's definition NaN means "ignore this field": both angles NaN, both rates finite
+    (ArduPilot acts on both rates or both angles, never a mix). flags = YAW_IN_VEHICLE_FRAME: the yaw
+    rate is relative to the vehicle's heading, as the image error it comes from; no RETRACT / NEUTRAL
+    (which ArduPilot acts on before reading any field) and no YAW_LOCK (earth frame). ValueError on a
+    non-finite rate: with NaN rates too the message would ask for nothing.
+    """
+    if not (math.isfinite(yaw_rate) and math.isfinite(pitch_rate)):
+        raise ValueError(f"gimbal rates must be finite, got yaw {yaw_rate}, pitch {pitch_rate}")
+    return mav.gimbal_manager_set_pitchyaw_encode(  # type: ignore[attr-defined]
+        target[0], target[1], GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME, device_id, NAN, NAN, pitch_rate, yaw_rate)
 
 
 def gimbal_rates_px4(mav: object, target: tuple[int, int], device_id: int, yaw_rate: float, pitch_rate: float) -> object:

@@ -35,6 +35,14 @@ RUN_MEANINGS = {
     "lost_car_to_box_px_median_first_3s": "on those frames: pixels from the car to the last box, median",
     "latency_ms_p50": "daemon's time from reading a frame to sending its commands, median (ms)",
     "latency_ms_p99": "the same, 99th percentile (ms)",
+    # the replay's own (sim.demo --replay)
+    "track_rectangle": "the ground station's TRACK_RECTANGLE on the first ground-truth box: the camera's answer",
+    "frames_sent": "frames of the recording sent to the daemon",
+    "frames_processed": "frames the daemon answered with telemetry",
+    "send_fps": "frames sent per wall-clock second",
+    "centre_error_px_median": "pixels from the box's centre to the ground truth's centre, median",
+    "autopilot_events": "the mock autopilot's last events (mode changes, link drops)",
+    "annotated_video": "the video with the car, the track and a colour legend drawn on it",
 }
 
 # The daemon's status counters (service.app.Service.status) other than the camera commands.

@@ -144,3 +144,19 @@ class LatestFrameWorker:
                 self._close()
             except Exception:  # noqa: BLE001 - closing at shutdown
                 log.exception("event=video_output_close_failed output=%s", self.name)
+
+
+class WorkerOutput:
+    """A video output whose encoding runs on its LatestFrameWorker (`self.worker`): offer / start / stop."""
+
+    worker: LatestFrameWorker
+
+    def offer(self, frame: Frame) -> None:
+        """Tracking thread: hand the frame over (never waits for the encoder)."""
+        self.worker.offer(frame)
+
+    def start(self) -> None:
+        self.worker.start()
+
+    def stop(self, timeout_s: float = 0.5) -> None:
+        self.worker.stop(timeout_s)

@@ -26,7 +26,7 @@ import numpy as np
 from service.config import ConfigError, StreamConfig
 from service.mavlink.video_stream import VideoStreamDescription
 from service.sources.base import Frame
-from service.video.latest_frame_worker import LatestFrameWorker, fit_size
+from service.video.latest_frame_worker import LatestFrameWorker, WorkerOutput, fit_size
 
 log = logging.getLogger("service.video")
 RTP_CLOCK_HZ = 90_000  # the RTP clock of H.264 video (RFC 6184)
@@ -70,7 +70,7 @@ def h264_encoder_library():  # -> the av module
     return av
 
 
-class RtpH264Stream:
+class RtpH264Stream(WorkerOutput):
     """Sends the newest tracked frame as H.264 over RTP/UDP to config.host:config.port, at most fps a second."""
 
     def __init__(self, config: StreamConfig, hfov_deg: float) -> None:
@@ -142,15 +142,6 @@ class RtpH264Stream:
                 log.debug('event=video_stream_close_failed error="%s"', exc)
 
     # --- any thread ---------------------------------------------------------------------------
-    def offer(self, frame: Frame) -> None:
-        self.worker.offer(frame)
-
-    def start(self) -> None:
-        self.worker.start()
-
-    def stop(self, timeout_s: float = 0.5) -> None:
-        self.worker.stop(timeout_s)
-
     def running(self) -> bool:
         """A frame went out within the last RUNNING_WITHIN_S seconds."""
         last = self._last_sent_s

@@ -16,7 +16,7 @@ import zenoh
 from service.config import PreviewConfig
 from service.sources.base import Frame
 from service.sources.zenoh_wire import encode_frame
-from service.video.latest_frame_worker import LatestFrameWorker, fit_size
+from service.video.latest_frame_worker import LatestFrameWorker, WorkerOutput, fit_size
 
 PREVIEW_KEY = "camera/preview"  # under the service's Zenoh prefix
 
@@ -32,7 +32,7 @@ def preview_payload(frame: Frame, config: PreviewConfig) -> bytes:
                         config.jpeg_quality)
 
 
-class ZenohPreview:
+class ZenohPreview(WorkerOutput):
     """Publishes the newest tracked frame as a JPEG preview sample, at most max_fps per second."""
 
     def __init__(self, session: zenoh.Session, prefix: str, config: PreviewConfig) -> None:
@@ -47,15 +47,6 @@ class ZenohPreview:
 
     def _undeclare(self) -> None:
         self._publisher.undeclare()
-
-    def offer(self, frame: Frame) -> None:
-        self.worker.offer(frame)
-
-    def start(self) -> None:
-        self.worker.start()
-
-    def stop(self, timeout_s: float = 0.5) -> None:
-        self.worker.stop(timeout_s)
 
     def status(self) -> dict[str, object]:
         return {"key": self.key, **self.worker.counters()}

@@ -1,0 +1,203 @@
+"""Machine-independent cost per frame: instructions executed per tracked frame, counted by callgrind.
+
+    python -m bench.instructions DATA_ROOT [--sequences OTB_Crossing,DTB70_MountainBike6]
+                                 [--frames 20] [--redetect-frames 4] [--json out/instructions.json]
+
+Runs itself under `valgrind --tool=callgrind` (instrumentation off until the trackers are set up;
+client requests from a tiny helper compiled here zero the counters before and dump them after each
+measured frame), so each count is exactly the instructions of one call, the Python interpreter,
+numpy and OpenCV included, nothing else. Per sequence, on the same decoded frames:
+  jsar            `update` on frames 1..N
+  csrt            OpenCV's CSRT `update` on frames 1..N
+  jsar-re         `update` on frames 1..N (confident frames: locate + commit + monitor)
+  jsar-re redetect  on frames N+1..N+M: what a lost frame costs, `core.locate` + `redetect` at
+                  omega 5 (the first lost frames) and at omega 12 (the cap, a long loss, with the lattice)
+Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
+set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths, so run it on the target
+architecture when it can (it runs unchanged in the arm64 root file system of deploy/check-arm64.sh
+when valgrind runs there). fps projections: fps = clock * IPC / instructions (see docs/deploy.md).
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy loads BLAS: one thread, as measured everywhere
+
+import argparse  # noqa: E402
+import ctypes  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import re  # noqa: E402
+import shutil  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+HELPER_C = r"""
+#include <valgrind/callgrind.h>
+void cg_start(void) { CALLGRIND_START_INSTRUMENTATION; }
+void cg_zero(void) { CALLGRIND_ZERO_STATS; }
+void cg_dump(const char *label) { CALLGRIND_DUMP_STATS_AT(label); }
+"""
+KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
+DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
+
+
+def build_helper(folder: Path) -> Path:
+    """Compile the client-request helper (needs gcc and valgrind's headers); returns the .so path."""
+    source, library = folder / "cg_helper.c", folder / "cg_helper.so"
+    source.write_text(HELPER_C)
+    subprocess.run(["gcc", "-O1", "-shared", "-fPIC", "-o", str(library), str(source)], check=True)
+    return library
+
+
+def parse_dumps(folder: Path) -> list[tuple[str, int]]:
+    """(label, instructions) of every callgrind dump triggered by a client request, in dump order."""
+    found: list[tuple[int, str, int]] = []
+    for path in folder.glob("callgrind.out*"):
+        text = path.read_text(errors="replace")
+        label = re.search(r"^desc: Trigger: Client Request: (.*)$", text, re.M)
+        part = re.search(r"^part: (\d+)$", text, re.M)
+        totals = re.search(r"^(?:summary|totals): (\d+)", text, re.M)
+        if label and totals:
+            found.append((int(part.group(1)) if part else 0, label.group(1).strip(), int(totals.group(1))))
+    return [(label, count) for _, label, count in sorted(found)]
+
+
+def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, float]]]:
+    """{sequence: {kind: {frames, mean, median, max}}} from labels 'sequence|kind|frame'."""
+    grouped: dict[str, dict[str, list[int]]] = {}
+    for label, count in dumps:
+        sequence, kind, _ = label.split("|")
+        grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
+    return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v)}
+                  for kind, v in kinds.items()} for seq, kinds in grouped.items()}
+
+
+def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path) -> None:
+    """Under callgrind: set up each sequence's trackers uncounted, count each measured call."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    import jsar
+    from bench.redetect import _load
+
+    cv2.setNumThreads(1)
+    threadpool_limits(limits=1)
+    cg = ctypes.CDLL(str(helper))
+    cg.cg_dump.argtypes = [ctypes.c_char_p]
+    cg.cg_start()
+
+    def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
+        cg.cg_zero()
+        call()
+        cg.cg_dump(label.encode())
+
+    for sequence in sequences:
+        images, box = _load(root / sequence, frames + redetect_frames + 1)
+        if len(images) < frames + redetect_frames + 1:
+            raise SystemExit(f"{sequence} has {len(images)} frames, fewer than {frames + redetect_frames + 1}")
+        first, tracked, lost = images[0], images[1:frames + 1], images[frames + 1:]
+        csrt = cv2.TrackerCSRT_create()
+        csrt.init(first, tuple(int(round(v)) for v in box))
+        plain, again = jsar.create("jsar"), jsar.create("jsar-re")
+        plain.init(first, box)
+        again.init(first, box)
+        for index, image in enumerate(tracked, start=1):
+            counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
+            counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
+            counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
+        last = again.core.box
+        for index, image in enumerate(lost, start=frames + 1):
+            for omega in (5.0, 12.0):
+                counted(f"{sequence}|jsar-re redetect omega {omega:g}|{index}",
+                        lambda: (again.core.locate(image), again.redetect(image, last, omega, 0.02)))
+        print(f"{sequence}: counted", flush=True)
+
+
+def host_rate(root: Path, sequence: str, frames: int) -> dict[str, float]:
+    """Natively (no valgrind): thread CPU ms per frame of jsar and csrt on the same frames, for the host IPC."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    import jsar
+    from bench.redetect import _load
+
+    cv2.setNumThreads(1)
+    threadpool_limits(limits=1)
+    images, box = _load(root / sequence, frames + 1)
+    plain = jsar.create("jsar")
+    plain.init(images[0], box)
+    csrt = cv2.TrackerCSRT_create()
+    csrt.init(images[0], tuple(int(round(v)) for v in box))
+    spent = {"jsar": 0.0, "csrt": 0.0}
+    for image in images[1:]:
+        start = time.thread_time()
+        plain.update(image)
+        spent["jsar"] += time.thread_time() - start
+        start = time.thread_time()
+        csrt.update(image)
+        spent["csrt"] += time.thread_time() - start
+    return {name: 1e3 * seconds / frames for name, seconds in spent.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data_root", type=Path)
+    parser.add_argument("--sequences", default=DEFAULT_SEQUENCES)
+    parser.add_argument("--frames", type=int, default=20, help="tracked frames counted per sequence")
+    parser.add_argument("--redetect-frames", type=int, default=4, help="re-detection frames counted per sequence")
+    parser.add_argument("--json", type=Path, default=None, help="write the summary here")
+    parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
+    args = parser.parse_args(argv)
+    if not args.data_root.is_dir():
+        parser.error(f"{args.data_root} is not a directory")
+    sequences = [s for s in args.sequences.split(",") if s]
+    for sequence in sequences:
+        if not (args.data_root / sequence / "img").is_dir():
+            parser.error(f"{sequence} is not a sequence under {args.data_root}")
+    if args.worker is not None:
+        worker(args.data_root, sequences, args.frames, args.redetect_frames, args.worker)
+        return 0
+    for tool in ("valgrind", "gcc"):
+        if shutil.which(tool) is None:
+            parser.error(f"{tool} is not installed (apt-get install valgrind gcc)")
+    with tempfile.TemporaryDirectory(prefix="jsar-callgrind-") as tmp:
+        folder = Path(tmp)
+        helper = build_helper(folder)
+        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
+                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.instructions",
+                   str(args.data_root), "--sequences", ",".join(sequences), "--frames", str(args.frames),
+                   "--redetect-frames", str(args.redetect_frames), "--worker", str(helper)]
+        print("running: " + " ".join(command[:5]) + " python -m bench.instructions ...", flush=True)
+        start = time.monotonic()
+        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
+        print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
+        summary = summarise(parse_dumps(folder))
+    native = host_rate(args.data_root, sequences[0], args.frames)
+    print(f"\ninstructions per frame ({platform.machine()}, millions; mean / median / max over the counted frames):")
+    for sequence, kinds in summary.items():
+        print(sequence)
+        for kind in KINDS:
+            if kind in kinds:
+                k = kinds[kind]
+                print(f"  {kind:26s} {k['mean'] / 1e6:8.1f} {k['median'] / 1e6:8.1f} {k['max'] / 1e6:8.1f}"
+                      f"   ({k['frames']} frames)")
+    first = summary[sequences[0]]
+    print(f"\nthis host natively on {sequences[0]} (thread CPU time, one thread): "
+          + ", ".join(f"{n} {ms:.2f} ms/frame = {first[n]['mean'] / (ms * 1e-3) / 1e9:.2f} G instructions/s"
+                      for n, ms in native.items()))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"machine": platform.machine(), "python": platform.python_version(),
+                                         "frames": args.frames, "redetect_frames": args.redetect_frames,
+                                         "instructions": summary, "host_cpu_ms_per_frame": native}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm bench clean
+.PHONY: run test eval longterm bench instructions image check-arm64 check-systemd clean
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml jsar/features/_kernels.c
@@ -35,6 +35,24 @@ longterm: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m bench.tracking $(DATA) --trackers jsar,csrt
 	JSAR_DATA_ROOT=$(DATA) $(PY) -m bench.service
+
+# Machine-independent cost per frame (callgrind instructions; slow: about 15 min). See docs/deploy.md.
+instructions: $(STAMP)
+	$(PY) -m bench.instructions $(DATA) --json out/instructions.json
+
+# Deployment checks (heavy, need root; not part of `make test`). See docs/deploy.md.
+# The container image for amd64 and arm64 (emulated), then the image test on both.
+image: $(STAMP)
+	deploy/build-image.sh
+	JSAR_TEST_EMULATED=1 $(PY) -m pytest -q -rs -s tests/test_deploy_image.py
+
+# The project installed and tested in an arm64 Debian root file system under qemu-user.
+check-arm64:
+	JSAR_DATA_ROOT="$${JSAR_DATA_ROOT:-$(DATA)}" deploy/check-arm64.sh
+
+# deploy/jsar-service.service under a real systemd (PID 1 of a container built from the image).
+check-systemd: $(STAMP)
+	PYTHON=$(PY) deploy/check-systemd.sh
 
 clean:
 	rm -rf $(VENV) out

@@ -2,20 +2,24 @@
 
     python -m bench.instructions DATA_ROOT [--sequences OTB_Crossing,DTB70_MountainBike6]
                                  [--frames 20] [--redetect-frames 4] [--json out/instructions.json]
+                                 [--arm64-rootfs ROOTFS]
 
-Runs itself under `valgrind --tool=callgrind` (instrumentation off until the trackers are set up;
-client requests from a tiny helper compiled here zero the counters before and dump them after each
-measured frame), so each count is exactly the instructions of one call, the Python interpreter,
-numpy and OpenCV included, nothing else. Per sequence, on the same decoded frames:
+This machine's build: runs itself under `valgrind --tool=callgrind` (instrumentation off until the
+trackers are set up; client requests from a tiny helper compiled here zero the counters before and
+dump them after each measured call). The arm64 build (`--arm64-rootfs`, the root file system that
+deploy/check-arm64.sh made and installed the project into): runs its python under `qemu-aarch64`
+with the TCG plugin bench/qemu_insn_marks.c, which reports the guest instructions executed at marks
+the worker sets around each measured call (valgrind itself does not run under qemu-user). Either
+way each count is the instructions of one call, the Python interpreter, numpy and OpenCV included,
+nothing else. Per sequence, on the same decoded frames:
   jsar            `update` on frames 1..N
   csrt            OpenCV's CSRT `update` on frames 1..N
   jsar-re         `update` on frames 1..N (confident frames: locate + commit + monitor)
   jsar-re redetect  on frames N+1..N+M: what a lost frame costs, `core.locate` + `redetect` at
                   omega 5 (the first lost frames) and at omega 12 (the cap, a long loss, with the lattice)
 Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
-set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths, so run it on the target
-architecture when it can (it runs unchanged in the arm64 root file system of deploy/check-arm64.sh
-when valgrind runs there). fps projections: fps = clock * IPC / instructions (see docs/deploy.md).
+set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
+to size a Pi with. fps projections: fps = clock * IPC / instructions (see docs/deploy.md).
 """
 from __future__ import annotations
 
@@ -43,6 +47,7 @@ void cg_start(void) { CALLGRIND_START_INSTRUMENTATION; }
 void cg_zero(void) { CALLGRIND_ZERO_STATS; }
 void cg_dump(const char *label) { CALLGRIND_DUMP_STATS_AT(label); }
 """
+MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
 KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
@@ -78,8 +83,9 @@ def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, flo
                   for kind, v in kinds.items()} for seq, kinds in grouped.items()}
 
 
-def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path) -> None:
-    """Under callgrind: set up each sequence's trackers uncounted, count each measured call."""
+def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path | None) -> None:
+    """Under callgrind (helper: the client-request library) or qemu with the marks plugin (helper None):
+    set up each sequence's trackers uncounted, count each measured call."""
     import cv2
     from threadpoolctl import threadpool_limits
 
@@ -88,14 +94,26 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
 
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
-    cg = ctypes.CDLL(str(helper))
-    cg.cg_dump.argtypes = [ctypes.c_char_p]
-    cg.cg_start()
+    if helper is not None:
+        cg = ctypes.CDLL(str(helper))
+        cg.cg_dump.argtypes = [ctypes.c_char_p]
+        cg.cg_start()
 
-    def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
-        cg.cg_zero()
-        call()
-        cg.cg_dump(label.encode())
+        def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
+            cg.cg_zero()
+            call()
+            cg.cg_dump(label.encode())
+    else:
+        libc = ctypes.CDLL(None, use_errno=True)
+        marks = [0]
+
+        def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
+            mark = marks[0]
+            marks[0] += 2
+            libc.syscall(MARK_SYSCALL, ctypes.c_long(mark))
+            call()
+            libc.syscall(MARK_SYSCALL, ctypes.c_long(mark + 1))
+            print(f"MARK {mark} {label}", flush=True)
 
     for sequence in sequences:
         images, box = _load(root / sequence, frames + redetect_frames + 1)
@@ -117,6 +135,57 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
                 counted(f"{sequence}|jsar-re redetect omega {omega:g}|{index}",
                         lambda: (again.core.locate(image), again.redetect(image, last, omega, 0.02)))
         print(f"{sequence}: counted", flush=True)
+
+
+def count_callgrind(worker_args: list[str]) -> list[tuple[str, int]]:
+    """(label, instructions) per measured call of this machine's build, under callgrind."""
+    for tool in ("valgrind", "gcc"):
+        if shutil.which(tool) is None:
+            raise SystemExit(f"{tool} is not installed (apt-get install valgrind gcc)")
+    with tempfile.TemporaryDirectory(prefix="jsar-callgrind-") as tmp:
+        folder = Path(tmp)
+        helper = build_helper(folder)
+        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
+                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.instructions",
+                   *worker_args, "--worker", str(helper)]
+        print("running: " + " ".join(command[:5]) + " python -m bench.instructions ...", flush=True)
+        start = time.monotonic()
+        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
+        print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
+        return parse_dumps(folder)
+
+
+def count_arm64(rootfs: Path, worker_args: list[str]) -> list[tuple[str, int]]:
+    """(label, instructions) per measured call of the arm64 build installed in `rootfs` (its venv at
+    /opt/jsar/.venv, as deploy/check-arm64.sh leaves it), under qemu-aarch64 with the marks plugin."""
+    qemu = shutil.which("qemu-aarch64")  # the dynamic build: qemu-aarch64-static cannot load plugins
+    if qemu is None or shutil.which("gcc") is None:
+        raise SystemExit("needs qemu-aarch64 (apt-get install qemu-user) and gcc")
+    python = rootfs / "usr" / "bin" / "python3"
+    site = sorted((rootfs / "opt" / "jsar" / ".venv" / "lib").glob("python3*/site-packages"))
+    if not python.exists() or not site:
+        raise SystemExit(f"{rootfs} has no python3 or no /opt/jsar/.venv: run deploy/check-arm64.sh first")
+    # python3 itself, not the venv's python (an absolute link the host would resolve to its own python);
+    # the venv's packages on PYTHONPATH; run from / so that no source tree shadows them
+    with tempfile.TemporaryDirectory(prefix="jsar-qemu-marks-") as tmp:
+        folder = Path(tmp)
+        plugin = folder / "qemu_insn_marks.so"
+        subprocess.run(["gcc", "-O2", "-shared", "-fPIC", "-o", str(plugin),
+                        str(Path(__file__).with_name("qemu_insn_marks.c"))], check=True)
+        marks_file = folder / "marks.txt"
+        if python.is_symlink():  # Debian's python3 -> python3.11, relative to /usr/bin
+            python = python.parent / os.readlink(python)
+        command = [qemu, "-L", str(rootfs), "-plugin", f"{plugin},out={marks_file}", str(python),
+                   "-m", "bench.instructions", *worker_args, "--worker-marks"]
+        env = {**os.environ, "PYTHONPATH": str(site[0]), "PYTHONNOUSERSITE": "1"}
+        print("running: qemu-aarch64 -plugin qemu_insn_marks.so python3 -m bench.instructions ... (arm64 build)",
+              flush=True)
+        start = time.monotonic()
+        out = subprocess.run(command, check=True, cwd="/", env=env, capture_output=True, text=True).stdout
+        print(f"qemu run took {time.monotonic() - start:.0f} s", flush=True)
+        counts = dict(line.split() for line in marks_file.read_text().splitlines() if not line.startswith("exit"))
+    labels = [line.split(" ", 2)[1:] for line in out.splitlines() if line.startswith("MARK ")]
+    return [(label, int(counts[str(int(mark) + 1)]) - int(counts[mark])) for mark, label in labels]
 
 
 def host_rate(root: Path, sequence: str, frames: int) -> dict[str, float]:
@@ -152,7 +221,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=20, help="tracked frames counted per sequence")
     parser.add_argument("--redetect-frames", type=int, default=4, help="re-detection frames counted per sequence")
     parser.add_argument("--json", type=Path, default=None, help="write the summary here")
+    parser.add_argument("--arm64-rootfs", type=Path, default=None,
+                        help="count the arm64 build installed in this root file system under qemu-aarch64")
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
+    parser.add_argument("--worker-marks", action="store_true", help=argparse.SUPPRESS)  # the run under qemu
     args = parser.parse_args(argv)
     if not args.data_root.is_dir():
         parser.error(f"{args.data_root} is not a directory")
@@ -160,26 +232,17 @@ def main(argv: list[str] | None = None) -> int:
     for sequence in sequences:
         if not (args.data_root / sequence / "img").is_dir():
             parser.error(f"{sequence} is not a sequence under {args.data_root}")
-    if args.worker is not None:
+    if args.worker is not None or args.worker_marks:
         worker(args.data_root, sequences, args.frames, args.redetect_frames, args.worker)
         return 0
-    for tool in ("valgrind", "gcc"):
-        if shutil.which(tool) is None:
-            parser.error(f"{tool} is not installed (apt-get install valgrind gcc)")
-    with tempfile.TemporaryDirectory(prefix="jsar-callgrind-") as tmp:
-        folder = Path(tmp)
-        helper = build_helper(folder)
-        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
-                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.instructions",
-                   str(args.data_root), "--sequences", ",".join(sequences), "--frames", str(args.frames),
-                   "--redetect-frames", str(args.redetect_frames), "--worker", str(helper)]
-        print("running: " + " ".join(command[:5]) + " python -m bench.instructions ...", flush=True)
-        start = time.monotonic()
-        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
-        print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
-        summary = summarise(parse_dumps(folder))
-    native = host_rate(args.data_root, sequences[0], args.frames)
-    print(f"\ninstructions per frame ({platform.machine()}, millions; mean / median / max over the counted frames):")
+    worker_args = [str(args.data_root.resolve()), "--sequences", ",".join(sequences), "--frames", str(args.frames),
+                   "--redetect-frames", str(args.redetect_frames)]
+    if args.arm64_rootfs is not None:
+        machine, summary, native = "aarch64 (qemu-aarch64)", summarise(count_arm64(args.arm64_rootfs, worker_args)), None
+    else:
+        machine, summary = platform.machine(), summarise(count_callgrind(worker_args))
+        native = host_rate(args.data_root, sequences[0], args.frames)
+    print(f"\ninstructions per frame ({machine}, millions; mean / median / max over the counted frames):")
     for sequence, kinds in summary.items():
         print(sequence)
         for kind in KINDS:
@@ -187,13 +250,14 @@ def main(argv: list[str] | None = None) -> int:
                 k = kinds[kind]
                 print(f"  {kind:26s} {k['mean'] / 1e6:8.1f} {k['median'] / 1e6:8.1f} {k['max'] / 1e6:8.1f}"
                       f"   ({k['frames']} frames)")
-    first = summary[sequences[0]]
-    print(f"\nthis host natively on {sequences[0]} (thread CPU time, one thread): "
-          + ", ".join(f"{n} {ms:.2f} ms/frame = {first[n]['mean'] / (ms * 1e-3) / 1e9:.2f} G instructions/s"
-                      for n, ms in native.items()))
+    if native is not None:
+        first = summary[sequences[0]]
+        print(f"\nthis host natively on {sequences[0]} (thread CPU time, one thread): "
+              + ", ".join(f"{n} {ms:.2f} ms/frame = {first[n]['mean'] / (ms * 1e-3) / 1e9:.2f} G instructions/s"
+                          for n, ms in native.items()))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"machine": platform.machine(), "python": platform.python_version(),
+        args.json.write_text(json.dumps({"machine": machine,
                                          "frames": args.frames, "redetect_frames": args.redetect_frames,
                                          "instructions": summary, "host_cpu_ms_per_frame": native}, indent=1))
     return 0

@@ -8,13 +8,12 @@
 # with ENXIO / ENODEV; a node the unit's device policy blocks fails with EPERM: that is what the check
 # tells apart. /dev/jsar-blocked (misc 10:200, not in the unit's list) is the negative control.
 set -eu
-{
-    sed -n '1,/^Character devices:/p' /proc/devices
-    grep -q ' video4linux$' /proc/devices || echo ' 81 video4linux'
-    grep -q ' ttyACM$' /proc/devices || echo '166 ttyACM'
-    grep -q ' ttyUSB$' /proc/devices || echo '188 ttyUSB'
-    sed -n '/^Character devices:/,$p' /proc/devices | sed 1d
-} > /run/devices
+extra=""
+grep -q ' video4linux$' /proc/devices || extra="$extra 81 video4linux\n"
+grep -q ' ttyACM$' /proc/devices || extra="${extra}166 ttyACM\n"
+grep -q ' ttyUSB$' /proc/devices || extra="${extra}188 ttyUSB\n"
+printf "$extra" > /run/devices-extra
+sed '/^Character devices:/r /run/devices-extra' /proc/devices > /run/devices
 mount --bind /run/devices /proc/devices
 make_node() {  # path type major minor group
     [ -e "$1" ] || mknod -m 660 "$1" "$2" "$3" "$4"

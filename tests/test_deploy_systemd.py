@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
 import time
 import uuid
 from pathlib import Path
@@ -67,29 +68,34 @@ class Rig:
         image = f"{IMAGE}-systemd:{host_arch()}"
         if podman("image", "exists", image).returncode != 0:
             pytest.fail(f"{image} is not built: run `make check-systemd`")
-        run = podman("run", "-d", "--name", self.name, "--privileged", "--systemd=always", "--network", "host",
+        # a private cgroup namespace: systemd then finds its own cgroup at the root of each v1 hierarchy
+        # and applies the unit's device policy (without it DevicePolicy= silently does nothing here)
+        run = podman("run", "-d", "--name", self.name, "--privileged", "--systemd=always", "--cgroupns=private",
+                     "--network", "host",
                      *podman_limits(), "-v", f"{video_dir}:/data:ro", "-v", f"{config_dir}:/etc/jsar:ro", image)
         assert run.returncode == 0, run.stderr
 
-    def exec(self, *command: str, timeout: float = 60.0, stdin: str | None = None) -> str:
-        import subprocess
-
-        proc = subprocess.run(["podman", "exec", "-i", self.name, *command], input=stdin, capture_output=True,
+    def run(self, *command: str, timeout: float = 60.0, stdin: str | None = None) -> subprocess.CompletedProcess:
+        return subprocess.run(["podman", "exec", "-i", self.name, *command], input=stdin, capture_output=True,
                               text=True, timeout=timeout)
+
+    def exec(self, *command: str, timeout: float = 60.0, stdin: str | None = None) -> str:
+        proc = self.run(*command, timeout=timeout, stdin=stdin)
         assert proc.returncode == 0, f"{' '.join(command)}: {proc.stdout}{proc.stderr}"
         return proc.stdout
 
     def show(self, unit: str = UNIT) -> dict[str, str]:
+        """The unit's properties; {} while systemd is not answering yet (booting)."""
         keys = "ActiveState,SubState,MainPID,NRestarts,Result,ExecMainStatus,ExecMainCode,WatchdogTimestampMonotonic"
-        out = self.exec("systemctl", "show", unit, "-p", keys)
-        return dict(line.split("=", 1) for line in out.splitlines() if "=" in line)
+        proc = self.run("systemctl", "show", unit, "-p", keys)
+        return dict(line.split("=", 1) for line in proc.stdout.splitlines() if "=" in line) if proc.returncode == 0 else {}
 
     def wait_show(self, predicate: Callable[[dict[str, str]], bool], timeout_s: float) -> dict[str, str]:
         """Poll the unit's properties until predicate holds (AssertionError with the last ones on timeout)."""
         deadline = time.monotonic() + timeout_s
         while True:
             props = self.show()
-            if predicate(props):
+            if props and predicate(props):
                 return props
             assert time.monotonic() < deadline, f"unit state not reached within {timeout_s} s: {props}"
             time.sleep(0.2)  # polling interval of an external state (systemd has no event we can block on here)
@@ -115,26 +121,24 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
 
 
 def test_reaches_active_running_through_ready(rig: Rig) -> None:
-    # boot waits for Type=notify units of multi-user.target: the unit is active only after READY=1
-    rig.exec("systemctl", "is-system-running", "--wait", timeout=300.0)  # "degraded" would fail: rc != 0
-    props = rig.show()
-    assert (props["ActiveState"], props["SubState"]) == ("active", "running"), props
+    # Type=notify: the unit stays "activating" until the daemon sends READY=1
+    props = rig.wait_show(lambda p: p["ActiveState"] not in ("activating", "inactive"), 120.0)
+    assert (props["ActiveState"], props["SubState"], props["NRestarts"]) == ("active", "running", "0"), props
     assert "Active: active (running)" in rig.exec("systemctl", "status", UNIT, "--no-pager")
     assert "event=started" in rig.journal()
 
 
 def test_watchdog_keeps_it_alive_while_frames_flow_and_it_tracks(rig: Rig) -> None:
-    first = rig.show()
+    first = rig.wait_show(lambda p: p["ActiveState"] == "active", 120.0)
     rig.session = zenoh_session(rig.zenoh_port)
     info = camera_handshake(rig.gcs, SYSTEM_ID, timeout_s=30.0)
     assert (info.resolution_h, info.resolution_v) == (320, 240)
     start_frames = None
-    for _ in range(50):
+    deadline = time.monotonic() + 60.0
+    while start_frames is None and time.monotonic() < deadline:  # each get waits up to 1 s for the reply
         reply = status(rig.session, "systemdcheck")
-        if reply is not None:
-            start_frames = reply["source"]["frames"]
-            break
-    assert start_frames is not None, "no status reply over Zenoh"
+        start_frames = None if reply is None else reply["source"]["frames"]
+    assert start_frames is not None, "no status reply over Zenoh within 60 s"
     errors = select_and_track(rig.gcs, rig.session, "systemdcheck", SYSTEM_ID, frames_wanted=90, timeout_s=20.0)
     # at least three watchdog periods (WatchdogSec=5s) of pings, same process, no restart
     pings = {first["WatchdogTimestampMonotonic"]}
@@ -170,7 +174,7 @@ def test_hardening_allows_camera_and_serial_devices_and_blocks_others(rig: Rig) 
 
 def test_a_hung_loop_is_restarted_by_the_watchdog(rig: Rig) -> None:
     before = rig.wait_show(lambda p: p["ActiveState"] == "active", 30.0)
-    rig.exec("kill", "-STOP", before["MainPID"])
+    rig.exec("systemctl", "kill", "--signal=SIGSTOP", "--kill-whom=main", UNIT)  # the loop hangs: no more pings
     stopped = time.monotonic()
     after = rig.wait_show(lambda p: p["NRestarts"] == str(int(before["NRestarts"]) + 1)
                           and p["ActiveState"] == "active" and p["MainPID"] not in ("0", before["MainPID"]), 90.0)

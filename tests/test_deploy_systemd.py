@@ -39,6 +39,14 @@ for path in ("/dev/video0", "/dev/ttyS0", "/dev/ttyUSB0", "/dev/ttyACM0", "/dev/
         result[path] = "opened"
     except OSError as exc:
         result[path] = errno.errorcode.get(exc.errno, str(exc.errno))
+# the serial link as pymavlink opens it (pyserial: termios ioctls, baud rate), where the port opened
+if result["/dev/ttyS0"] == "opened":
+    import serial
+    try:
+        serial.Serial("/dev/ttyS0", 921600, timeout=0).close()
+        result["pyserial /dev/ttyS0"] = "configured"
+    except (OSError, serial.SerialException) as exc:
+        result["pyserial /dev/ttyS0"] = repr(exc)[:120]
 print("PROBE " + json.dumps(result))
 """
 PROBE_DROPIN = """[Unit]
@@ -170,6 +178,7 @@ def test_hardening_allows_camera_and_serial_devices_and_blocks_others(rig: Rig) 
     for path in ("/dev/video0", "/dev/ttyS0", "/dev/ttyUSB0", "/dev/ttyACM0"):
         assert inside[path] not in ("EPERM", "EACCES"), f"{path} blocked in the unit: {inside[path]}"
         assert inside[path] == outside[path], (path, inside[path], outside[path])
+    assert inside.get("pyserial /dev/ttyS0") == outside.get("pyserial /dev/ttyS0"), (inside, outside)
 
 
 def test_a_hung_loop_is_restarted_by_the_watchdog(rig: Rig) -> None:

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm bench instructions image check-arm64 check-systemd clean
+.PHONY: run test eval longterm bench instructions instructions-arm64 image check-arm64 check-systemd clean
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml jsar/features/_kernels.c
@@ -36,9 +36,14 @@ bench: $(STAMP)
 	$(PY) -m bench.tracking $(DATA) --trackers jsar,csrt
 	JSAR_DATA_ROOT=$(DATA) $(PY) -m bench.service
 
-# Machine-independent cost per frame (callgrind instructions; slow: about 15 min). See docs/deploy.md.
+# Machine-independent cost per frame: instructions of this machine's build (callgrind), and of the arm64
+# build that `make check-arm64` installed (qemu-aarch64 + a counting plugin). Slow. See docs/deploy.md.
 instructions: $(STAMP)
-	$(PY) -m bench.instructions $(DATA) --json out/instructions.json
+	$(PY) -m bench.instructions $(DATA) --json out/instructions-$(shell uname -m).json
+
+instructions-arm64: $(STAMP)
+	$(PY) -m bench.instructions $(DATA) --arm64-rootfs "$${JSAR_ARM64_CACHE:-$$HOME/.cache/jsar-arm64}/rootfs-bookworm" \
+		--json out/instructions-aarch64.json
 
 # Deployment checks (heavy, need root; not part of `make test`). See docs/deploy.md.
 # The container image for amd64 and arm64 (emulated), then the image test on both.

@@ -3,6 +3,7 @@
     python -m bench.instructions DATA_ROOT [--sequences OTB_Crossing,DTB70_MountainBike6]
                                  [--frames 20] [--redetect-frames 4] [--json out/instructions.json]
                                  [--arm64-rootfs ROOTFS]
+    python -m bench.instructions DATA_ROOT --report out/instructions.json   (print a saved result)
 
 This machine's build: runs itself under `valgrind --tool=callgrind` (instrumentation off until the
 trackers are set up; client requests from a tiny helper compiled here zero the counters before and
@@ -48,6 +49,11 @@ void cg_zero(void) { CALLGRIND_ZERO_STATS; }
 void cg_dump(const char *label) { CALLGRIND_DUMP_STATS_AT(label); }
 """
 MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
+# Projection assumptions (not measurements): core clock and instructions per cycle on this workload
+# (CPython interpreter + numpy / FFT + OpenCV, one thread). Cortex-A72 is 3-wide out-of-order, ~1 IPC
+# on such mixed code; Cortex-A76 is 4-wide with ~1.7x the A72's work per clock (Arm's generational
+# figures: A73 ~ A72, A75 +22 %, A76 +35 %). fps = clock * IPC / instructions per frame.
+CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2.4 GHz, IPC 1.7)": (2.4e9, 1.7)}
 KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
@@ -214,6 +220,29 @@ def host_rate(root: Path, sequence: str, frames: int) -> dict[str, float]:
     return {name: 1e3 * seconds / frames for name, seconds in spent.items()}
 
 
+def report(machine: str, summary: dict, native: dict[str, float] | None) -> None:
+    """Print the counts, the Pi 4 / Pi 5 projections and (x86-64 runs) this host's instruction rate."""
+    print(f"\ninstructions per frame ({machine}, millions; mean / median / max over the counted frames):")
+    for sequence, kinds in summary.items():
+        print(sequence)
+        for kind in KINDS:
+            if kind in kinds:
+                k = kinds[kind]
+                print(f"  {kind:26s} {k['mean'] / 1e6:8.1f} {k['median'] / 1e6:8.1f} {k['max'] / 1e6:8.1f}"
+                      f"   ({k['frames']} frames)")
+    print("\nprojected fps on one core = clock * IPC / mean instructions (assumed clock and IPC in brackets)"
+          + ("" if machine.startswith("aarch64") else "; these are x86-64 counts: --arm64-rootfs gives the aarch64 ones"))
+    for sequence, kinds in summary.items():
+        for core, (clock, ipc) in CORES.items():
+            print(f"  {sequence:22s} {core:36s} " + "  ".join(
+                f"{kind} {clock * ipc / kinds[kind]['mean']:.1f}" for kind in KINDS if kind in kinds))
+    if native:
+        sequence = next(iter(summary))
+        print(f"\nthis host natively on {sequence} (thread CPU time, one thread): "
+              + ", ".join(f"{n} {ms:.2f} ms/frame = {summary[sequence][n]['mean'] / (ms * 1e-3) / 1e9:.2f} G instructions/s"
+                          for n, ms in native.items()))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data_root", type=Path)
@@ -223,9 +252,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="write the summary here")
     parser.add_argument("--arm64-rootfs", type=Path, default=None,
                         help="count the arm64 build installed in this root file system under qemu-aarch64")
+    parser.add_argument("--report", type=Path, default=None, metavar="JSON",
+                        help="print the counts and projections of an earlier --json result instead of counting")
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
     parser.add_argument("--worker-marks", action="store_true", help=argparse.SUPPRESS)  # the run under qemu
     args = parser.parse_args(argv)
+    if args.report is not None:
+        saved = json.loads(args.report.read_text())
+        report(saved["machine"], saved["instructions"], saved.get("host_cpu_ms_per_frame"))
+        return 0
     if not args.data_root.is_dir():
         parser.error(f"{args.data_root} is not a directory")
     sequences = [s for s in args.sequences.split(",") if s]
@@ -242,19 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         machine, summary = platform.machine(), summarise(count_callgrind(worker_args))
         native = host_rate(args.data_root, sequences[0], args.frames)
-    print(f"\ninstructions per frame ({machine}, millions; mean / median / max over the counted frames):")
-    for sequence, kinds in summary.items():
-        print(sequence)
-        for kind in KINDS:
-            if kind in kinds:
-                k = kinds[kind]
-                print(f"  {kind:26s} {k['mean'] / 1e6:8.1f} {k['median'] / 1e6:8.1f} {k['max'] / 1e6:8.1f}"
-                      f"   ({k['frames']} frames)")
-    if native is not None:
-        first = summary[sequences[0]]
-        print(f"\nthis host natively on {sequences[0]} (thread CPU time, one thread): "
-              + ", ".join(f"{n} {ms:.2f} ms/frame = {first[n]['mean'] / (ms * 1e-3) / 1e9:.2f} G instructions/s"
-                          for n, ms in native.items()))
+    report(machine, summary, native)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"machine": machine,

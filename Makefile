@@ -42,8 +42,10 @@ instructions: $(STAMP)
 	$(PY) -m bench.instructions $(DATA) --json out/instructions-$(shell uname -m).json
 
 instructions-arm64: $(STAMP)
-	$(PY) -m bench.instructions $(DATA) --arm64-rootfs "$${JSAR_ARM64_CACHE:-$$HOME/.cache/jsar-arm64}/rootfs-bookworm" \
-		--json out/instructions-aarch64.json
+	for cpu in cortex-a72 cortex-a76; do \
+		$(PY) -m bench.instructions $(DATA) --arm64-rootfs "$${JSAR_ARM64_CACHE:-$$HOME/.cache/jsar-arm64}/rootfs-bookworm" \
+			--arm64-cpu $$cpu --json out/instructions-aarch64-$$cpu.json || exit 1; \
+	done
 
 # Deployment checks (heavy, need root; not part of `make test`). See docs/deploy.md.
 # The container image for amd64 and arm64 (emulated), then the image test on both.

@@ -161,9 +161,11 @@ def count_callgrind(worker_args: list[str]) -> list[tuple[str, int]]:
         return parse_dumps(folder)
 
 
-def count_arm64(rootfs: Path, worker_args: list[str]) -> list[tuple[str, int]]:
+def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[str, int]]:
     """(label, instructions) per measured call of the arm64 build installed in `rootfs` (its venv at
-    /opt/jsar/.venv, as deploy/check-arm64.sh leaves it), under qemu-aarch64 with the marks plugin."""
+    /opt/jsar/.venv, as deploy/check-arm64.sh leaves it), under qemu-aarch64 emulating `cpu` (numpy,
+    OpenBLAS and OpenCV pick their SIMD paths from the CPU's features: cortex-a72 has plain NEON,
+    cortex-a76 adds fp16 and dot product; qemu's default "max" has far more) with the marks plugin."""
     qemu = shutil.which("qemu-aarch64")  # the dynamic build: qemu-aarch64-static cannot load plugins
     if qemu is None or shutil.which("gcc") is None:
         raise SystemExit("needs qemu-aarch64 (apt-get install qemu-user) and gcc")
@@ -181,11 +183,11 @@ def count_arm64(rootfs: Path, worker_args: list[str]) -> list[tuple[str, int]]:
         marks_file = folder / "marks.txt"
         if python.is_symlink():  # Debian's python3 -> python3.11, relative to /usr/bin
             python = python.parent / os.readlink(python)
-        command = [qemu, "-L", str(rootfs), "-plugin", f"{plugin},out={marks_file}", str(python),
+        command = [qemu, "-L", str(rootfs), "-cpu", cpu, "-plugin", f"{plugin},out={marks_file}", str(python),
                    "-m", "bench.instructions", *worker_args, "--worker-marks"]
         env = {**os.environ, "PYTHONPATH": str(site[0]), "PYTHONNOUSERSITE": "1"}
-        print("running: qemu-aarch64 -plugin qemu_insn_marks.so python3 -m bench.instructions ... (arm64 build)",
-              flush=True)
+        print(f"running: qemu-aarch64 -cpu {cpu} -plugin qemu_insn_marks.so python3 -m bench.instructions ... "
+              "(arm64 build)", flush=True)
         start = time.monotonic()
         out = subprocess.run(command, check=True, cwd="/", env=env, capture_output=True, text=True).stdout
         print(f"qemu run took {time.monotonic() - start:.0f} s", flush=True)
@@ -252,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="write the summary here")
     parser.add_argument("--arm64-rootfs", type=Path, default=None,
                         help="count the arm64 build installed in this root file system under qemu-aarch64")
+    parser.add_argument("--arm64-cpu", default="cortex-a72", help="qemu CPU model: cortex-a72 (Pi 4), cortex-a76 (Pi 5)")
     parser.add_argument("--report", type=Path, default=None, metavar="JSON",
                         help="print the counts and projections of an earlier --json result instead of counting")
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
@@ -273,7 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     worker_args = [str(args.data_root.resolve()), "--sequences", ",".join(sequences), "--frames", str(args.frames),
                    "--redetect-frames", str(args.redetect_frames)]
     if args.arm64_rootfs is not None:
-        machine, summary, native = "aarch64 (qemu-aarch64)", summarise(count_arm64(args.arm64_rootfs, worker_args)), None
+        machine = f"aarch64 (qemu-aarch64 -cpu {args.arm64_cpu})"
+        summary, native = summarise(count_arm64(args.arm64_rootfs, worker_args, args.arm64_cpu)), None
     else:
         machine, summary = platform.machine(), summarise(count_callgrind(worker_args))
         native = host_rate(args.data_root, sequences[0], args.frames)

@@ -13,6 +13,8 @@
 #   JSAR_ARM64_CACHE  root file system + pip cache (default ~/.cache/jsar-arm64)
 #   JSAR_DATA_ROOT    the shared UAV sequences (default ../shared/data/uav beside the repository)
 #   JSAR_ARM64_TESTS  pytest selection to run instead of the default one
+#   JSAR_ARM64_REUSE_VENV=1  keep the venv of the last run and reinstall only the project (a quick
+#                     re-check after a change; the default is a fresh venv, as a user starts)
 set -euo pipefail
 
 repo="$(cd "$(dirname "$0")/.." && pwd)"
@@ -74,13 +76,18 @@ cat > "$rootfs/opt/jsar-check/run.sh" <<'INNER'
 #!/bin/bash
 set -euo pipefail
 echo "machine: $(uname -m), $(python3 --version), $(gcc --version | head -1)"
-rm -rf /opt/jsar/.venv
-python3 -m venv /opt/jsar/.venv
 pip=/opt/jsar/.venv/bin/pip
-$pip install -q --upgrade pip
-echo "== pip install '.[test]' (from the working tree)"
 start=$(date +%s)
-(cd /src && $pip install '.[test]' 2>&1 | grep -E "^(Building|Created wheel|Successfully|ERROR|error)" | cut -c1-240)
+if [ "${JSAR_ARM64_REUSE_VENV:-}" = 1 ] && [ -x /opt/jsar/.venv/bin/python ]; then
+    echo "== reusing the venv; pip install --no-deps --force-reinstall . (from the working tree)"
+    (cd /src && $pip install --no-deps --force-reinstall . 2>&1 | grep -E "^(Building|Created wheel|Successfully|ERROR|error)" | cut -c1-240)
+else
+    rm -rf /opt/jsar/.venv
+    python3 -m venv /opt/jsar/.venv
+    $pip install -q --upgrade pip
+    echo "== pip install '.[test]' (from the working tree)"
+    (cd /src && $pip install '.[test]' 2>&1 | grep -E "^(Building|Created wheel|Successfully|ERROR|error)" | cut -c1-240)
+fi
 echo "install took $(( $(date +%s) - start )) s"
 echo "== how each distribution was installed (WHEEL tag: manylinux_*_aarch64 = a published wheel,"
 echo "   linux_aarch64 = built here from source, none-any = pure Python)"
@@ -117,5 +124,5 @@ JSAR_TESTS="$tests" TRUST="$(trust_files)" $nice_ unshare --mount --propagation 
     mount --bind "$data" "$rootfs/data" && mount -o remount,bind,ro "$rootfs/data"
     mkdir -p "$rootfs/root/.cache/pip" && mount --bind "$cache/pip" "$rootfs/root/.cache/pip"
     exec chroot "$rootfs" /usr/bin/env -i PATH=/usr/local/bin:/usr/bin:/bin HOME=/root LANG=C.UTF-8 \
-        JSAR_TESTS="$JSAR_TESTS" /opt/jsar-check/run.sh
+        JSAR_TESTS="$JSAR_TESTS" JSAR_ARM64_REUSE_VENV="${JSAR_ARM64_REUSE_VENV:-}" /opt/jsar-check/run.sh
 ' _ "$rootfs" "$data" "$cache"

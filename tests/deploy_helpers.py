@@ -50,10 +50,11 @@ def target_centre(index: int) -> tuple[float, float]:
     return 160.0 + 60.0 * math.sin(phase), 120.0 + 25.0 * math.sin(2 * phase)
 
 
-def write_target_video(folder: Path) -> Path:
-    """folder/target.avi (MJPG, SIZE, FPS, N_FRAMES); folder and file readable by the container's user."""
+def write_target_video(folder: Path, fps: float = FPS) -> Path:
+    """folder/target.avi (MJPG, SIZE, N_FRAMES at `fps`: the daemon paces the file at its own rate);
+    folder and file readable by the container's user."""
     path = folder / "target.avi"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), FPS, SIZE)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, SIZE)
     for i in range(N_FRAMES):
         writer.write(scene(SIZE, target_centre(i), SIDE))
     writer.release()

@@ -165,7 +165,7 @@ def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[st
     """(label, instructions) per measured call of the arm64 build installed in `rootfs` (its venv at
     /opt/jsar/.venv, as deploy/check-arm64.sh leaves it), under qemu-aarch64 emulating `cpu` (numpy,
     OpenBLAS and OpenCV pick their SIMD paths from the CPU's features: cortex-a72 has plain NEON,
-    cortex-a76 adds fp16 and dot product; qemu's default "max" has far more) with the marks plugin."""
+    cortex-a76 adds fp16 and dot product, qemu's default "max" more) with the marks plugin."""
     qemu = shutil.which("qemu-aarch64")  # the dynamic build: qemu-aarch64-static cannot load plugins
     if qemu is None or shutil.which("gcc") is None:
         raise SystemExit("needs qemu-aarch64 (apt-get install qemu-user) and gcc")

@@ -66,7 +66,7 @@ say "working tree -> /src in the root file system"
 rm -rf "$rootfs/src" "$rootfs/opt/jsar-check"
 mkdir -p "$rootfs/src" "$rootfs/opt/jsar-check" "$rootfs/data"
 # the working tree as it is (tracked and untracked, minus ignored files): what a user would `pip install .`
-(cd "$repo" && git ls-files -z --cached --others --exclude-standard | xargs -0 tar -cf - --ignore-failed-read) \
+(cd "$repo" && git ls-files -z --cached --others --exclude-standard | tar -cf - --null --files-from=- --ignore-failed-read) \
     | tar -xf - -C "$rootfs/src"
 # the tests run from a directory that holds only tests + config, so they import the installed package
 cp -a "$rootfs/src/tests" "$rootfs/src/config.yaml" "$rootfs/src/deploy" "$rootfs/src/pyproject.toml" "$rootfs/opt/jsar-check/"

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm bench clean
+.PHONY: run test eval longterm bench instructions instructions-arm64 image check-arm64 check-systemd clean
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml jsar/features/_kernels.c
@@ -35,6 +35,31 @@ longterm: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m bench.tracking $(DATA) --trackers jsar,csrt
 	JSAR_DATA_ROOT=$(DATA) $(PY) -m bench.service
+
+# Machine-independent cost per frame: instructions of this machine's build (callgrind), and of the arm64
+# build that `make check-arm64` installed (qemu-aarch64 + a counting plugin). Slow. See docs/deploy.md.
+instructions: $(STAMP)
+	$(PY) -m bench.instructions $(DATA) --json out/instructions-$(shell uname -m).json
+
+instructions-arm64: $(STAMP)
+	for cpu in cortex-a72 cortex-a76; do \
+		$(PY) -m bench.instructions $(DATA) --arm64-rootfs "$${JSAR_ARM64_CACHE:-$$HOME/.cache/jsar-arm64}/rootfs-bookworm" \
+			--arm64-cpu $$cpu --json out/instructions-aarch64-$$cpu.json || exit 1; \
+	done
+
+# Deployment checks (heavy, need root; not part of `make test`). See docs/deploy.md.
+# The container image for amd64 and arm64 (emulated), then the image test on both.
+image: $(STAMP)
+	deploy/build-image.sh
+	JSAR_TEST_EMULATED=1 $(PY) -m pytest -q -rs -s tests/test_deploy_image.py
+
+# The project installed and tested in an arm64 Debian root file system under qemu-user.
+check-arm64:
+	JSAR_DATA_ROOT="$${JSAR_DATA_ROOT:-$(DATA)}" deploy/check-arm64.sh
+
+# deploy/jsar-service.service under a real systemd (PID 1 of a container built from the image).
+check-systemd: $(STAMP)
+	PYTHON=$(PY) deploy/check-systemd.sh
 
 clean:
 	rm -rf $(VENV) out

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -61,5 +62,20 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def entry() -> None:
+    """The `jsar-service` command: main(), then exit without the interpreter's teardown.
+
+    By the time main() returns the daemon has stopped its threads, closed its links and sessions and
+    logged event=stopped. Finalising numpy, OpenCV, scipy and zenoh modules afterwards took 0.2-0.35 s
+    on an x86-64 core and 2.5 s on aarch64 under emulation: time a Pi-class core would take out of the
+    2 s a stop (SIGTERM from systemd or `podman stop`) is allowed.
+    """
+    code = main()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

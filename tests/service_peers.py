@@ -249,3 +249,30 @@ class RunningService:
         if self.thread is not None:
             self.thread.join(3.0)
             assert not self.thread.is_alive(), "service did not stop within 3 s"
+
+
+MAV_CMD_REQUEST_MESSAGE = 512
+CAMERA_INFORMATION_ID = 259
+
+
+def camera_handshake(gcs: GroundStation, system_id: int, timeout_s: float = 10.0) -> object:
+    """A ground station meeting the camera component, as QGroundControl does: the camera's HEARTBEAT
+    (MAV_TYPE_CAMERA, from system `system_id` once learned from the autopilot) arrives through the
+    autopilot, CAMERA_INFORMATION is requested (MAV_CMD_REQUEST_MESSAGE, ACCEPTED) and received.
+    Returns the CAMERA_INFORMATION message; AssertionError naming the missing step otherwise."""
+    def camera_beats() -> list[Received]:
+        return [r for r in gcs.received.of("HEARTBEAT")
+                if r.msg.get_srcComponent() == 100 and r.msg.get_srcSystem() == system_id]
+    assert gcs.received.wait_for(lambda: bool(camera_beats()), timeout_s), \
+        f"no HEARTBEAT from camera component {system_id}/100 within {timeout_s} s"
+    beat = camera_beats()[-1].msg
+    assert (beat.type, beat.autopilot) == (30, 8), "camera heartbeat is not MAV_TYPE_CAMERA / AUTOPILOT_INVALID"
+    asked = gcs.ack_count(MAV_CMD_REQUEST_MESSAGE)
+    gcs.command_long(MAV_CMD_REQUEST_MESSAGE, [CAMERA_INFORMATION_ID, 0, 0, 0, 0, 0, 0], target=(system_id, 100))
+    ack = gcs.wait_ack(MAV_CMD_REQUEST_MESSAGE, asked, timeout_s)
+    assert ack is not None and ack.result == 0, f"REQUEST_MESSAGE(CAMERA_INFORMATION) not accepted: {ack}"
+
+    def infos() -> list[Received]:
+        return [r for r in gcs.received.of("CAMERA_INFORMATION") if r.msg.get_srcSystem() == system_id]
+    assert gcs.received.wait_for(lambda: bool(infos()), timeout_s), "no CAMERA_INFORMATION after ACCEPTED"
+    return infos()[-1].msg

@@ -1,5 +1,5 @@
-"""The daemon as a process: systemd notify + watchdog, Zenoh status / telemetry, SIGTERM / SIGINT
-stop within 2 s; the systemd unit passes `systemd-analyze verify`."""
+"""The daemon as a process: systemd notify + watchdog, the MAVLink handshake with a ground station through
+an autopilot peer, Zenoh status / telemetry, SIGTERM / SIGINT stop within 2 s; the systemd unit passes `systemd-analyze verify`."""
 from __future__ import annotations
 
 import json
@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from tests.conftest import free_tcp_port, free_udp_port
+from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake
 from tests.test_service_sources import scene
 
 REPO = Path(__file__).resolve().parents[1]
@@ -83,13 +84,18 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
     notify.bind(str(notify_path))
     env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "400000", "MAVLINK20": "1"}
     env.pop("WATCHDOG_PID", None)
+    service_port, gcs_port = free_udp_port(), free_udp_port()
+    autopilot = AutopilotPeer(service_port, gcs_port, system_id=7).start()
+    gcs = GroundStation(gcs_port).start()
     proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", str(frames_dir),
-                             "--mavlink", f"udpout:127.0.0.1:{free_udp_port()}"],
+                             "--mavlink", f"udpout:127.0.0.1:{service_port}"],
                             cwd=REPO, env=env, stderr=subprocess.PIPE, text=True)
     session = None
     try:
         _recv_until(notify, "READY=1", 60.0)
         _recv_until(notify, "WATCHDOG=1", 5.0)
+        info = camera_handshake(gcs, system_id=7, timeout_s=10.0)
+        assert (info.resolution_h, info.resolution_v) == (160, 120)
         zc = zenoh.Config()
         zc.insert_json5("mode", '"peer"')
         zc.insert_json5("scouting/multicast/enabled", "false")
@@ -122,6 +128,8 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
     finally:
         if session is not None:
             session.close()
+        gcs.close()
+        autopilot.close()
         if proc.poll() is None:
             proc.kill()
             proc.wait()

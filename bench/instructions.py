@@ -1,0 +1,294 @@
+"""Machine-independent cost per frame: instructions executed per tracked frame, counted by callgrind.
+
+    python -m bench.instructions DATA_ROOT [--sequences OTB_Crossing,DTB70_MountainBike6]
+                                 [--frames 20] [--redetect-frames 4] [--json out/instructions.json]
+                                 [--arm64-rootfs ROOTFS]
+    python -m bench.instructions DATA_ROOT --report out/instructions.json   (print a saved result)
+
+This machine's build: runs itself under `valgrind --tool=callgrind` (instrumentation off until the
+trackers are set up; client requests from a tiny helper compiled here zero the counters before and
+dump them after each measured call). The arm64 build (`--arm64-rootfs`, the root file system that
+deploy/check-arm64.sh made and installed the project into): runs its python under `qemu-aarch64`
+with the TCG plugin bench/qemu_insn_marks.c, which reports the guest instructions executed at marks
+the worker sets around each measured call (valgrind itself does not run under qemu-user). Either
+way each count is the instructions of one call, the Python interpreter, numpy and OpenCV included,
+nothing else. Per sequence, on the same decoded frames:
+  jsar            `update` on frames 1..N
+  csrt            OpenCV's CSRT `update` on frames 1..N
+  jsar-re         `update` on frames 1..N (confident frames: locate + commit + monitor)
+  jsar-re redetect  on frames N+1..N+M: what a lost frame costs, `core.locate` + `redetect` at
+                  omega 5 (the first lost frames) and at omega 12 (the cap, a long loss, with the lattice)
+Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
+set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
+to size a Pi with. fps projections: fps = clock * IPC / instructions (see docs/deploy.md).
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy loads BLAS: one thread, as measured everywhere
+
+import argparse  # noqa: E402
+import ctypes  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import re  # noqa: E402
+import shutil  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+HELPER_C = r"""
+#include <valgrind/callgrind.h>
+void cg_start(void) { CALLGRIND_START_INSTRUMENTATION; }
+void cg_zero(void) { CALLGRIND_ZERO_STATS; }
+void cg_dump(const char *label) { CALLGRIND_DUMP_STATS_AT(label); }
+"""
+MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
+# Projection assumptions (not measurements): core clock and instructions per cycle on this workload
+# (CPython interpreter + numpy / FFT + OpenCV, one thread). Cortex-A72 is 3-wide out-of-order, ~1 IPC
+# on such mixed code; Cortex-A76 is 4-wide with ~1.7x the A72's work per clock (Arm's generational
+# figures: A73 ~ A72, A75 +22 %, A76 +35 %). fps = clock * IPC / instructions per frame.
+CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2.4 GHz, IPC 1.7)": (2.4e9, 1.7)}
+KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
+DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
+
+
+def build_helper(folder: Path) -> Path:
+    """Compile the client-request helper (needs gcc and valgrind's headers); returns the .so path."""
+    source, library = folder / "cg_helper.c", folder / "cg_helper.so"
+    source.write_text(HELPER_C)
+    subprocess.run(["gcc", "-O1", "-shared", "-fPIC", "-o", str(library), str(source)], check=True)
+    return library
+
+
+def parse_dumps(folder: Path) -> list[tuple[str, int]]:
+    """(label, instructions) of every callgrind dump triggered by a client request, in dump order."""
+    found: list[tuple[int, str, int]] = []
+    for path in folder.glob("callgrind.out*"):
+        text = path.read_text(errors="replace")
+        label = re.search(r"^desc: Trigger: Client Request: (.*)$", text, re.M)
+        part = re.search(r"^part: (\d+)$", text, re.M)
+        totals = re.search(r"^(?:summary|totals): (\d+)", text, re.M)
+        if label and totals:
+            found.append((int(part.group(1)) if part else 0, label.group(1).strip(), int(totals.group(1))))
+    return [(label, count) for _, label, count in sorted(found)]
+
+
+def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, float]]]:
+    """{sequence: {kind: {frames, mean, median, max}}} from labels 'sequence|kind|frame'."""
+    grouped: dict[str, dict[str, list[int]]] = {}
+    for label, count in dumps:
+        sequence, kind, _ = label.split("|")
+        grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
+    return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v)}
+                  for kind, v in kinds.items()} for seq, kinds in grouped.items()}
+
+
+def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path | None) -> None:
+    """Under callgrind (helper: the client-request library) or qemu with the marks plugin (helper None):
+    set up each sequence's trackers uncounted, count each measured call."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    import jsar
+    from bench.redetect import _load
+
+    cv2.setNumThreads(1)
+    threadpool_limits(limits=1)
+    if helper is not None:
+        cg = ctypes.CDLL(str(helper))
+        cg.cg_dump.argtypes = [ctypes.c_char_p]
+        cg.cg_start()
+
+        def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
+            cg.cg_zero()
+            call()
+            cg.cg_dump(label.encode())
+    else:
+        libc = ctypes.CDLL(None, use_errno=True)
+        marks = [0]
+
+        def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
+            mark = marks[0]
+            marks[0] += 2
+            libc.syscall(MARK_SYSCALL, ctypes.c_long(mark))
+            call()
+            libc.syscall(MARK_SYSCALL, ctypes.c_long(mark + 1))
+            print(f"MARK {mark} {label}", flush=True)
+
+    for sequence in sequences:
+        images, box = _load(root / sequence, frames + redetect_frames + 1)
+        if len(images) < frames + redetect_frames + 1:
+            raise SystemExit(f"{sequence} has {len(images)} frames, fewer than {frames + redetect_frames + 1}")
+        first, tracked, lost = images[0], images[1:frames + 1], images[frames + 1:]
+        csrt = cv2.TrackerCSRT_create()
+        csrt.init(first, tuple(int(round(v)) for v in box))
+        plain, again = jsar.create("jsar"), jsar.create("jsar-re")
+        plain.init(first, box)
+        again.init(first, box)
+        for index, image in enumerate(tracked, start=1):
+            counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
+            counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
+            counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
+        last = again.core.box
+        for index, image in enumerate(lost, start=frames + 1):
+            for omega in (5.0, 12.0):
+                counted(f"{sequence}|jsar-re redetect omega {omega:g}|{index}",
+                        lambda: (again.core.locate(image), again.redetect(image, last, omega, 0.02)))
+        print(f"{sequence}: counted", flush=True)
+
+
+def count_callgrind(worker_args: list[str]) -> list[tuple[str, int]]:
+    """(label, instructions) per measured call of this machine's build, under callgrind."""
+    for tool in ("valgrind", "gcc"):
+        if shutil.which(tool) is None:
+            raise SystemExit(f"{tool} is not installed (apt-get install valgrind gcc)")
+    with tempfile.TemporaryDirectory(prefix="jsar-callgrind-") as tmp:
+        folder = Path(tmp)
+        helper = build_helper(folder)
+        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
+                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.instructions",
+                   *worker_args, "--worker", str(helper)]
+        print("running: " + " ".join(command[:5]) + " python -m bench.instructions ...", flush=True)
+        start = time.monotonic()
+        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
+        print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
+        return parse_dumps(folder)
+
+
+def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[str, int]]:
+    """(label, instructions) per measured call of the arm64 build installed in `rootfs` (its venv at
+    /opt/jsar/.venv, as deploy/check-arm64.sh leaves it), under qemu-aarch64 emulating `cpu` (numpy,
+    OpenBLAS and OpenCV pick their SIMD paths from the CPU's features: cortex-a72 has plain NEON,
+    cortex-a76 adds fp16 and dot product, qemu's default "max" more) with the marks plugin."""
+    qemu = shutil.which("qemu-aarch64")  # the dynamic build: qemu-aarch64-static cannot load plugins
+    if qemu is None or shutil.which("gcc") is None:
+        raise SystemExit("needs qemu-aarch64 (apt-get install qemu-user) and gcc")
+    python = rootfs / "usr" / "bin" / "python3"
+    site = sorted((rootfs / "opt" / "jsar" / ".venv" / "lib").glob("python3*/site-packages"))
+    if not python.exists() or not site:
+        raise SystemExit(f"{rootfs} has no python3 or no /opt/jsar/.venv: run deploy/check-arm64.sh first")
+    # python3 itself, not the venv's python (an absolute link the host would resolve to its own python);
+    # the venv's packages on PYTHONPATH; run from / so that no source tree shadows them
+    with tempfile.TemporaryDirectory(prefix="jsar-qemu-marks-") as tmp:
+        folder = Path(tmp)
+        plugin = folder / "qemu_insn_marks.so"
+        subprocess.run(["gcc", "-O2", "-shared", "-fPIC", "-o", str(plugin),
+                        str(Path(__file__).with_name("qemu_insn_marks.c"))], check=True)
+        marks_file = folder / "marks.txt"
+        if python.is_symlink():  # Debian's python3 -> python3.11, relative to /usr/bin
+            python = python.parent / os.readlink(python)
+        command = [qemu, "-L", str(rootfs), "-cpu", cpu, "-plugin", f"{plugin},out={marks_file}", str(python),
+                   "-m", "bench.instructions", *worker_args, "--worker-marks"]
+        env = {**os.environ, "PYTHONPATH": str(site[0]), "PYTHONNOUSERSITE": "1"}
+        print(f"running: qemu-aarch64 -cpu {cpu} -plugin qemu_insn_marks.so python3 -m bench.instructions ... "
+              "(arm64 build)", flush=True)
+        start = time.monotonic()
+        out = subprocess.run(command, check=True, cwd="/", env=env, capture_output=True, text=True).stdout
+        print(f"qemu run took {time.monotonic() - start:.0f} s", flush=True)
+        counts = dict(line.split() for line in marks_file.read_text().splitlines() if not line.startswith("exit"))
+    labels = [line.split(" ", 2)[1:] for line in out.splitlines() if line.startswith("MARK ")]
+    return [(label, int(counts[str(int(mark) + 1)]) - int(counts[mark])) for mark, label in labels]
+
+
+def host_rate(root: Path, sequence: str, frames: int) -> dict[str, float]:
+    """Natively (no valgrind): thread CPU ms per frame of jsar and csrt on the same frames, for the host IPC."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    import jsar
+    from bench.redetect import _load
+
+    cv2.setNumThreads(1)
+    threadpool_limits(limits=1)
+    images, box = _load(root / sequence, frames + 1)
+    plain = jsar.create("jsar")
+    plain.init(images[0], box)
+    csrt = cv2.TrackerCSRT_create()
+    csrt.init(images[0], tuple(int(round(v)) for v in box))
+    spent = {"jsar": 0.0, "csrt": 0.0}
+    for image in images[1:]:
+        start = time.thread_time()
+        plain.update(image)
+        spent["jsar"] += time.thread_time() - start
+        start = time.thread_time()
+        csrt.update(image)
+        spent["csrt"] += time.thread_time() - start
+    return {name: 1e3 * seconds / frames for name, seconds in spent.items()}
+
+
+def report(machine: str, summary: dict, native: dict[str, float] | None) -> None:
+    """Print the counts, the Pi 4 / Pi 5 projections and (x86-64 runs) this host's instruction rate."""
+    print(f"\ninstructions per frame ({machine}, millions; mean / median / max over the counted frames):")
+    for sequence, kinds in summary.items():
+        print(sequence)
+        for kind in KINDS:
+            if kind in kinds:
+                k = kinds[kind]
+                print(f"  {kind:26s} {k['mean'] / 1e6:8.1f} {k['median'] / 1e6:8.1f} {k['max'] / 1e6:8.1f}"
+                      f"   ({k['frames']} frames)")
+    print("\nprojected fps on one core = clock * IPC / mean instructions (assumed clock and IPC in brackets)"
+          + ("" if machine.startswith("aarch64") else "; these are x86-64 counts: --arm64-rootfs gives the aarch64 ones"))
+    for sequence, kinds in summary.items():
+        for core, (clock, ipc) in CORES.items():
+            print(f"  {sequence:22s} {core:36s} " + "  ".join(
+                f"{kind} {clock * ipc / kinds[kind]['mean']:.1f}" for kind in KINDS if kind in kinds))
+    if native:
+        sequence = next(iter(summary))
+        print(f"\nthis host natively on {sequence} (thread CPU time, one thread): "
+              + ", ".join(f"{n} {ms:.2f} ms/frame = {summary[sequence][n]['mean'] / (ms * 1e-3) / 1e9:.2f} G instructions/s"
+                          for n, ms in native.items()))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data_root", type=Path)
+    parser.add_argument("--sequences", default=DEFAULT_SEQUENCES)
+    parser.add_argument("--frames", type=int, default=20, help="tracked frames counted per sequence")
+    parser.add_argument("--redetect-frames", type=int, default=4, help="re-detection frames counted per sequence")
+    parser.add_argument("--json", type=Path, default=None, help="write the summary here")
+    parser.add_argument("--arm64-rootfs", type=Path, default=None,
+                        help="count the arm64 build installed in this root file system under qemu-aarch64")
+    parser.add_argument("--arm64-cpu", default="cortex-a72", help="qemu CPU model: cortex-a72 (Pi 4), cortex-a76 (Pi 5)")
+    parser.add_argument("--report", type=Path, default=None, metavar="JSON",
+                        help="print the counts and projections of an earlier --json result instead of counting")
+    parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
+    parser.add_argument("--worker-marks", action="store_true", help=argparse.SUPPRESS)  # the run under qemu
+    args = parser.parse_args(argv)
+    if args.report is not None:
+        saved = json.loads(args.report.read_text())
+        report(saved["machine"], saved["instructions"], saved.get("host_cpu_ms_per_frame"))
+        return 0
+    if not args.data_root.is_dir():
+        parser.error(f"{args.data_root} is not a directory")
+    sequences = [s for s in args.sequences.split(",") if s]
+    for sequence in sequences:
+        if not (args.data_root / sequence / "img").is_dir():
+            parser.error(f"{sequence} is not a sequence under {args.data_root}")
+    if args.worker is not None or args.worker_marks:
+        worker(args.data_root, sequences, args.frames, args.redetect_frames, args.worker)
+        return 0
+    worker_args = [str(args.data_root.resolve()), "--sequences", ",".join(sequences), "--frames", str(args.frames),
+                   "--redetect-frames", str(args.redetect_frames)]
+    if args.arm64_rootfs is not None:
+        machine = f"aarch64 (qemu-aarch64 -cpu {args.arm64_cpu})"
+        summary, native = summarise(count_arm64(args.arm64_rootfs, worker_args, args.arm64_cpu)), None
+    else:
+        machine, summary = platform.machine(), summarise(count_callgrind(worker_args))
+        native = host_rate(args.data_root, sequences[0], args.frames)
+    report(machine, summary, native)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"machine": machine,
+                                         "frames": args.frames, "redetect_frames": args.redetect_frames,
+                                         "instructions": summary, "host_cpu_ms_per_frame": native}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

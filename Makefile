@@ -51,7 +51,7 @@ instructions-arm64: $(STAMP)
 # The container image for amd64 and arm64 (emulated), then the image test on both.
 image: $(STAMP)
 	deploy/build-image.sh
-	JSAR_TEST_EMULATED=1 $(PY) -m pytest -q -rs -s tests/test_deploy_image.py
+	JSAR_CHECK_IMAGE=1 JSAR_TEST_EMULATED=1 $(PY) -m pytest -q -rs -s tests/test_deploy_image.py
 
 # The project installed and tested in an arm64 Debian root file system under qemu-user.
 check-arm64:

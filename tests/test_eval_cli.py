@@ -43,7 +43,7 @@ def test_one_pass_eval_writes_table_json_and_plots(synthetic_root, tmp_path):
                    "--plots", str(plots))
     assert proc.returncode == 0, proc.stderr
     assert "threads: cv2 1" in proc.stderr
-    for needle in ("syn_a", "syn_b", "csrt", "kcf", "Perfect (published)", "fps/CSRT", "mean AUC"):
+    for needle in ("syn_a", "syn_b", "csrt", "kcf", "Perfect (published)", "fps/CSRT", "mean AUC", "ms p99", "worst p99/p50"):
         assert needle in proc.stdout
     result = json.loads(out_json.read_text())
     assert all(p["threads"] == 1 for p in result["threads"]["pools"])
@@ -51,6 +51,7 @@ def test_one_pass_eval_writes_table_json_and_plots(synthetic_root, tmp_path):
     first_truth = dataset.load_sequence(synthetic_root / "syn_a").groundtruth[0]
     assert len(csrt["boxes"]) == N_FRAMES and csrt["boxes"][0] == first_truth.tolist()
     assert csrt["fps"] > 0 and csrt["fps_ratio_vs_csrt"] == 1.0
+    assert 0 < csrt["frame_ms_p50"] <= csrt["frame_ms_p99"] <= csrt["frame_ms_max"]
     assert csrt["precision"] > 0.9  # an easy clip: CSRT must follow it
     perfect = result["summary"]["Perfect"]
     assert perfect["precision"] == 1.0 and perfect["auc"] == pytest.approx(20 / 21)

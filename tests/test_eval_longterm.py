@@ -20,7 +20,7 @@ def red_pixels(frame: np.ndarray) -> int:
     return int(np.count_nonzero((r > 180) & (r - g > 100) & (r - b > 100)))
 
 
-@pytest.mark.parametrize("kind", longterm.EVENT_KINDS)
+@pytest.mark.parametrize("kind", longterm.INJECTED_KINDS)
 def test_injected_events_hide_the_target_and_mark_it_absent(sequence, kind):
     events = longterm.inject_events(sequence, kind, (3, 6), seed=7, config=CONFIG)
     assert [e.length for e in sorted(events.events, key=lambda e: e.length)] == [3, 6]
@@ -84,3 +84,52 @@ def test_longterm_scores_hand_case():
     summary = longterm.summarise_longterm([result, late])
     assert summary["reacquisition_rate"] == 0.5
     assert summary["false_reinit_rate"] == pytest.approx(4 / 6)
+
+
+def with_absent_run(sequence, start, stop):
+    """`sequence` with its ground truth NaN on frames [start, stop) (an annotated real absence)."""
+    gt = np.array(sequence.groundtruth)
+    gt[start:stop] = np.nan
+    return dataset.Sequence(sequence.name, sequence.frame_paths, gt)
+
+
+def test_real_events_are_the_ground_truths_own_absent_runs_on_unchanged_frames(sequence):
+    real = longterm.inject_events(with_absent_run(sequence, 10, 14), "real", config=CONFIG)
+    assert [(e.kind, e.start, e.length) for e in real.events] == [("real", 10, 4)]
+    assert real.scored_spans == [(10, 14)]
+    np.testing.assert_array_equal(real.frame(12), sequence.read_frame(12))
+    # a run that lasts to the end never reappears: not an event
+    assert longterm.inject_events(with_absent_run(sequence, 35, 40), "real", config=CONFIG).events == ()
+    assert longterm.inject_events(sequence, "real", config=CONFIG).events == ()
+
+
+def test_injected_events_keep_clear_of_real_absent_runs(sequence):
+    blocked = with_absent_run(sequence, 12, 16)
+    for seed in range(8):
+        events = longterm.inject_events(blocked, "occlusion", (3, 6), seed=seed, config=CONFIG)
+        for span in events.events:
+            assert span.stop + CONFIG.gap_after <= 12 or span.start >= 16, (seed, span)
+    # no absent frame: the first draw is kept, as before real runs were avoided
+    plain = longterm.inject_events(sequence, "occlusion", (3, 6), seed=5, config=CONFIG)
+    spans, _ = longterm.place_events(len(sequence), (3, 6), longterm.event_rng(5, sequence.name),
+                                     CONFIG.first_start, CONFIG.gap_after)
+    assert sorted((e.start, e.length) for e in plain.events) == sorted(spans)
+
+
+def test_scoring_on_given_spans_counts_only_those_events_and_absent_frames():
+    gt = np.array([[0, 0, 10, 10]] * 30, float)
+    gt[3:6] = np.nan  # a real absence, scored in another run
+    gt[12:15] = np.nan  # this run's event
+    pred = gt.copy()
+    pred[np.isnan(pred[:, 0])] = [0, 0, 10, 10]
+    states = ["tracking"] * 30
+    states[12:15] = ["lost"] * 3
+    states[4] = "recovered"  # inside the real absence: not this run's
+    result = longterm.longterm_scores(pred, states, gt, longterm.LongTermCriteria(window=5), [(12, 15)])
+    assert result["n_events"] == 1 and result["events"][0]["start"] == 12
+    assert result["absent_frames"] == 3 and result["false_reinit_absent"] == 0
+    assert result["absent_reported_lost"] == 3
+    everything = longterm.longterm_scores(pred, states, gt, longterm.LongTermCriteria(window=5))
+    assert everything["n_events"] == 2 and everything["false_reinit_absent"] == 1
+    with pytest.raises(ValueError, match="visible"):
+        longterm.longterm_scores(pred, states, gt, None, [(10, 15)])

@@ -73,3 +73,14 @@ def test_divergence_finds_the_first_frame_where_two_trackers_part():
     d = divergence(a, b, gt)
     assert d["first_apart"] == 2 and d["frames_apart"] == 2
     assert d["a_better"] == 2 and d["b_better"] == 0
+
+
+def test_frame_time_stats_leave_out_init_and_crashed_frames():
+    from jsar.eval.evaluate import frame_time_stats
+    seconds = np.array([5.0] + [0.010] * 98 + [0.100, np.nan])  # init 5 s, one slow update, a crash
+    stats = frame_time_stats(seconds)
+    assert stats["frame_ms_p50"] == pytest.approx(10.0)
+    assert stats["frame_ms_max"] == pytest.approx(100.0)
+    assert 10.0 < stats["frame_ms_p99"] < 100.0
+    assert stats["frame_ms_p99_over_p50"] == pytest.approx(stats["frame_ms_p99"] / 10.0)
+    assert np.isnan(frame_time_stats(np.array([1.0]))["frame_ms_p50"])

@@ -42,9 +42,23 @@ def truncated(sequence: dataset.Sequence, max_frames: int | None) -> dataset.Seq
                             sequence.groundtruth[:max_frames])
 
 
+def frame_time_stats(frame_seconds: np.ndarray) -> dict[str, float]:
+    """Per-frame time distribution (ms) of the update() calls (frame 0, init, left out; NaN frames,
+    after a crash, skipped): median, 99th percentile (linear interpolation), maximum, p99 / median."""
+    updates = np.asarray(frame_seconds, dtype=np.float64)[1:] * 1000.0
+    updates = updates[~np.isnan(updates)]
+    if updates.size == 0:
+        return {"frame_ms_p50": float("nan"), "frame_ms_p99": float("nan"), "frame_ms_max": float("nan"),
+                "frame_ms_p99_over_p50": float("nan")}
+    p50, p99 = (float(v) for v in np.percentile(updates, [50.0, 99.0]))
+    return {"frame_ms_p50": p50, "frame_ms_p99": p99, "frame_ms_max": float(updates.max()),
+            "frame_ms_p99_over_p50": p99 / p50 if p50 > 0 else float("nan")}
+
+
 def run_entry(run: TrackerRun, groundtruth: np.ndarray) -> dict[str, object]:
     """Scores and raw output of one tracker run."""
     entry = metrics.score(run.boxes, groundtruth)
+    entry.update(frame_time_stats(run.frame_seconds))
     entry.update({
         "published": False,
         "fps": run.fps,
@@ -118,6 +132,7 @@ def summarise(per_sequence: dict[str, object]) -> dict[str, dict[str, object]]:
             row.update({
                 "fps_mean": float(np.mean([e["fps"] for _, e in entries])),
                 "fps_frame_weighted": frames / seconds if seconds > 0 else float("nan"),
+                "frame_ms_p99_over_p50_worst": float(np.nanmax([e["frame_ms_p99_over_p50"] for _, e in entries])),
                 "errors": [f"{e['error'].splitlines()[0]} (frame {e['failed_at']})"
                            for _, e in entries if e["error"]],
             })
@@ -143,7 +158,8 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
                       progress: Callable[[int], None] | None = None,
                       max_frames: int | None = None) -> dict[str, object]:
     """Long-term evaluation: every tracker on every (sequence, event kind) with injected events
-    (events placed within the first max_frames frames when given)."""
+    (events placed within the first max_frames frames when given) or, for kind "real", on the
+    sequence as it is, scored on its own absent runs (sequences without one are skipped)."""
     factories = tracker_factories(tracker_names)
     criteria = criteria or longterm.LongTermCriteria()
     per_sequence: dict[str, object] = {}
@@ -151,12 +167,15 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
     for seq in (truncated(full, max_frames) for full in sequences):
         for kind in kinds:
             events = longterm.inject_events(seq, kind, lengths, seed, config)
+            if kind == "real" and not events.events:
+                continue
             runs = track_lockstep(events.frames(), len(events), events.groundtruth[0], factories,
                                   events.name, on_frame=(lambda: progress(1)) if progress else None)
             entries: dict[str, object] = {}
             for name, run in runs.items():
                 entry = run_entry(run, events.groundtruth)
-                lt = longterm.longterm_scores(run.boxes, run.states, events.groundtruth, criteria)
+                lt = longterm.longterm_scores(run.boxes, run.states, events.groundtruth, criteria,
+                                              events.scored_spans)
                 for event in lt["events"]:  # type: ignore[union-attr]
                     event["kind"] = kind
                 entry["longterm"] = lt

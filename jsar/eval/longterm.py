@@ -1,6 +1,7 @@
 """Long-term protocol: target-absent events injected into real sequences, and the metrics on them.
 
-Two kinds of event, each hiding the target for K frames and then letting it come back:
+Two kinds of injected event, each hiding the target for K frames and then letting it come back,
+and the sequence's own absent runs:
 
 - "occlusion": in every event frame the target region (the gt box enlarged by `margin`) is
   overwritten by a background patch of the same size copied from beside the target in that same
@@ -11,9 +12,16 @@ Two kinds of event, each hiding the target for K frames and then letting it come
   on the side away from the target; the shift is constant over the event (a camera that looked
   away and back), and the translated frame is the one the tracker sees.
 
-Ground truth is NaN (absent) inside an event. Event start frames are drawn from a seeded generator
-(seed and sequence name), after the first `first_start` frames, never overlapping, and each event is
-followed by at least `gap_after` visible frames so that re-acquisition can be measured. Frames are
+- "real": nothing injected; the events are the runs of NaN rows in the sequence's own ground truth
+  (full occlusion or out of view as annotated) that are followed by a visible frame. Sequences
+  without such a run have no "real" events.
+
+Ground truth is NaN (absent) inside an event. Injected event start frames are drawn from a seeded
+generator (seed and sequence name), after the first `first_start` frames, never overlapping, and
+each event is followed by at least `gap_after` visible frames so that re-acquisition can be
+measured; a placement that would touch one of the sequence's own absent frames is drawn again, so
+an injected event never hides or merges with a real one. Each event is scored in the run of its own
+kind only (`EventSequence.scored_spans`): a real absent run is one event, counted once. Frames are
 produced lazily from the original files; nothing is copied to disk.
 """
 from __future__ import annotations
@@ -28,8 +36,10 @@ import numpy as np
 from jsar.eval import metrics
 from jsar.eval.dataset import Sequence
 
-EventKind = Literal["occlusion", "out-of-view"]
-EVENT_KINDS: tuple[EventKind, ...] = ("occlusion", "out-of-view")
+EventKind = Literal["occlusion", "out-of-view", "real"]
+EVENT_KINDS: tuple[EventKind, ...] = ("occlusion", "out-of-view", "real")
+INJECTED_KINDS: tuple[EventKind, ...] = ("occlusion", "out-of-view")
+PLACEMENT_TRIES = 100  # draws of an injected placement before giving up on avoiding real absent runs
 DEFAULT_LENGTHS: tuple[int, ...] = (5, 15, 40)
 
 
@@ -79,8 +89,15 @@ class EventSequence:
     def __len__(self) -> int:
         return len(self.base)
 
+    @property
+    def scored_spans(self) -> list[tuple[int, int]]:
+        """[start, stop) frame spans this run is scored on: its own events (injected or real)."""
+        return [(e.start, e.stop) for e in self.events]
+
     def event_at(self, index: int) -> int | None:
-        """Index into `events` of the event covering frame `index`, or None."""
+        """Index into `events` of the injected event covering frame `index`, or None (real: None)."""
+        if self.kind == "real":
+            return None
         for k, span in enumerate(self.events):
             if span.start <= index < span.stop:
                 return k
@@ -139,6 +156,19 @@ def place_events(n_frames: int, lengths: tuple[int, ...], rng: np.random.Generat
         spans.append((start, length))
         cursor = start + length + gap_after
     return spans, dropped
+
+
+def place_clear_of_absent(visible: np.ndarray, lengths: tuple[int, ...], rng: np.random.Generator,
+                          first_start: int, gap_after: int) -> tuple[list[tuple[int, int]], list[int]]:
+    """place_events over len(visible) frames, drawn again (up to PLACEMENT_TRIES times) until no
+    event nor its gap_after frames touches a frame where `visible` (N,) bool is False; ValueError if
+    none fits. The first draw is kept when the sequence has no absent frame."""
+    for _ in range(PLACEMENT_TRIES):
+        spans, dropped = place_events(len(visible), lengths, rng, first_start, gap_after)
+        if all(visible[start:start + length + gap_after].all() for start, length in spans):
+            return spans, dropped
+    raise ValueError(f"no placement of events {lengths} clear of the sequence's absent frames in "
+                     f"{PLACEMENT_TRIES} draws")
 
 
 def enlarged_region(box: np.ndarray, shape: tuple[int, ...], margin: float,
@@ -233,10 +263,13 @@ def inject_events(sequence: Sequence, kind: str, lengths: tuple[int, ...] = DEFA
     if kind not in EVENT_KINDS:
         raise ValueError(f"unknown event kind {kind!r}; expected one of {', '.join(EVENT_KINDS)}")
     config = config or InjectionConfig()
-    lengths = tuple(int(v) for v in lengths)
-    spans, dropped = place_events(len(sequence), lengths, event_rng(seed, sequence.name),
-                                  config.first_start, config.gap_after)
     gt = np.array(sequence.groundtruth, dtype=np.float64)
+    if kind == "real":
+        real = tuple(EventSpan("real", start, stop - start) for start, stop in absent_spans(gt) if stop < len(gt))
+        return EventSequence(sequence, kind, real, gt, (), int(seed), config, ())
+    lengths = tuple(int(v) for v in lengths)
+    spans, dropped = place_clear_of_absent(metrics.visible_mask(gt), lengths, event_rng(seed, sequence.name),
+                                           config.first_start, config.gap_after)
     first = sequence.read_frame(0)
     events: list[EventSpan] = []
     fills: list[tuple[float, float]] = []
@@ -313,14 +346,18 @@ def box_jumps(predicted: np.ndarray, criteria: LongTermCriteria) -> np.ndarray:
 
 
 def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.ndarray,
-                    criteria: LongTermCriteria | None = None) -> dict[str, object]:
+                    criteria: LongTermCriteria | None = None,
+                    spans: list[tuple[int, int]] | None = None) -> dict[str, object]:
     """Re-acquisition and false re-initialisation counts for one run (boxes (N,4), states per frame).
 
-    Events are the absent runs of `groundtruth` followed by a visible frame. An event is re-acquired
+    Events are the absent runs of `groundtruth` followed by a visible frame, or the given `spans`
+    ([start, stop) frames, each absent in `groundtruth`): then only those frames count as absent
+    frames, so a run scores its own events only. An event is re-acquired
     if the box is on target (see on_target) at some frame in [reappear, reappear + window);
     frames_to_recover is that frame minus the reappearance frame. A false re-initialisation is an
     absent frame where the tracker reports "recovered" or its box jumps, or a visible frame where it
-    reports "recovered" with IoU 0 (re-initialised onto a wrong object).
+    reports "recovered" with IoU 0 (re-initialised onto a wrong object). absent_reported_lost counts
+    the absent frames on which the tracker said so (state "lost").
     """
     criteria = criteria or LongTermCriteria()
     pred = np.asarray(predicted, dtype=np.float64)
@@ -330,7 +367,16 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
     visible = metrics.visible_mask(groundtruth)
     n = len(pred)
     events = []
-    for start, stop in absent_spans(groundtruth):
+    if spans is None:
+        spans = absent_spans(groundtruth)
+        absent = ~visible
+    else:
+        absent = np.zeros(n, dtype=bool)
+        for start, stop in spans:
+            if visible[start:stop].any():
+                raise ValueError(f"event span [{start}, {stop}) has visible ground-truth frames")
+            absent[start:stop] = True
+    for start, stop in spans:
         if stop >= n:
             continue  # never reappears: no re-acquisition to measure
         window_end = min(stop + criteria.window, n)
@@ -342,7 +388,6 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
         })
     recovered_state = np.array([s == "recovered" for s in states], dtype=bool)
     jumps = box_jumps(pred, criteria)
-    absent = ~visible
     false_absent = absent & (recovered_state | jumps)
     overlaps = metrics.ious(pred, groundtruth)
     wrong_object = visible & recovered_state & (np.nan_to_num(overlaps, nan=1.0) == 0.0)
@@ -355,6 +400,7 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
         "absent_frames": int(absent.sum()),
         "false_reinit_absent": int(false_absent.sum()),
         "false_reinit_wrong_object": int(wrong_object.sum()),
+        "absent_reported_lost": int((absent & np.array([s == "lost" for s in states], dtype=bool)).sum()),
     }
 
 
@@ -366,6 +412,7 @@ def summarise_longterm(per_run: list[dict[str, object]]) -> dict[str, float | in
     absent = sum(int(r["absent_frames"]) for r in per_run)
     false_absent = sum(int(r["false_reinit_absent"]) for r in per_run)
     wrong = sum(int(r["false_reinit_wrong_object"]) for r in per_run)
+    reported = sum(int(r["absent_reported_lost"]) for r in per_run)
     return {
         "n_events": n_events,
         "reacquisition_rate": n_reacquired / n_events if n_events else None,
@@ -375,4 +422,5 @@ def summarise_longterm(per_run: list[dict[str, object]]) -> dict[str, float | in
         "false_reinit_rate": (false_absent + wrong) / absent if absent else None,
         "false_reinit_absent": false_absent,
         "false_reinit_wrong_object": wrong,
+        "absent_reported_lost_rate": reported / absent if absent else None,
     }

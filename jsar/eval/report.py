@@ -36,7 +36,8 @@ def _order(summary: dict[str, dict[str, object]]) -> list[str]:
 
 
 def format_sequence_table(result: dict[str, object]) -> str:
-    """Per sequence and tracker: precision@20px, AUC, fps, fps / CSRT."""
+    """Per sequence and tracker: precision@20px, AUC, fps, fps / CSRT, and the per-frame time
+    distribution of its update() calls: median, 99th percentile and maximum (ms), p99 / median."""
     summary = result["summary"]
     rows = []
     for seq_name, seq in result["sequences"].items():  # type: ignore[union-attr]
@@ -46,8 +47,11 @@ def format_sequence_table(result: dict[str, object]) -> str:
                 continue
             rows.append([seq_name, name + (" (published)" if entry["published"] else ""),
                          _fmt(entry["precision"]), _fmt(entry["auc"]),
-                         _fmt(entry.get("fps"), ".1f"), _fmt(entry.get("fps_ratio_vs_csrt"), ".2f")])
-    return _table(["sequence", "tracker", "prec@20", "AUC", "fps", "fps/CSRT"], rows)
+                         _fmt(entry.get("fps"), ".1f"), _fmt(entry.get("fps_ratio_vs_csrt"), ".2f"),
+                         _fmt(entry.get("frame_ms_p50"), ".1f"), _fmt(entry.get("frame_ms_p99"), ".1f"),
+                         _fmt(entry.get("frame_ms_max"), ".1f"), _fmt(entry.get("frame_ms_p99_over_p50"), ".2f")])
+    return _table(["sequence", "tracker", "prec@20", "AUC", "fps", "fps/CSRT", "ms p50", "ms p99", "ms max",
+                   "p99/p50"], rows)
 
 
 def format_summary_table(result: dict[str, object]) -> str:
@@ -58,9 +62,10 @@ def format_summary_table(result: dict[str, object]) -> str:
         row = summary[name]  # type: ignore[index]
         rows.append([name + (" (published)" if row["published"] else ""), str(row["sequences"]),
                      _fmt(row["precision"]), _fmt(row["auc"]), _fmt(row.get("fps_mean"), ".1f"),
-                     _fmt(row.get("fps_frame_weighted"), ".1f"), _fmt(row.get("fps_ratio_vs_csrt"), ".2f")])
+                     _fmt(row.get("fps_frame_weighted"), ".1f"), _fmt(row.get("fps_ratio_vs_csrt"), ".2f"),
+                     _fmt(row.get("frame_ms_p99_over_p50_worst"), ".2f")])
     text = _table(["tracker", "seqs", "mean prec@20", "mean AUC", "mean fps", "fps (frame-weighted)",
-                   "fps/CSRT"], rows)
+                   "fps/CSRT", "worst p99/p50"], rows)
     return text + _errors(summary)  # type: ignore[arg-type]
 
 
@@ -72,19 +77,21 @@ def format_longterm_table(result: dict[str, object]) -> str:
         lt = row["longterm"]
         by_length = ", ".join(f"{k}:{v['rate']:.2f}/{v['events']}"
                               for k, v in row["reacquisition_by_length"].items())
-        rows.append([name, f"{_fmt(lt['reacquisition_rate'], '.2f')} of {lt['n_events']}", by_length,
+        by_kind = ", ".join(f"{k}:{v['rate']:.2f}/{v['events']}" for k, v in row["reacquisition_by_kind"].items())
+        rows.append([name, f"{_fmt(lt['reacquisition_rate'], '.2f')} of {lt['n_events']}", by_length, by_kind,
                      _fmt(lt["mean_frames_to_recover"], ".1f"), _fmt(lt["median_frames_to_recover"], ".1f"),
                      f"{_fmt(lt['false_reinit_rate'], '.3f')} ({lt['false_reinit_absent']}+"
                      f"{lt['false_reinit_wrong_object']}/{lt['absent_frames']})",
+                     _fmt(lt["absent_reported_lost_rate"], ".2f"),
                      _fmt(row["precision"]), _fmt(row["auc"]), _fmt(row["fps_frame_weighted"], ".1f"),
                      _fmt(row.get("fps_ratio_vs_csrt"), ".2f")])
     criteria = result["criteria"]
     note = (f"re-acquired: on target (IoU > {criteria['min_iou']} or centre error <= "
             f"{criteria['max_centre_error_px']} px) within {criteria['window']} frames of reappearance; "
             f"false re-init: 'recovered' state or box jump while absent + 'recovered' onto IoU 0, "
-            f"per absent frame; by length = rate/events; seed {result['seed']}")
-    text = _table(["tracker", "re-acquired", "by length", "mean frames", "median frames",
-                   "false re-init (abs+wrong/absent)", "prec@20", "AUC", "fps", "fps/CSRT"], rows) + "\n" + note
+            f"per absent frame; by length / kind = rate/events (kind real = the ground truth's own absent runs); absent: lost = share of absent frames reported lost; seed {result['seed']}")
+    text = _table(["tracker", "re-acquired", "by length", "by kind", "mean frames", "median frames",
+                   "false re-init (abs+wrong/absent)", "absent: lost", "prec@20", "AUC", "fps", "fps/CSRT"], rows) + "\n" + note
     return text + _errors(summary)  # type: ignore[arg-type]
 
 

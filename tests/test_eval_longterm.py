@@ -109,6 +109,9 @@ def test_injected_events_keep_clear_of_real_absent_runs(sequence):
         events = longterm.inject_events(blocked, "occlusion", (3, 6), seed=seed, config=CONFIG)
         for span in events.events:
             assert span.stop + CONFIG.gap_after <= 12 or span.start >= 16, (seed, span)
+    # no room left around a long absent run: the longest length is dropped and reported, not hidden
+    crowded = longterm.inject_events(with_absent_run(sequence, 8, 30), "occlusion", (3, 20), seed=1, config=CONFIG)
+    assert [e.length for e in crowded.events] == [3] and crowded.dropped_lengths == (20,)
     # no absent frame: the first draw is kept, as before real runs were avoided
     plain = longterm.inject_events(sequence, "occlusion", (3, 6), seed=5, config=CONFIG)
     spans, _ = longterm.place_events(len(sequence), (3, 6), longterm.event_rng(5, sequence.name),

@@ -161,14 +161,18 @@ def place_events(n_frames: int, lengths: tuple[int, ...], rng: np.random.Generat
 def place_clear_of_absent(visible: np.ndarray, lengths: tuple[int, ...], rng: np.random.Generator,
                           first_start: int, gap_after: int) -> tuple[list[tuple[int, int]], list[int]]:
     """place_events over len(visible) frames, drawn again (up to PLACEMENT_TRIES times) until no
-    event nor its gap_after frames touches a frame where `visible` (N,) bool is False; ValueError if
-    none fits. The first draw is kept when the sequence has no absent frame."""
-    for _ in range(PLACEMENT_TRIES):
-        spans, dropped = place_events(len(visible), lengths, rng, first_start, gap_after)
-        if all(visible[start:start + length + gap_after].all() for start, length in spans):
-            return spans, dropped
-    raise ValueError(f"no placement of events {lengths} clear of the sequence's absent frames in "
-                     f"{PLACEMENT_TRIES} draws")
+    event nor its gap_after frames touches a frame where `visible` (N,) bool is False; when no draw
+    fits, the longest length is dropped (reported with the others that did not fit) and the rest
+    tried again. The first draw is kept when the sequence has no absent frame."""
+    kept = sorted(lengths)
+    dropped: list[int] = []
+    while kept:
+        for _ in range(PLACEMENT_TRIES):
+            spans, too_long = place_events(len(visible), tuple(kept), rng, first_start, gap_after)
+            if all(visible[start:start + length + gap_after].all() for start, length in spans):
+                return spans, dropped + too_long
+        dropped.append(kept.pop())
+    return [], dropped
 
 
 def enlarged_region(box: np.ndarray, shape: tuple[int, ...], margin: float,

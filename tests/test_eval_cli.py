@@ -61,7 +61,7 @@ def test_one_pass_eval_writes_table_json_and_plots(synthetic_root, tmp_path):
     assert (plots / "overall_success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_longterm_eval_reports_reacquisition(synthetic_root):
+def test_longterm_eval_reports_reacquisition(synthetic_root, tmp_path):
     seq = dataset.load_sequence(synthetic_root / "syn_a")
     config = longterm.InjectionConfig(first_start=2, gap_after=3)
     result = evaluate.evaluate_longterm([seq], ["kcf"], list(longterm.EVENT_KINDS), (3,), seed=3, config=config)
@@ -72,6 +72,8 @@ def test_longterm_eval_reports_reacquisition(synthetic_root):
     assert result["summary"]["kcf"]["reacquisition_by_length"]["3"]["events"] == 2
     table = report.format_longterm_table(result)
     assert "re-acquired" in table and "seed 3" in table and "kcf" in table
+    timeline = report.save_longterm_timeline(result, tmp_path / "timeline.png")
+    assert timeline.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_cli_errors_are_clear(synthetic_root):

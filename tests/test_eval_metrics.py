@@ -84,3 +84,11 @@ def test_frame_time_stats_leave_out_init_and_crashed_frames():
     assert 10.0 < stats["frame_ms_p99"] < 100.0
     assert stats["frame_ms_p99_over_p50"] == pytest.approx(stats["frame_ms_p99"] / 10.0)
     assert np.isnan(frame_time_stats(np.array([1.0]))["frame_ms_p50"])
+
+
+def test_timeline_codes_say_what_the_tracker_reported_and_where_the_box_was():
+    from jsar.eval.report import timeline_codes
+    states = ["tracking", "tracking", "lost", "recovered", "tracking"]
+    on_target = np.array([True, False, False, True, False])
+    visible = np.array([True, True, False, True, False])
+    assert timeline_codes(states, on_target, visible) == ["on", "off", "lost", "recovered", "absent"]

@@ -90,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"json: {args.json}")
     if args.plots:
         paths = report.save_plots(result, args.plots, "injected events" if args.longterm else "shared UAV sequences")
+        if args.longterm:
+            paths.append(report.save_longterm_timeline(result, args.plots / "longterm_timeline.png"))
         print(f"plots: {len(paths)} PNG in {args.plots}")
     return 0
 

@@ -151,6 +151,72 @@ def save_plots(result: dict[str, object], directory: Path | str, title: str = "s
     return written
 
 
+TIMELINE_COLOURS = {"absent": (0.80, 0.80, 0.80), "on": (0.20, 0.65, 0.30), "off": (0.85, 0.25, 0.20),
+                    "lost": (0.55, 0.75, 0.95), "recovered": (0.0, 0.0, 0.0)}
+
+
+def timeline_codes(states: list[str], on_target: np.ndarray, visible: np.ndarray) -> list[str]:
+    """Per frame, what the long-term timeline draws: "recovered", "lost" (the tracker said so), else
+    "absent" (target not in the ground truth), "on" / "off" (box on the target or not)."""
+    codes = []
+    for state, hit, seen in zip(states, on_target, visible):
+        if state in ("recovered", "lost"):
+            codes.append(state)
+        elif not seen:
+            codes.append("absent")
+        else:
+            codes.append("on" if hit else "off")
+    return codes
+
+
+def save_longterm_timeline(result: dict[str, object], path: Path | str) -> Path:
+    """One PNG: per (sequence + event kind) and tracker a strip over the frames, coloured by
+    timeline_codes, the ground truth's absent frames marked above each group."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    from jsar.eval import longterm
+
+    runs = list(result["sequences"].items())  # type: ignore[union-attr]
+    trackers = list(result["summary"])  # type: ignore[arg-type]
+    rows = len(runs) * (len(trackers) + 1)
+    fig, ax = plt.subplots(figsize=(9.0, 0.16 * rows + 1.0), dpi=80)
+    labels, ticks, row = [], [], 0
+    for name, seq in runs:
+        gt = np.asarray(seq["groundtruth"], dtype=np.float64)
+        visible = metrics.visible_mask(gt)
+        absent = [(i, 1) for i in np.flatnonzero(~visible)]
+        ax.broken_barh(absent, (row, 0.8), color=TIMELINE_COLOURS["absent"])
+        labels.append(name)
+        ticks.append(row + 0.4)
+        row += 1
+        for tracker in trackers:
+            entry = seq["trackers"][tracker]
+            hit = longterm.on_target(np.asarray(entry["boxes"], dtype=np.float64), gt, longterm.LongTermCriteria())
+            codes = timeline_codes(entry["states"], hit, visible)
+            for code, colour in TIMELINE_COLOURS.items():
+                frames = [(i, 1) for i, c in enumerate(codes) if c == code]
+                if frames:
+                    ax.broken_barh(frames, (row, 0.8), color=colour)
+            labels.append(f"  {tracker}")
+            ticks.append(row + 0.4)
+            row += 1
+    ax.set_yticks(ticks)
+    ax.set_yticklabels(labels, fontsize=6)
+    ax.invert_yaxis()
+    ax.set_xlabel("frame")
+    ax.legend(handles=[Patch(color=c, label=k) for k, c in TIMELINE_COLOURS.items()], fontsize=6, ncol=5,
+              loc="upper center", bbox_to_anchor=(0.5, 1.0 + 1.2 / rows), frameon=False)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def _jsonable(value: object) -> object:
     """numpy arrays / scalars -> lists / floats, NaN and inf -> None (strict JSON)."""
     if isinstance(value, dict):

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm bench instructions instructions-arm64 image check-arm64 check-systemd clean
+.PHONY: run test eval longterm ablation bench instructions instructions-arm64 image check-arm64 check-systemd clean
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml jsar/features/_kernels.c
@@ -31,6 +31,13 @@ eval: $(STAMP)
 
 longterm: $(STAMP)
 	$(PY) -m jsar.eval $(DATA) --longterm --trackers jsar-re,jsar,csrt --json out/longterm.json
+
+# JSAR-Re's additions one at a time (bench/ablation.py's VARIANTS), one pass + 4 long-term seeds: about an
+# hour on DATA. MORE=DIR runs the same on a second data root too (out/ablation-more.json).
+MORE ?=
+ablation: $(STAMP)
+	$(PY) -m bench.ablation $(DATA) --json out/ablation.json
+	$(if $(MORE),$(PY) -m bench.ablation $(MORE) --json out/ablation-more.json)
 
 bench: $(STAMP)
 	$(PY) -m bench.tracking $(DATA) --trackers jsar,csrt

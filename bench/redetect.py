@@ -1,18 +1,19 @@
-"""Cost of JSAR-Re's re-detection, one thread: `python -m bench.redetect DATA_ROOT [--frames N]`.
+"""Cost of a lost frame of JSAR-Re against a tracking frame, on one thread.
 
-`--size-blend` instead measures which re-initialisation size is best: on every sequence, every 10th
-frame after 30, re-detection is forced at the tracker's current box (omega 5) on the next frame and,
-where the best candidate lands on the target (centre error <= 20 px), the IoU with ground truth of
-the re-initialised box is compared for size blends 0 (last confident size) .. 1 (proposal's size).
+    python -m bench.redetect DATA_ROOT [--frames N] [--windows K]
 
-`--angles 0` times upright-only scoring (RedetectOptions.scoring_angles_deg) against the default.
 
-Per sequence: jsar-re tracks the first N frames normally (timing its confident frames), then on the
-next N frames re-detection is forced at the last confident box (proposals + decision-filter scoring,
-omega = 5 and omega = 10, no re-initialisation), and the track's verification check (one window) and
-a probation challenge (proposals around the track) are timed on the same frames; OpenCV's CSRT runs on the same frames in the same
-process for scale. Prints milliseconds per frame (median over frames, pooled over sequences) and
-the split between EdgeBoxes proposals and decision-filter scoring.
+Per sequence, jsar-re tracks frames 1..N as it would anywhere (each `update` timed: "tracking"
+frames), then on frames N+1..2N the ground-truth box, grown by a quarter of its side, is filled
+with the frame's mean colour (the target hidden), so the monitor declares a loss and every such
+frame runs the search: the core's locate around the predicted centre, the decision filter on the
+core's sample, and `windows_per_frame` lattice windows (SearchParams). Only frames reported "lost"
+count as lost frames. Two settings differ from the defaults: the monitor's warm-up is 0 (a loss may
+be declared before frame 30), and the acceptance hold-off outlasts the run, so that no candidate is
+taken and every hidden frame stays a search frame (holding off skips no work: a lost frame scores
+the same windows; taking a candidate would add a commit to that frame and end the search).
+`--windows` overrides the per-frame window budget.
+Prints the median ms per frame of both kinds, per sequence and pooled, and their ratio.
 """
 from __future__ import annotations
 
@@ -24,126 +25,109 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jsar.config import JsarParams  # noqa: E402
-from jsar.redetect.jsar_re import JsarReTracker, RedetectOptions, blend_size  # noqa: E402
-from jsar.redetect.proposals import generate_proposals  # noqa: E402
-
-
-def _sequences(root: Path) -> list[Path]:
-    return sorted(p for p in root.iterdir() if (p / "img").is_dir() and (p / "groundtruth_rect.txt").is_file())
+import jsar  # noqa: E402
+from jsar.eval.dataset import discover_sequences, load_sequence  # noqa: E402
+from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
 
 
 def _load(folder: Path, count: int) -> tuple[list[np.ndarray], tuple[float, float, float, float]]:
-    paths = sorted((folder / "img").glob("*.jpg"))[:count]
-    first = (folder / "groundtruth_rect.txt").read_text().split("\n")[0].replace("\t", ",")
-    x, y, w, h = (float(v) for v in first.split(","))
-    return [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths], (x - 1.0, y - 1.0, w, h)
+    """The first `count` frames (BGR) of an OTB-layout sequence and its first box (x, y, w, h) px, 0-based."""
+    sequence = load_sequence(folder)
+    frames = [sequence.read_frame(index) for index in range(min(count, len(sequence)))]
+    x, y, w, h = (float(v) for v in sequence.groundtruth[0])
+    return frames, (x, y, w, h)
 
 
-def _ms(fn) -> float:  # type: ignore[no-untyped-def]
+def hide_target(frame: np.ndarray, box: np.ndarray, margin_sides: float = 0.25) -> np.ndarray:
+    """A copy of `frame` with box (x, y, w, h) px, grown by margin_sides x sqrt(w*h) on each side,
+    filled with the frame's mean colour; the frame itself when the box is NaN (target not visible)."""
+    if np.isnan(box).any():
+        return frame
+    x, y, w, h = (float(v) for v in box)
+    margin = margin_sides * float(np.sqrt(w * h))
+    height, width = frame.shape[:2]
+    x0, y0 = max(int(x - margin), 0), max(int(y - margin), 0)
+    x1, y1 = min(int(np.ceil(x + w + margin)), width), min(int(np.ceil(y + h + margin)), height)
+    hidden = frame.copy()
+    hidden[y0:y1, x0:x1] = frame.reshape(-1, *frame.shape[2:]).mean(axis=0).astype(frame.dtype)
+    return hidden
+
+
+def searching_tracker(windows_per_frame: int | None = None) -> JsarReTracker:
+    """jsar-re that declares a loss from the first frame on (warm-up 0) and then searches without
+    taking any candidate (hold-off 10^9 lost frames); otherwise the defaults."""
+    redetect: dict[str, Any] = {"monitor": {"warmup_frames": 0}, "accept": {"holdoff_frames": 10**9}}
+    if windows_per_frame is not None:
+        redetect["search"] = {"windows_per_frame": windows_per_frame}
+    tracker = jsar.create("jsar-re", redetect=redetect)
+    assert isinstance(tracker, JsarReTracker)
+    return tracker
+
+
+def _timed(tracker: JsarReTracker, frame: np.ndarray) -> tuple[float, str]:
+    """(ms, state) of one `update`."""
     start = time.perf_counter()
-    fn()
-    return (time.perf_counter() - start) * 1e3
+    state = tracker.update(frame).state
+    return (time.perf_counter() - start) * 1e3, state
 
 
-def _groundtruth(folder: Path) -> np.ndarray:
-    rows = [line.replace("\t", ",").split(",") for line in (folder / "groundtruth_rect.txt").read_text().split("\n") if line.strip()]
-    gt = np.array([[float(v) for v in row] for row in rows])
-    gt[:, :2] -= 1.0  # MATLAB 1-based -> 0-based
-    return gt
+def measure(folder: Path, frames: int, windows_per_frame: int | None) -> dict[str, list[float]]:
+    """ms of the tracking frames among 1..frames and of the lost frames among frames+1..2*frames
+    (target hidden), and the lattice windows scored on each lost frame."""
+    sequence = load_sequence(folder)
+    count = min(2 * frames + 1, len(sequence))
+    images = [sequence.read_frame(index) for index in range(count)]
+    tracker = searching_tracker(windows_per_frame)
+    tracker.init(images[0], tuple(float(v) for v in sequence.groundtruth[0]))
+    found: dict[str, list[float]] = {"tracking": [], "lost": [], "windows": []}
+    for index in range(1, count):
+        visible = index <= frames
+        image = images[index] if visible else hide_target(images[index], sequence.groundtruth[index])
+        ms, state = _timed(tracker, image)
+        if visible and state == "tracking":
+            found["tracking"].append(ms)
+        elif not visible and state == "lost":
+            found["lost"].append(ms)
+            assert tracker.last_step is not None
+            found["windows"].append(float(tracker.last_step.windows))
+    return found
 
 
-def _iou(a: tuple[float, ...], b: np.ndarray) -> float:
-    iw = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+def _median(values: list[float]) -> float:
+    return float(np.median(values)) if values else float("nan")
 
 
-def size_blend_study(root: Path, blends: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)) -> None:
-    """Print the mean IoU of the re-initialised box per size blend (see the module docstring)."""
-    overlaps: dict[float, list[float]] = {b: [] for b in blends}
-    forced = 0
-    for folder in _sequences(root):
-        gt = _groundtruth(folder)
-        paths = sorted((folder / "img").glob("*.jpg"))
-        tracker = JsarReTracker(JsarParams.jsar_re(), RedetectOptions(size_blend=1.0))
-        tracker.init(cv2.imread(str(paths[0]), cv2.IMREAD_COLOR), tuple(gt[0]))
-        for index in range(1, len(paths) - 1):
-            tracker.update(cv2.imread(str(paths[index]), cv2.IMREAD_COLOR))
-            target = gt[index + 1]
-            if index < 30 or index % 10 or np.isnan(target).any():
-                continue
-            last = tracker.core.box
-            outcome = tracker.redetect(cv2.imread(str(paths[index + 1]), cv2.IMREAD_COLOR), last, 5.0, 0.0)
-            forced += 1
-            if outcome.box is None:
-                continue
-            x, y, w, h = outcome.box  # proposal's own size (blend 1), centred on the decision peak
-            cx, cy = x + w / 2, y + h / 2
-            if np.hypot(cx - target[0] - target[2] / 2, cy - target[1] - target[3] / 2) > 20:
-                continue
-            for blend in blends:
-                bw, bh = blend_size((w, h), (last[2], last[3]), blend)
-                overlaps[blend].append(_iou((cx - bw / 2, cy - bh / 2, bw, bh), target))
-    print(f"forced re-detections: {forced}, best candidate on target: {len(overlaps[blends[0]])}")
-    for blend in blends:
-        print(f"  size_blend {blend:.2f}: re-initialised box IoU mean {np.mean(overlaps[blend]):.3f}, "
-              f"median {np.median(overlaps[blend]):.3f}")
-
-
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data_root", type=Path)
-    parser.add_argument("--frames", type=int, default=20, help="confident frames, then as many re-detection frames")
-    parser.add_argument("--size-blend", action="store_true", help="compare re-initialisation sizes instead")
-    parser.add_argument("--angles", default=None,
-                        help="comma-separated scoring angles in degrees (default: RedetectOptions' own)")
-    args = parser.parse_args()
+    parser.add_argument("--frames", type=int, default=20,
+                        help="tracking frames, then as many frames with the target hidden")
+    parser.add_argument("--windows", type=int, default=None,
+                        help="lattice windows per lost frame (default: SearchParams.windows_per_frame)")
+    args = parser.parse_args(argv)
+    if args.frames < 1:
+        parser.error("--frames must be >= 1")
     cv2.setNumThreads(1)
-    if args.size_blend:
-        size_blend_study(args.data_root)
-        return
-    options = RedetectOptions() if args.angles is None else RedetectOptions(
-        scoring_angles_deg=tuple(float(a) for a in args.angles.split(",")))
-    print(f"scoring angles (degrees): {options.scoring_angles_deg}")
-    timings: dict[str, list[float]] = {k: [] for k in ("confident", "csrt", "redetect5", "proposals5", "scoring5",
-                                                       "redetect10", "verify", "challenge")}
-    for folder in _sequences(args.data_root):
-        frames, box = _load(folder, 2 * args.frames + 1)
-        tracker = JsarReTracker(JsarParams.jsar_re(), options)
-        tracker.init(frames[0], box)
-        csrt = cv2.TrackerCSRT_create()
-        csrt.init(frames[0], tuple(int(round(v)) for v in box))
-        for frame in frames[1:args.frames + 1]:
-            timings["confident"].append(_ms(lambda: tracker.update(frame)))
-            timings["csrt"].append(_ms(lambda: csrt.update(frame)))
-        last = tracker.core.box
-        centre, size = (last[0] + last[2] / 2, last[1] + last[3] / 2), (last[2], last[3])
-        for frame in frames[args.frames + 1:]:
-            timings["redetect5"].append(_ms(lambda: tracker.redetect(frame, last, 5.0, 0.02)))
-            timings["redetect10"].append(_ms(lambda: tracker.redetect(frame, last, 10.0, 0.02)))
-            holder: list = []
-            timings["proposals5"].append(_ms(lambda: holder.append(generate_proposals(
-                frame, centre, size, 5.0, tracker._edgeboxes, tracker._edges))))
-            # the track's periodic verification check (every 10th committed frame) and a probation frame's
-            # challenge (after re-initialisations, or on a doubtful check)
-            timings["verify"].append(_ms(lambda: tracker.score_track(frame)))
-            timings["challenge"].append(_ms(lambda: tracker.challenge(frame, float("inf"))))
-            boxes = holder[0].boxes
-            if len(boxes):
-                timings["scoring5"].append(_ms(lambda: tracker.score_proposals(frame, boxes, size)))
-        print(f"{folder.name:28s} confident {np.median(timings['confident'][-args.frames:]):6.1f} ms  "
-              f"re-detection (omega 5) {np.median(timings['redetect5'][-args.frames:]):6.1f} ms", flush=True)
-    print("\nmedian ms per frame over all sequences (one thread):")
-    for key, values in timings.items():
-        print(f"  {key:12s} {np.median(values):7.1f} ms   (p90 {np.percentile(values, 90):7.1f})")
-    print(f"  re-detection frame (omega 5) / confident frame: {np.median(timings['redetect5']) / np.median(timings['confident']):.1f}x")
+    pooled: dict[str, list[float]] = {"tracking": [], "lost": [], "windows": []}
+    print(f"{'sequence':28s} {'tracking ms':>11s} {'lost ms':>8s} {'ratio':>6s} {'lost frames':>12s} {'windows':>8s}")
+    for folder in discover_sequences(args.data_root):
+        found = measure(folder, args.frames, args.windows)
+        for key, values in found.items():
+            pooled[key].extend(values)
+        tracking, lost = _median(found["tracking"]), _median(found["lost"])
+        print(f"{folder.name:28s} {tracking:11.1f} {lost:8.1f} {lost / tracking:5.1f}x "
+              f"{len(found['lost']):5d} of {args.frames:<4d} {_median(found['windows']):8.0f}", flush=True)
+    tracking, lost = _median(pooled["tracking"]), _median(pooled["lost"])
+    print(f"\npooled median ms per frame (one thread): tracking {tracking:.1f} "
+          f"({len(pooled['tracking'])} frames), lost {lost:.1f} ({len(pooled['lost'])} frames); "
+          f"lost / tracking {lost / tracking:.2f}x")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -81,33 +81,14 @@ class JsarParams:
     strcf_num_scales: int = 5
     strcf_scale_step: float = 1.01
 
-    # --- JSAR-Re failure monitor and re-detection (used by jsar.redetect) ---
-    redetect_enable_peak: float = 0.0105  # zeta_e: re-detect when peak < this (notes' code: 0.01)
-    redetect_reliable_peak: float = 0.013  # zeta_s: decision filter trained when peak > this
-    redetect_accept_score: float = 0.02  # eta_d at the first failed frame
-    redetect_area_factor: float = 5.0  # omega: proposal square side = omega * sqrt(w*h)
-    redetect_num_proposals: int = 30  # N_e
-    redetect_area_growth: float = 1.05  # omega *= this per failed frame
-    redetect_accept_decay: float = 1.005  # eta_d /= this per failed frame
-    redetect_min_frame: int = 30  # monitor active only after this many frames
-    redetect_min_area: float = 100.0  # px^2: monitor active for 100 < w*h < 20000
-    redetect_max_area: float = 20000.0
-    redetect_edge_model_path: str | None = None  # optional StructuredEdgeDetection model file
-
     @classmethod
     def jsar_re(cls, **overrides: Any) -> "JsarParams":
         """The JSAR-Re defaults (lambda 1, sigma factor 0.054, aspect sigma sqrt(13)*1.7) + overrides.
-
-        redetect_min_area is 16 px^2, not the original's 100: its EdgeBoxes could not propose boxes
-        under 1000 px^2 anyway, ours scales that minimum with the target (issue: small targets must be
-        recoverable). With 100, the 8x10-px wakeboard10 rider was never eligible: every unconfident
-        frame was committed and the tracker drifted onto the water (long-term protocol, seed 1: 3 of 6
-        events there missed; with 16 all 6 recovered)."""
+        JSAR-Re's own parameters (monitor, search, acceptance) are jsar.redetect.params.RedetectParams."""
         base = cls(
             admm_lambda=1.0,
             output_sigma_factor=0.054,
             size_sigma_aspect=math.sqrt(13) * 1.7,
-            redetect_min_area=16.0,
         )
         return base.with_overrides(**overrides)
 
@@ -129,18 +110,17 @@ class JsarParams:
             "reg_window_inside", "reg_window_outside", "admm_iterations", "admm_penalty_init",
             "admm_penalty_max", "num_scales", "num_aspects", "size_model_max_area",
             "size_model_min_side", "size_sigma_scale", "size_sigma_aspect", "min_target_side_px",
-            "strcf_num_scales", "redetect_area_factor", "redetect_num_proposals",
+            "strcf_num_scales",
         ]
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        non_negative = ["admm_lambda", "temporal_mu", "newton_iterations", "size_lambda", "size_deadband_cells",
-                        "redetect_min_frame", "redetect_min_area"]
+        non_negative = ["admm_lambda", "temporal_mu", "newton_iterations", "size_lambda", "size_deadband_cells"]
         for name in non_negative:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         at_least_one = ["admm_penalty_growth", "scale_step", "aspect_step", "aspect_band",
-                        "strcf_scale_step", "redetect_area_growth", "redetect_accept_decay"]
+                        "strcf_scale_step"]
         for name in at_least_one:
             if not getattr(self, name) >= 1.0:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
@@ -153,8 +133,6 @@ class JsarParams:
         for name in ("num_scales", "num_aspects", "strcf_num_scales"):
             if getattr(self, name) % 2 == 0:
                 raise ValueError(f"{name} must be odd (a centre sample), got {getattr(self, name)}")
-        if self.redetect_max_area <= self.redetect_min_area:
-            raise ValueError("redetect_max_area must exceed redetect_min_area")
 
 
 def _coerce(key: str, value: Any, default: Any) -> Any:

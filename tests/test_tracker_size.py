@@ -235,14 +235,25 @@ def test_side_bounds_reject_empty_or_non_finite_ranges(bounds):
         JsarTracker().set_side_bounds(bounds)
 
 
-def test_jsar_re_reinitialises_within_the_side_bounds_about_the_proposal_centre():
+@pytest.mark.parametrize("reacquire", ["relocate", "retrain"])
+def test_jsar_re_reacquires_within_the_side_bounds(reacquire):
+    """A re-acquisition keeps the box side within the bounds (here above the last confident side of
+    60 px) and the last aspect ratio: "retrain" re-initialises there, centred on the candidate;
+    "relocate" moves the filters there and commits that frame (which finds the car itself)."""
     from jsar.redetect.jsar_re import JsarReTracker
+    from jsar.redetect.params import RedetectParams
+    from jsar.redetect.search import Candidate
 
-    tracker = JsarReTracker()
+    tracker = JsarReTracker(redetect=RedetectParams.from_mapping({"accept": {"reacquire": reacquire}}))
     frame = _textured_scene((90.0, 40.0))
     tracker.init(frame, (275.0, 220.0, 90.0, 40.0))
-    tracker.set_side_bounds((50.0, 70.0))
-    tracker._reinitialise(frame, (300.0, 230.0, 20.0, 10.0), bar=0.0)  # a 20x10 proposal: side 14
+    tracker.set_side_bounds((70.0, 80.0))
+    tracker._reacquire(frame, Candidate(330.0, 245.0, 1.0))  # 10, 5 px off the car's centre (320, 240)
     x, y, w, h = tracker.core.box
-    assert np.sqrt(w * h) == pytest.approx(50.0) and w / h == pytest.approx(2.0)
-    assert (x + w / 2, y + h / 2) == pytest.approx((310.0, 235.0))
+    assert np.sqrt(w * h) == pytest.approx(70.0) and w / h == pytest.approx(90.0 / 40.0, rel=0.01)
+    centre = (x + w / 2, y + h / 2)
+    if reacquire == "retrain":
+        assert centre == pytest.approx((330.0, 245.0))
+    else:
+        assert np.hypot(centre[0] - 320.0, centre[1] - 240.0) < 2.0
+    assert tracker.reacquisitions == 1 and tracker.monitor.reference is None

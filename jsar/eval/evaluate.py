@@ -32,6 +32,16 @@ def tracker_factories(names: list[str], overrides: dict[str, dict] | None = None
     return {n: (lambda n=n: jsar.create(n, **overrides.get(n, {}))) for n in names}
 
 
+def chosen_factories(tracker_names: list[str], factories: dict[str, Callable[[], Tracker]] | None
+                     ) -> dict[str, Callable[[], Tracker]]:
+    """`factories` when given (its names must be exactly `tracker_names`), else tracker_factories(tracker_names)."""
+    if factories is None:
+        return tracker_factories(tracker_names)
+    if sorted(factories) != sorted(tracker_names):
+        raise ValueError(f"factories for {sorted(factories)} but trackers {sorted(tracker_names)}")
+    return factories
+
+
 def truncated(sequence: dataset.Sequence, max_frames: int | None) -> dataset.Sequence:
     """The first `max_frames` frames of `sequence` (all of them when None)."""
     if max_frames is None or max_frames >= len(sequence):
@@ -77,13 +87,15 @@ def run_entry(run: TrackerRun, groundtruth: np.ndarray) -> dict[str, object]:
 def evaluate(sequences: list[dataset.Sequence], tracker_names: list[str],
              published_dir: Path | None = None,
              progress: Callable[[int], None] | None = None,
-             max_frames: int | None = None) -> dict[str, object]:
+             max_frames: int | None = None,
+             factories: dict[str, Callable[[], Tracker]] | None = None) -> dict[str, object]:
     """One-pass evaluation of every tracker (and published result) on every sequence.
 
     max_frames: score only the first N frames (published files are checked against the full
-    sequence, then cut to the same N frames).
+    sequence, then cut to the same N frames). factories: name -> zero-argument factory for trackers
+    that are not jsar.create's defaults (e.g. bench.ablation's variants); names as tracker_names.
     """
-    factories = tracker_factories(tracker_names)
+    factories = chosen_factories(tracker_names, factories)
     published = dataset.published_trackers(published_dir) if published_dir else []
     clash = set(published) & set(tracker_names)
     if clash:
@@ -156,11 +168,13 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
                       criteria: longterm.LongTermCriteria | None = None,
                       config: longterm.InjectionConfig | None = None,
                       progress: Callable[[int], None] | None = None,
-                      max_frames: int | None = None) -> dict[str, object]:
+                      max_frames: int | None = None,
+                      factories: dict[str, Callable[[], Tracker]] | None = None) -> dict[str, object]:
     """Long-term evaluation: every tracker on every (sequence, event kind) with injected events
     (events placed within the first max_frames frames when given) or, for kind "real", on the
-    sequence as it is, scored on its own absent runs (sequences without one are skipped)."""
-    factories = tracker_factories(tracker_names)
+    sequence as it is, scored on its own absent runs (sequences without one are skipped).
+    factories: as in evaluate()."""
+    factories = chosen_factories(tracker_names, factories)
     criteria = criteria or longterm.LongTermCriteria()
     per_sequence: dict[str, object] = {}
     lt_runs: dict[str, list[dict[str, object]]] = {n: [] for n in tracker_names}

@@ -1,9 +1,10 @@
-"""JSAR-Re: failure monitoring, EdgeBoxes re-detection and re-initialisation on top of JSAR.
+"""JSAR-Re: failure monitoring, re-detection by the decision filter and re-acquisition on top of JSAR.
 
-- `edges`: gradient edge magnitude / orientation maps in the convention cv2.ximgproc.EdgeBoxes
-  expects (optional OpenCV structured-edge model via `StructuredEdges`);
-- `proposals`: EdgeBoxes proposals in the omega-square around the last position (full-frame boxes);
-- `monitor`: the failure-monitor state machine (pure, no I/O);
-- `jsar_re`: `JsarReTracker` (Algorithm 1) and the registry factory `make_jsar_re` ("jsar-re").
-Re-detection cost and the re-initialisation size study: `python -m bench.redetect`.
+- `jsar_re`: `JsarReTracker` (the orchestrator) and the registry factory `make_jsar_re` ("jsar-re");
+- `monitor`: the failure monitor's per-frame verdicts (pure, no I/O);
+- `search`: the budgeted lattice search while lost, the acceptance bar and the motion gate (pure);
+- `memory`: the decision filter, scoring the core's detection sample and lattice windows;
+- `params`: `RedetectParams` (monitor / search / accept groups, errors naming the key);
+- `edges`, `proposals`: EdgeBoxes object proposals (the service's click-to-box), not used by the tracker.
+Cost of a lost frame against a tracking frame: `python -m bench.redetect`.
 """

@@ -165,6 +165,16 @@ class JsarTracker:
         box = validate_box(box, image.shape)
         self._setup(image, box)
 
+    def relocate(self, center_xy: tuple[float, float]) -> None:
+        """Move the target's centre to center_xy px, keeping the size and every filter as they are
+        (the target was found again elsewhere; nothing is learnt from this frame)."""
+        if not self._initialised:
+            raise RuntimeError("tracker used before init(frame, box)")
+        cx, cy = (float(v) for v in center_xy)
+        if not (math.isfinite(cx) and math.isfinite(cy)):
+            raise ValueError(f"centre must be finite, got {center_xy}")
+        self.center_xy = (cx, cy)
+
     def target_cells(self) -> tuple[float, float]:
         """Target (h, w) in feature cells of the translation filter's search patch."""
         return self._target_cells()

@@ -1,0 +1,249 @@
+"""JSAR-Re's parameters: one nested, typed set with one default per value.
+
+The core tracker's parameters (features, filters, size filter) stay in `jsar.config.JsarParams`;
+everything JSAR-Re adds lives here, grouped by the part that uses it:
+
+- `monitor`: when a frame is confident (commit), reliable (train the decision filter), or a loss;
+- `search`: where the decision filter looks while the target is lost, and how much per frame;
+- `accept`: when a candidate is taken, and what taking it does.
+
+Thresholds on response peaks are raw values in the MATLAB FFT convention (see jsar.config), the
+unit of the paper's zeta_e, zeta_s and eta_d; distances and areas are in target sides sqrt(w*h)
+unless a name says px. `RedetectParams.from_mapping` builds a set from nested dicts (jsar.create,
+the service's config.yaml) and names the offending key, e.g. `redetect.search.windows_per_frame`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal, Mapping
+
+InsideRule = Literal["full", "centre"]
+Reacquire = Literal["relocate", "retrain"]
+
+
+@dataclass(frozen=True)
+class MonitorParams:
+    """Failure monitor (monitor.py): confident, reliable, eligible; peaks in raw response units."""
+
+    enable_peak: float = 0.0105  # zeta_e: a frame below it is not confident (paper; the authors' code 0.01)
+    reliable_peak: float = 0.013  # zeta_s: the decision filter trains on frames above it (paper)
+    relative_drop: float = 0.6  # not confident either below this x the running reference (0: paper's rule only)
+    reliable_fraction: float = 0.7  # reliable also needs this x the reference (0: zeta_s alone)
+    reference_rate: float = 0.1  # running reference's update rate towards a higher peak
+    reference_fall_rate: float = 0.02  # ... towards a lower one (slow: a gradual occlusion must not drag it)
+    warmup_frames: int = 30  # no loss is declared before this frame (the authors' "after frame 30")
+    min_area_px2: float = 16.0  # losses are declared only for min_area < w*h < max_area (px^2)
+    max_area_px2: float = 20000.0
+    inside_rule: InsideRule = "full"  # ... and for a box wholly inside the image ("centre": its centre)
+
+    def validate(self, prefix: str = "monitor") -> None:
+        """Raise ValueError naming `prefix.key` of the first invalid value."""
+        _require(prefix, "enable_peak", 0 < self.enable_peak <= self.reliable_peak,
+                 f"0 < enable_peak <= reliable_peak, got {self.enable_peak}, {self.reliable_peak}")
+        _require(prefix, "relative_drop", 0 <= self.relative_drop < 1, f"0 <= value < 1, got {self.relative_drop}")
+        _require(prefix, "reliable_fraction", 0 <= self.reliable_fraction < 1,
+                 f"0 <= value < 1, got {self.reliable_fraction}")
+        for key in ("reference_rate", "reference_fall_rate"):
+            value = getattr(self, key)
+            _require(prefix, key, 0 < value <= 1, f"0 < value <= 1, got {value}")
+        _require(prefix, "warmup_frames", self.warmup_frames >= 0, f">= 0, got {self.warmup_frames}")
+        _require(prefix, "min_area_px2", 0 <= self.min_area_px2 < self.max_area_px2,
+                 f"0 <= min_area_px2 < max_area_px2, got {self.min_area_px2}, {self.max_area_px2}")
+        _require(prefix, "inside_rule", self.inside_rule in ("full", "centre"),
+                 f"'full' or 'centre', got {self.inside_rule!r}")
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    """Where the decision filter looks while the target is lost (search.py).
+
+    Windows are the decision filter's own sample geometry (a square of search_area_factor target
+    sides, at the last confident size) centred on a square lattice of stride `stride_sides` around
+    the last confident centre, nearest rings first, within a square of side `area_sides` (the
+    paper's omega: area_start, x area_growth per lost frame, up to area_max). The centre moves on
+    with the target's last velocity (constant, for at most predict_max_frames lost frames), so a
+    target lost while moving fast is looked for where it went. The window on that centre (upright)
+    is the core tracker's own detection sample, scored every lost frame at no extra feature cost.
+    Every lattice window, and the centre's, is also scored with the image turned by each of
+    `turned_angles_deg` (a car that turned at a junction or under a bridge no longer matches the
+    filter's gradient orientations), its score x turned_score_factor. `windows_per_frame` of these
+    windows (upright or turned) are scored per lost frame, cycling through them ring by ring
+    (search.search_cycle): the per-frame budget that bounds a lost frame's cost."""
+
+    area_start_sides: float = 5.0  # omega_0 (paper)
+    area_growth: float = 1.05  # omega *= this per lost frame (paper)
+    area_max_sides: float = 15.0  # the paper lets omega grow without bound
+    stride_sides: float = 2.5  # lattice stride (target sides): half a 5-side window
+    windows_per_frame: int = 6  # budget: windows (upright or turned) per lost frame (0: the core's window only)
+    turned_angles_deg: tuple[float, ...] = (45.0, -45.0)  # every window also scored turned by these ...
+    turned_score_factor: float = 0.9  # ... its score x this (an upright match should win: it keeps the pre-loss filters)
+    coast_radius_sides: float = 0.5  # while lost the core follows its detection (as plain JSAR) within this of the prediction (0: never)
+    motion_frames: int = 5  # the search follows the target's velocity over its last this-many committed frames ...
+    predict_max_frames: int = 3  # ... for at most this many lost frames, then holds (0: the last centre)
+
+    def validate(self, prefix: str = "search") -> None:
+        """Raise ValueError naming `prefix.key` of the first invalid value."""
+        _require(prefix, "area_start_sides", self.area_start_sides > 0, f"> 0, got {self.area_start_sides}")
+        _require(prefix, "area_growth", self.area_growth >= 1, f">= 1, got {self.area_growth}")
+        _require(prefix, "area_max_sides", self.area_max_sides >= self.area_start_sides,
+                 f">= area_start_sides, got {self.area_max_sides} < {self.area_start_sides}")
+        _require(prefix, "stride_sides", self.stride_sides > 0, f"> 0, got {self.stride_sides}")
+        _require(prefix, "windows_per_frame", self.windows_per_frame >= 0, f">= 0, got {self.windows_per_frame}")
+        _require(prefix, "turned_angles_deg", all(-180 < a <= 180 and a != 0 for a in self.turned_angles_deg),
+                 f"angles in (-180, 180] other than 0 (degrees), got {self.turned_angles_deg}")
+        _require(prefix, "turned_score_factor", 0 < self.turned_score_factor <= 1,
+                 f"0 < value <= 1, got {self.turned_score_factor}")
+        _require(prefix, "coast_radius_sides", self.coast_radius_sides >= 0, f">= 0, got {self.coast_radius_sides}")
+        _require(prefix, "motion_frames", self.motion_frames >= 2, f">= 2, got {self.motion_frames}")
+        _require(prefix, "predict_max_frames", self.predict_max_frames >= 0, f">= 0, got {self.predict_max_frames}")
+
+
+@dataclass(frozen=True)
+class AcceptParams:
+    """When a candidate is taken (its decision-filter score) and what taking it does.
+
+    bar = max(accept_peak / accept_decay^t, reference x max(accept_floor, accept_fraction /
+    accept_decay^t)) after t failed frames, reference = the running mean of the decision filter's
+    peaks on the frames it learnt. The paper's eta_d is the absolute accept_peak (0.02) decaying by
+    1.005 per failed frame. Relative to how the target scored, the bar starts high (right after a
+    loss the nearest thing to score is the occluder, or the background where the target was) and
+    relaxes to accept_floor as the loss goes on (the target may come back changed). A candidate is taken after it passes the bar on
+    `confirm_frames` consecutive frames within `confirm_radius_sides` of where it was. Taking it
+    either moves the core tracker there with its filters as they were before the loss ("relocate":
+    nothing was learnt while lost) or retrains them from that one frame ("retrain", the paper).
+    `holdoff_frames`: no candidate is taken on the first this-many lost frames. The motion gate: a
+    candidate farther from the predicted centre than gate_base + gate_speed_factor x speed x lost
+    frames (target sides; speed = the target's last speed in sides per frame, at least
+    gate_min_speed) is not taken: a look-alike nearby is not where the target can be yet.
+    While tracking, the decision filter also scores the core's own detection sample every frame (no
+    extra features); below `doubt_fraction` x its reference the track is in doubt: the decision
+    filter stops learning and the search runs around the track, where a candidate must also beat
+    `switch_margin` x the track's own score to move the track (0 doubt_fraction: never).
+    A re-acquisition from a loss that is lost again within `probation_frames` did not hold: the
+    search it ended resumes (the tracker as it was before it), and a candidate near the refuted
+    place must score refute_margin x what the refuted one scored."""
+
+    accept_peak: float = 0.0  # eta_d, absolute part (paper 0.02; 0: relative only)
+    accept_fraction: float = 0.5  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
+    accept_decay: float = 1.005  # ... divided by this per lost frame (paper's value, there on the absolute eta_d) ...
+    accept_floor: float = 0.45  # ... down to this
+    confirm_frames: int = 1
+    confirm_radius_sides: float = 1.5
+    holdoff_frames: int = 5
+    reacquire: Reacquire = "relocate"
+    doubt_fraction: float = 0.0
+    learn_on_probation: bool = True  # the decision filter also learns a re-acquired track before its probation ends
+    learn_fraction: float = 0.0  # the decision filter learns a reliable frame only above this x its reference (0: the paper)
+    gate_base_sides: float = 1.5  # a candidate must lie within base + speed_factor x speed x lost frames ...
+    gate_speed_factor: float = 3.0  # ... target sides of the predicted centre, speed in sides per frame ...
+    gate_min_speed: float = 0.05  # ... at least this (inf base: no gate)
+    switch_margin: float = 1.3
+    probation_frames: int = 10  # a re-acquisition lost again within this many frames is refuted (0: never) ...
+    refute_margin: float = 1.2  # ... and its place must then score this x its score to be taken again
+
+    def validate(self, prefix: str = "accept") -> None:
+        """Raise ValueError naming `prefix.key` of the first invalid value."""
+        _require(prefix, "accept_peak", self.accept_peak >= 0, f">= 0, got {self.accept_peak}")
+        _require(prefix, "accept_fraction", 0 <= self.accept_fraction <= 1, f"0 <= value <= 1, got {self.accept_fraction}")
+        _require(prefix, "accept_peak", self.accept_peak > 0 or self.accept_fraction > 0,
+                 "accept_peak and accept_fraction cannot both be 0 (every candidate would pass)")
+        _require(prefix, "accept_decay", self.accept_decay >= 1, f">= 1, got {self.accept_decay}")
+        _require(prefix, "accept_floor", 0 <= self.accept_floor <= self.accept_fraction,
+                 f"0 <= accept_floor <= accept_fraction, got {self.accept_floor}, {self.accept_fraction}")
+        _require(prefix, "confirm_frames", self.confirm_frames >= 0, f">= 0, got {self.confirm_frames}")
+        _require(prefix, "confirm_radius_sides", self.confirm_radius_sides > 0, f"> 0, got {self.confirm_radius_sides}")
+        _require(prefix, "holdoff_frames", self.holdoff_frames >= 0, f">= 0, got {self.holdoff_frames}")
+        _require(prefix, "reacquire", self.reacquire in ("relocate", "retrain"),
+                 f"'relocate' or 'retrain', got {self.reacquire!r}")
+        _require(prefix, "learn_fraction", 0 <= self.learn_fraction < 1, f"0 <= value < 1, got {self.learn_fraction}")
+        _require(prefix, "doubt_fraction", 0 <= self.doubt_fraction < 1, f"0 <= value < 1, got {self.doubt_fraction}")
+        _require(prefix, "switch_margin", self.switch_margin >= 1, f">= 1, got {self.switch_margin}")
+        _require(prefix, "probation_frames", self.probation_frames >= 0, f">= 0, got {self.probation_frames}")
+        _require(prefix, "refute_margin", self.refute_margin >= 1, f">= 1, got {self.refute_margin}")
+        for key in ("gate_base_sides", "gate_speed_factor", "gate_min_speed"):
+            value = getattr(self, key)
+            _require(prefix, key, value >= 0, f">= 0, got {value}")
+
+
+@dataclass(frozen=True)
+class RedetectParams:
+    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance (see their classes)."""
+
+    monitor: MonitorParams = field(default_factory=MonitorParams)
+    search: SearchParams = field(default_factory=SearchParams)
+    accept: AcceptParams = field(default_factory=AcceptParams)
+
+    def validate(self, prefix: str = "redetect") -> None:
+        """Raise ValueError naming the first invalid key as prefix.group.key."""
+        self.monitor.validate(f"{prefix}.monitor")
+        self.search.validate(f"{prefix}.search")
+        self.accept.validate(f"{prefix}.accept")
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any] | None, prefix: str = "redetect") -> "RedetectParams":
+        """Defaults with nested overrides {group: {key: value}}; ValueError naming prefix.group.key."""
+        params = cls()
+        if mapping is None:
+            return params
+        if not isinstance(mapping, Mapping):
+            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept), got {mapping!r}")
+        groups = {f.name: getattr(params, f.name) for f in dataclasses.fields(cls)}
+        replaced: dict[str, Any] = {}
+        for group, values in mapping.items():
+            if group not in groups:
+                raise ValueError(f"unknown key {prefix}.{group}; expected one of {', '.join(groups)}")
+            replaced[group] = _with_overrides(groups[group], values, f"{prefix}.{group}")
+        params = dataclasses.replace(params, **replaced)
+        params.validate(prefix)
+        return params
+
+    def with_overrides(self, **groups: Mapping[str, Any]) -> "RedetectParams":
+        """A copy with {group: {key: value}} overrides applied (the ablation's switch)."""
+        replaced = {group: _with_overrides(getattr(self, group), values, f"redetect.{group}")
+                    for group, values in groups.items()}
+        params = dataclasses.replace(self, **replaced)
+        params.validate()
+        return params
+
+
+def _with_overrides(group: Any, values: Any, prefix: str) -> Any:
+    """`group` (a frozen dataclass) with `values` {key: value} applied, types coerced."""
+    if not isinstance(values, Mapping):
+        raise ValueError(f"{prefix} must be a mapping of keys, got {values!r}")
+    known = {f.name for f in dataclasses.fields(group)}
+    coerced = {}
+    for key, value in values.items():
+        if key not in known:
+            raise ValueError(f"unknown key {prefix}.{key}; expected one of {', '.join(sorted(known))}")
+        coerced[key] = _coerce(f"{prefix}.{key}", value, getattr(group, key))
+    return dataclasses.replace(group, **coerced)
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """`value` as the type of `default`, or ValueError naming `name`."""
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{name} must be a list of numbers, got {value!r}")
+        return tuple(_coerce(name, v, 0.0) for v in value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ValueError(f"{name} must be a string, got {value!r}")
+        return value
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be a bool, got {value!r}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        return int(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _require(prefix: str, key: str, ok: bool, expected: str) -> None:
+    if not ok:
+        raise ValueError(f"{prefix}.{key} must be {expected}")

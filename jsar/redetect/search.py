@@ -1,0 +1,180 @@
+"""Where the decision filter looks while the target is lost: a budgeted lattice search (pure parts).
+
+Conventions: offsets in target sides sqrt(w*h) from the last confident centre, positions in full-frame
+pixels (x right, y down), scores are raw decision-filter peaks (MATLAB FFT convention, as eta_d).
+
+The lattice holds window centres at stride x (i, j), (i, j) != (0, 0) (the centre window is the core
+tracker's own detection sample, scored apart), within a square of side area + stride (so the ring
+just beyond the paper's omega square is searched: its windows reach omega's corners), nearest ring
+first. Every window is also scored with the image turned by each of the search's angles (a target
+that turned while hidden): the cycle is the centre's turned windows, then ring by ring the ring's
+upright windows followed by its turned ones. Each lost frame scores `windows_per_frame` entries of
+the cycle; the area grows per lost frame (the paper's omega schedule), so farther rings join the
+cycle as the loss goes on.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from jsar.redetect.params import AcceptParams, SearchParams
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A place the decision filter scored: response peak position (x, y) px and raw peak."""
+
+    x: float
+    y: float
+    score: float
+    angle_deg: float = 0.0  # the window was scored with the image turned by this (0: upright)
+
+    def distance_sides(self, other_xy: tuple[float, float], side_px: float) -> float:
+        """Distance to other_xy (px) in target sides."""
+        return math.hypot(self.x - other_xy[0], self.y - other_xy[1]) / side_px
+
+
+def predicted_centre(track: list[tuple[int, float, float]], frame_index: int, max_frames: int) -> tuple[float, float]:
+    """Constant-velocity prediction (px) for `frame_index` from the last committed (frame index, x px,
+    y px) rows (oldest first): the last centre moved by the mean velocity over the rows for at most
+    max_frames frames past the last row (the last centre itself with fewer than two rows)."""
+    index, x, y = track[-1]
+    if len(track) < 2 or max_frames <= 0:
+        return x, y
+    first_index, x0, y0 = track[0]
+    frames = index - first_index
+    steps = min(frame_index - index, max_frames)
+    return x + (x - x0) / frames * steps, y + (y - y0) / frames * steps
+
+
+def gate_reach(speed_sides: float, lost_frames: int, accept: AcceptParams) -> float:
+    """The motion gate's radius (target sides) after `lost_frames` for a target last moving at
+    speed_sides per frame: base + speed_factor x max(speed, min_speed) x lost_frames."""
+    return accept.gate_base_sides + accept.gate_speed_factor * max(speed_sides, accept.gate_min_speed) * lost_frames
+
+
+def track_speed(track: list[tuple[int, float, float]], side_px: float) -> float:
+    """Mean speed (target sides per frame) over committed (frame index, x px, y px) rows, oldest first (0 with one)."""
+    if len(track) < 2:
+        return 0.0
+    (i0, x0, y0), (i1, x1, y1) = track[0], track[-1]
+    return math.hypot(x1 - x0, y1 - y0) / (i1 - i0) / side_px
+
+
+def lattice_offsets(area_sides: float, stride_sides: float) -> np.ndarray:
+    """(K, 2) window offsets (dx, dy) in target sides: stride x (i, j) != (0, 0) with
+    max(|dx|, |dy|) <= (area + stride) / 2, ordered by ring (Chebyshev distance), then angle."""
+    rings = int(math.floor((area_sides + stride_sides) / 2.0 / stride_sides + 1e-9))
+    if rings < 1:
+        return np.empty((0, 2))
+    steps = np.arange(-rings, rings + 1)
+    i, j = (v.ravel() for v in np.meshgrid(steps, steps))
+    keep = (i != 0) | (j != 0)
+    i, j = i[keep], j[keep]
+    order = np.lexsort((np.arctan2(j, i), np.maximum(np.abs(i), np.abs(j))))
+    return np.column_stack([i[order], j[order]]).astype(np.float64) * stride_sides
+
+
+def search_cycle(area_sides: float, stride_sides: float, angles_deg: tuple[float, ...]) -> np.ndarray:
+    """(K, 3) lattice entries (dx, dy target sides, angle degrees): the centre (0, 0) at each turned
+    angle, then per ring (lattice_offsets' order) its upright windows, then the ring at each angle."""
+    offsets = lattice_offsets(area_sides, stride_sides)
+    rings = np.max(np.abs(offsets), axis=1) if len(offsets) else np.empty(0)
+    entries = [np.array([[0.0, 0.0, a] for a in angles_deg]).reshape(-1, 3)]
+    for ring in np.unique(np.rint(rings / stride_sides)):
+        at_ring = offsets[np.rint(rings / stride_sides) == ring]
+        for angle in (0.0, *angles_deg):
+            entries.append(np.column_stack([at_ring, np.full(len(at_ring), angle)]))
+    return np.vstack(entries)
+
+
+def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams) -> float:
+    """The acceptance bar (raw peak) after `lost_frames` failed frames: max(accept_peak / decay^t,
+    reference x max(accept_floor, accept_fraction / decay^t)) (reference None: the absolute part
+    alone, or inf when that is 0: nothing to compare with yet)."""
+    decay = accept.accept_decay ** lost_frames
+    relative = (reference * max(accept.accept_floor, accept.accept_fraction / decay)
+                if reference is not None else 0.0)
+    bar = max(accept.accept_peak / decay, relative)
+    return bar if bar > 0 else math.inf
+
+
+@dataclass
+class LossSearch:
+    """The state of one search: around `anchor_xy` px for a target of `side_px`, since `lost_frames`.
+
+    `windows(frame_wh)` gives this frame's lattice windows (centres px, angles) and advances the cycle;
+    `decide(candidates, bar)` keeps or confirms a pending candidate and says when one is taken."""
+
+    anchor_xy: tuple[float, float]
+    side_px: float
+    search: SearchParams
+    accept: AcceptParams
+    lost_frames: int = 0
+    cursor: int = 0
+    pending: Candidate | None = None
+    lead: Candidate | None = None  # this frame's best candidate: next frame scores a window centred on it
+    confirmations: int = 0
+    scored_windows: int = field(default=0)
+    reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
+    refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold
+    coasting: bool = False  # the core followed its own detection on the last lost frame
+    local: bool = False  # a search around a doubted track: the area stays area_start_sides
+
+    def area_sides(self) -> float:
+        """Side of the searched square (target sides) on the current lost frame (paper's omega)."""
+        s = self.search
+        if self.local:
+            return s.area_start_sides
+        return min(s.area_start_sides * s.area_growth ** max(self.lost_frames - 1, 0), s.area_max_sides)
+
+    def windows(self, frame_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright),
+        at most windows_per_frame entries of search_cycle whose centre lies in the frame; advances
+        the cycle."""
+        entries = search_cycle(self.area_sides(), self.search.stride_sides, self.search.turned_angles_deg)
+        budget = min(self.search.windows_per_frame, len(entries))
+        if budget == 0:
+            return np.empty((0, 2)), np.empty(0)
+        picked = entries[(self.cursor + np.arange(budget)) % len(entries)]
+        self.cursor = (self.cursor + budget) % len(entries)
+        centres = np.asarray(self.anchor_xy) + picked[:, :2] * self.side_px
+        inside = ((centres[:, 0] >= 0) & (centres[:, 0] < frame_wh[0])
+                  & (centres[:, 1] >= 0) & (centres[:, 1] < frame_wh[1]))
+        self.scored_windows += int(inside.sum())
+        return centres[inside], picked[inside, 2]
+
+    def refuted_bar(self, candidate: Candidate) -> float:
+        """refute_margin x the best refuted score within confirm_radius_sides of `candidate` (0: none)."""
+        near = [r.score for r in self.refuted
+                if candidate.distance_sides((r.x, r.y), self.side_px) <= self.accept.confirm_radius_sides]
+        return self.accept.refute_margin * max(near) if near else 0.0
+
+    def decide(self, candidates: list[Candidate], bar: float) -> Candidate | None:
+        """The candidate taken on this frame, or None; the best candidate becomes the lead (a lattice
+        window rarely centres the target: the next frame looks again centred on it, at its angle).
+        A candidate above `bar` becomes pending; it is
+        taken once a candidate above the bar lies within confirm_radius_sides of the pending one on
+        confirm_frames consecutive frames (the pending one moves along with it). No candidate is
+        taken in the first holdoff_frames lost frames, nor beyond reach_sides of anchor_xy, nor near a
+        refuted re-acquisition unless it beats refute_margin x that one's score."""
+        if candidates:
+            self.lead = max(candidates, key=lambda c: c.score)
+        above = [c for c in candidates if c.score >= max(bar, self.refuted_bar(c))
+                 and c.distance_sides(self.anchor_xy, self.side_px) <= self.reach_sides]
+        if self.pending is not None:
+            near = [c for c in above if c.distance_sides((self.pending.x, self.pending.y), self.side_px)
+                    <= self.accept.confirm_radius_sides]
+            if near:
+                self.pending = max(near, key=lambda c: c.score)
+                self.confirmations += 1
+            else:
+                self.pending, self.confirmations = None, 0
+        if self.pending is None and above:
+            self.pending, self.confirmations = max(above, key=lambda c: c.score), 0
+        if (self.pending is not None and self.confirmations >= self.accept.confirm_frames
+                and self.lost_frames > self.accept.holdoff_frames):
+            return self.pending
+        return None

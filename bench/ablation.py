@@ -49,6 +49,10 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     "no-budget-lattice": {"search": {"windows_per_frame": 0}},
     # The search stays on the last confident centre instead of following the target's velocity.
     "no-motion": {"search": {"predict_max_frames": 0}},
+    # No turned windows: the decision filter scores upright windows only.
+    "no-turned": {"search": {"turned_angles_deg": []}},
+    # No coasting: while lost the core waits at the predicted centre instead of following its detection.
+    "no-coast": {"search": {"coast_radius_sides": 0.0}},
     # No motion gate: a candidate may be taken anywhere (the value must be finite; 1e9 sides is nowhere).
     "no-gate": {"accept": {"gate_base_sides": 1e9}},
     # A candidate is taken on the first frame it passes the bar.
@@ -57,8 +61,6 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     "no-holdoff": {"accept": {"holdoff_frames": 0}},
     # The paper's re-initialisation: the core's filters retrained from the re-acquired frame.
     "retrain": {"accept": {"reacquire": "retrain"}},
-    # No doubt: the decision filter learns every reliable frame and never searches around the track.
-    "no-doubt": {"accept": {"doubt_fraction": 0.0}},
     # The paper's omega grows without bound; 1000 sides is beyond any frame of up to 2000 px for a lost
     # target of 4 px and more (monitor.min_area_px2 16), and keeps the lattice (O(omega^2) offsets) in memory.
     "paper-omega": {"search": {"area_max_sides": 1000.0}},

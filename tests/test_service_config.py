@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+import jsar
 import yaml
 
 from service.config import ConfigError, config_from_mapping, load_config, with_overrides
@@ -140,6 +142,20 @@ def test_bad_tracker_params_stop_the_service_naming_the_key() -> None:
                                   "zenoh": {"enabled": False}})
     with pytest.raises(ConfigError, match="tracker.params: .*no_such_param"):
         Service(config)
+
+
+def test_nested_jsar_re_params_reach_the_tracker_and_a_bad_one_is_named(tmp_path: Path) -> None:
+    from service.app import Service
+    good = tmp_path / "good.yaml"
+    good.write_text("tracker:\n  name: jsar-re\n  params:\n    redetect:\n      search: {windows_per_frame: 2}\n"
+                    "zenoh: {enabled: false}\n")
+    config = load_config(good)
+    tracker = jsar.create(config.tracker.name, **config.tracker.params)
+    assert tracker.redetect.search.windows_per_frame == 2
+    bad = config_from_mapping({"tracker": {"name": "jsar-re", "params": {"redetect": {"accept": {"holdoff": 3}}}},
+                               "zenoh": {"enabled": False}})
+    with pytest.raises(ConfigError, match=r"tracker.params: unknown key redetect.accept.holdoff"):
+        Service(bad)
 
 
 @pytest.mark.parametrize("name, band, error", [("csrt", 1.6, "tracker.range_size_band: tracker 'csrt' cannot"),

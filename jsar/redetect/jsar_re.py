@@ -4,20 +4,22 @@ Per frame the core tracker (JSAR) locates the target around its current centre, 
 the failure monitor (monitor.py) judges the translation peak; the decision filter (memory.py, the
 long-term memory of reliable appearances) scores the core's own detection sample at no feature cost.
 
-- Tracking, confident frame (or not eligible for a loss): commit as plain JSAR. The decision filter
-  learns the frame if it is reliable and the filter itself recognises the track (its peak on the
-  track >= doubt_fraction x its reference). Otherwise the track is in doubt: the filter does not
-  learn, and the search below runs around the moving track; a candidate confirmed elsewhere that
-  scores switch_margin x the track's own score moves the track (a slide onto the occluder, or onto
-  a look-alike, while the core's own peak stayed high).
-- Tracking, not confident: a loss. The frame is not committed (nothing learnt, the box stays the
-  last confident one) and is reported "lost".
-- Lost: the core keeps locating around the last confident centre; if its peak is confident again
-  the frame is committed and the loss ends. Otherwise the decision filter scores the core's sample
-  and a few lattice windows around the last confident centre (search.py: a per-frame budget, the
-  square growing as the paper's omega); a candidate above the bar (params.AcceptParams) confirmed on
-  the next frame is taken: the core moves there, filters as they were before the loss ("relocate";
-  "retrain" = the paper's re-initialisation from that frame). Either way the frame is "recovered".
+- Tracking, confident frame (or not eligible for a loss): commit as plain JSAR; the decision filter
+  learns the frame if it is reliable.
+- Tracking, not confident: a loss; the frame is searched as below and reported "lost".
+- Lost: if the core's peak is confident again and the decision filter scores its sample above the
+  bar (params.AcceptParams), the frame is committed and the loss ends. Otherwise the decision filter
+  scores the core's sample and a few lattice windows, upright and turned, around where the target
+  was going (search.py: a per-frame budget, the square growing as the paper's omega); a candidate
+  above the bar confirmed on the next frame is taken: the core moves there, with its filters as they
+  were before the loss or as they coasted, whichever responds more strongly ("relocate"; "retrain" =
+  the paper's re-initialisation from that frame). Either way the frame is "recovered".
+- Lost, nothing taken: the core coasts. Its detection is committed as plain JSAR (the decision filter
+  learning nothing) when it lies within search.coast_radius_sides of the predicted centre, so a
+  target still in view whose look changed is followed; else the core waits at the prediction. While
+  the core coasts, a candidate away from it must beat accept.switch_margin x the core's own score,
+  and one confirmed where the core is ends the loss at the core's box.
+- A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
 
 Additions beyond the paper and their measured effect: docs/method.md and the ablation
 (`python -m bench.ablation`).
@@ -50,8 +52,7 @@ class SearchStep:
     bar: float
     windows: int
     taken: bool
-    doubt: bool  # a search around a doubted track (not a loss)
-    own: Candidate | None = None  # the decision filter on the core's own detection sample
+    own: Candidate  # the decision filter on the core's own detection sample
 
 
 @dataclass
@@ -80,7 +81,7 @@ class JsarReTracker:
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.memory: DecisionMemory | None = None
-        self.search: LossSearch | None = None  # a loss (or a doubt) being searched
+        self.search: LossSearch | None = None  # the loss being searched
         self.lost = False
         self.frame_index = -1
         self.reacquisitions = 0
@@ -137,17 +138,11 @@ class JsarReTracker:
             self.search = self._new_search()
             self.before_loss = copy.deepcopy(self.core)
             return self._search_lost(frame, loc, verdict, own)
-        doubt = self._commit(frame, loc, verdict.reliable, own)
+        self._commit(frame, loc, verdict.reliable, own)
         if self.probation is not None:
             self.probation.frames_left -= 1
             if self.probation.frames_left <= 0:
                 self.probation = None
-        if doubt:
-            switched = self._challenge(frame, own)
-            if switched is not None:
-                return switched
-        else:
-            self.search = None
         return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
 
     def _lost_frame(self, frame: np.ndarray) -> TrackResult:
@@ -174,23 +169,15 @@ class JsarReTracker:
         self.search.refuted.append(kept.taken)
 
     # ----------------------------------------------------------------- steps
-    def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate) -> bool:
-        """Commit the core's detection; the decision filter learns it when reliable and not in doubt.
-        Returns whether the track is in doubt (the decision filter does not recognise it)."""
+    def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate) -> None:
+        """Commit the core's detection; the decision filter learns it when reliable (own: its score there)."""
         assert self.memory is not None
         self.core.commit(frame, loc)
         self._remember_position()
-        reference = self.memory.reference
-        doubt = (reference is not None and self.redetect.accept.doubt_fraction > 0
-                 and own.score < self.redetect.accept.doubt_fraction * reference)
-        # The long-term memory learns only what it recognises (learn_fraction; after a re-acquisition onto
-        # a look-alike the core's own reference starts anew, this one does not), and nothing on probation.
-        recognised = reference is None or own.score > self.redetect.accept.learn_fraction * reference
-        if reliable and recognised and not doubt and (self.probation is None or self.redetect.accept.learn_on_probation):
+        if reliable:
             self.memory.train(self.core, own.score)
         else:
             self.memory.skip()
-        return doubt
 
     def _new_search(self) -> LossSearch:
         x, y, w, h = self.core.box
@@ -257,10 +244,15 @@ class JsarReTracker:
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
         taken = search.decide(candidates, bar)
         best = max(candidates, key=lambda c: c.score)
-        self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, doubt=False, own=own)
+        self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
             self._coast(frame, loc, search)
             return TrackResult(box=self.core.box, score=loc.peak, state="lost")
+        if search.coasting and taken.distance_sides(loc.center_xy, search.side_px) <= self.redetect.accept.confirm_radius_sides:
+            # The decision filter confirms the target where the coasting core already is: keep the core's
+            # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
+            self._commit(frame, loc, verdict.reliable, own)
+            return self._found(taken.score)
         probation = self.redetect.accept.probation_frames
         kept = (Probation(search, copy.deepcopy(self.core), copy.deepcopy(self.monitor), list(self._track), taken,
                           probation, self.before_loss) if probation > 0 else None)
@@ -268,33 +260,6 @@ class JsarReTracker:
         result = self._found(taken.score)
         self.probation = kept
         return result
-
-    def _challenge(self, frame: np.ndarray, own: Candidate) -> TrackResult | None:
-        """A doubted track: search around it; a confirmed candidate away from the track that beats
-        both the bar and switch_margin x the track's own score moves the track there."""
-        assert self.memory is not None
-        x, y, w, h = self.core.box
-        centre = (x + w / 2.0, y + h / 2.0)
-        if self.search is None:
-            self.search = self._new_search()
-            self.search.local = True
-            self.search.reach_sides = self.redetect.search.area_start_sides / 2.0  # the paper's omega square
-        search = self.search
-        search.anchor_xy, search.side_px = centre, math.sqrt(w * h)
-        search.lost_frames += 1  # frames in doubt: the hold-off applies as to a loss
-        away = [c for c in self._candidates(frame, search, own)[1:]
-                if c.distance_sides(centre, search.side_px) > self.redetect.accept.confirm_radius_sides]
-        accept = self.redetect.accept
-        # As a fresh loss's bar (the target as it scored), and clearly above what the track scores.
-        bar = max(decayed_bar(self.memory.reference, 0, accept), self.redetect.monitor.enable_peak,
-                  accept.switch_margin * own.score)
-        taken = search.decide(away, bar)
-        best = max(away, key=lambda c: c.score) if away else None
-        self.last_step = SearchStep(best, bar, len(away), taken is not None, doubt=True)
-        if taken is None:
-            return None
-        self._reacquire(frame, taken)
-        return TrackResult(box=self.core.box, score=taken.score, state="recovered")
 
     def _reacquire(self, frame: np.ndarray, at: Candidate) -> None:
         """Move the track to `at`: the core (as before the loss, or as it coasted) that responds more

@@ -66,6 +66,9 @@ class SearchParams:
     with the target's last velocity (constant, for at most predict_max_frames lost frames), so a
     target lost while moving fast is looked for where it went. The window on that centre (upright)
     is the core tracker's own detection sample, scored every lost frame at no extra feature cost.
+    While lost, the core coasts: it commits its own detection (as plain JSAR; the decision filter
+    learns nothing) when that lies within `coast_radius_sides` of the predicted centre, else it waits
+    at the prediction.
     Every lattice window, and the centre's, is also scored with the image turned by each of
     `turned_angles_deg` (a car that turned at a junction or under a bridge no longer matches the
     filter's gradient orientations), its score x turned_score_factor. `windows_per_frame` of these
@@ -117,10 +120,9 @@ class AcceptParams:
     candidate farther from the predicted centre than gate_base + gate_speed_factor x speed x lost
     frames (target sides; speed = the target's last speed in sides per frame, at least
     gate_min_speed) is not taken: a look-alike nearby is not where the target can be yet.
-    While tracking, the decision filter also scores the core's own detection sample every frame (no
-    extra features); below `doubt_fraction` x its reference the track is in doubt: the decision
-    filter stops learning and the search runs around the track, where a candidate must also beat
-    `switch_margin` x the track's own score to move the track (0 doubt_fraction: never).
+    While the core coasts (SearchParams.coast_radius_sides), a candidate farther than
+    confirm_radius_sides from the core's detection must also score `switch_margin` x the decision
+    filter's score on that detection.
     A re-acquisition from a loss that is lost again within `probation_frames` did not hold: the
     search it ended resumes (the tracker as it was before it), and a candidate near the refuted
     place must score refute_margin x what the refuted one scored."""
@@ -133,9 +135,6 @@ class AcceptParams:
     confirm_radius_sides: float = 1.5
     holdoff_frames: int = 5
     reacquire: Reacquire = "relocate"
-    doubt_fraction: float = 0.0
-    learn_on_probation: bool = True  # the decision filter also learns a re-acquired track before its probation ends
-    learn_fraction: float = 0.0  # the decision filter learns a reliable frame only above this x its reference (0: the paper)
     gate_base_sides: float = 1.5  # a candidate must lie within base + speed_factor x speed x lost frames ...
     gate_speed_factor: float = 3.0  # ... target sides of the predicted centre, speed in sides per frame ...
     gate_min_speed: float = 0.05  # ... at least this (inf base: no gate)
@@ -157,8 +156,6 @@ class AcceptParams:
         _require(prefix, "holdoff_frames", self.holdoff_frames >= 0, f">= 0, got {self.holdoff_frames}")
         _require(prefix, "reacquire", self.reacquire in ("relocate", "retrain"),
                  f"'relocate' or 'retrain', got {self.reacquire!r}")
-        _require(prefix, "learn_fraction", 0 <= self.learn_fraction < 1, f"0 <= value < 1, got {self.learn_fraction}")
-        _require(prefix, "doubt_fraction", 0 <= self.doubt_fraction < 1, f"0 <= value < 1, got {self.doubt_fraction}")
         _require(prefix, "switch_margin", self.switch_margin >= 1, f">= 1, got {self.switch_margin}")
         _require(prefix, "probation_frames", self.probation_frames >= 0, f">= 0, got {self.probation_frames}")
         _require(prefix, "refute_margin", self.refute_margin >= 1, f">= 1, got {self.refute_margin}")

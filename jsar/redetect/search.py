@@ -121,13 +121,10 @@ class LossSearch:
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
     refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold
     coasting: bool = False  # the core followed its own detection on the last lost frame
-    local: bool = False  # a search around a doubted track: the area stays area_start_sides
 
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""
         s = self.search
-        if self.local:
-            return s.area_start_sides
         return min(s.area_start_sides * s.area_growth ** max(self.lost_frames - 1, 0), s.area_max_sides)
 
     def windows(self, frame_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

@@ -115,7 +115,7 @@ class JsarReTracker:
 
     @property
     def box(self) -> Box:
-        """The current (last confident) box (x, y, w, h) px."""
+        """The current box (x, y, w, h) px: the core's (while lost, where it coasts or waits)."""
         return self.core.box
 
     def update(self, frame: np.ndarray) -> TrackResult:
@@ -146,8 +146,8 @@ class JsarReTracker:
         return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
 
     def _lost_frame(self, frame: np.ndarray) -> TrackResult:
-        """A frame while lost: the core locates around where it is (coasting) or where the target was
-        going (its last velocity, for a while; search.coast off), then the search runs."""
+        """A frame while lost: the core locates around where it is (where it coasted, or waited at the
+        prediction on the last frame), then the search runs."""
         assert self.memory is not None
         loc = self.core.locate(frame)
         verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)

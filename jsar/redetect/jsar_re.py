@@ -154,6 +154,13 @@ class JsarReTracker:
         own = self.memory.score_sample(loc.sample_f, self.core.center_xy, loc.search_side)
         return self._search_lost(frame, loc, verdict, own)
 
+    @staticmethod
+    def _agrees(found: Candidate, loc: Localisation, search: LossSearch) -> bool:
+        """Whether the decision filter's peak lies within one target side of the core's detection (their
+        boxes overlap): only then may the loss end at the core's box. A coasting core can sit on the
+        occluder next to the target while the decision filter's peak, in the same window, is on the target."""
+        return found.distance_sides(loc.center_xy, search.side_px) < 1.0
+
     def _predicted_centre(self) -> tuple[float, float]:
         return predicted_centre(list(self._track), self.frame_index, self.redetect.search.predict_max_frames)
 
@@ -230,7 +237,7 @@ class JsarReTracker:
         # Never below zeta_e: a candidate the monitor would not call confident cannot hold a track.
         bar = max(decayed_bar(self.memory.reference, search.lost_frames - 1, self.redetect.accept),
                   self.redetect.monitor.enable_peak)
-        if verdict.confident and own.score >= bar:
+        if verdict.confident and own.score >= bar and self._agrees(own, loc, search):
             self._commit(frame, loc, verdict.reliable, own)
             return self._found(loc.peak)
         search.anchor_xy = self._predicted_centre()
@@ -248,7 +255,7 @@ class JsarReTracker:
         if taken is None:
             self._coast(frame, loc, search)
             return TrackResult(box=self.core.box, score=loc.peak, state="lost")
-        if search.coasting and taken.distance_sides(loc.center_xy, search.side_px) <= self.redetect.accept.confirm_radius_sides:
+        if search.coasting and self._agrees(taken, loc, search):
             # The decision filter confirms the target where the coasting core already is: keep the core's
             # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
             self._commit(frame, loc, verdict.reliable, own)

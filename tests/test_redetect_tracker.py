@@ -419,18 +419,24 @@ def _run(tracker: JsarReTracker, frames: list[np.ndarray]) -> dict[int, tuple[st
             ((index, tracker.update(frame)) for index, frame in enumerate(frames, start=1))}
 
 
+def _spy_reinitialise(monkeypatch, tracker: JsarReTracker) -> list[int]:
+    """The frame indices at which any core (also the copies the tracker makes) is re-initialised."""
+    calls: list[int] = []
+    original = JsarTracker.reinitialise
+
+    def spy(core: JsarTracker, frame: np.ndarray, box: Box) -> None:
+        calls.append(tracker.frame_index)
+        original(core, frame, box)
+
+    monkeypatch.setattr(JsarTracker, "reinitialise", spy)
+    return calls
+
+
 def test_synthetic_occlusion_lost_then_recovered_once_on_the_target(monkeypatch):
     background = _background()
     tracker = JsarReTracker(JsarParams.jsar_re())
     tracker.init(_frame(background, _path(0)), _target_box(_path(0)))
-    reinitialised: list[int] = []
-    original = JsarTracker.reinitialise
-
-    def spy(core: JsarTracker, frame: np.ndarray, box: Box) -> None:
-        reinitialised.append(tracker.frame_index)
-        original(core, frame, box)
-
-    monkeypatch.setattr(JsarTracker, "reinitialise", spy)  # also on the copies the tracker makes
+    reinitialised = _spy_reinitialise(monkeypatch, tracker)
     states: dict[int, str] = {}
     boxes: dict[int, Box] = {}
     memory_filters: dict[int, np.ndarray] = {}
@@ -466,14 +472,7 @@ def test_synthetic_occlusion_recovered_by_retraining_when_asked(monkeypatch):
     background = _background()
     tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept={"reacquire": "retrain"}))
     tracker.init(_frame(background, _path(0)), _target_box(_path(0)))
-    calls: list[int] = []
-    original = JsarTracker.reinitialise
-
-    def spy(core: JsarTracker, frame: np.ndarray, box: Box) -> None:
-        calls.append(tracker.frame_index)
-        original(core, frame, box)
-
-    monkeypatch.setattr(JsarTracker, "reinitialise", spy)
+    calls = _spy_reinitialise(monkeypatch, tracker)
     results = _run(tracker, [_frame(background, None if 35 <= i < 45 else _path(i)) for i in range(1, 70)])
     recovered = [i for i in range(45, 70) if results[i][0] == "recovered"]
     assert len(recovered) == 1 and calls == recovered  # re-initialised exactly once, on that frame

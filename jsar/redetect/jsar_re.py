@@ -2,7 +2,8 @@
 
 Per frame the core tracker (JSAR) locates the target around its current centre, changing nothing;
 the failure monitor (monitor.py) judges the translation peak; the decision filter (memory.py, the
-long-term memory of reliable appearances) scores the core's own detection sample at no feature cost.
+long-term memory of reliable appearances) scores the core's own detection sample at no feature cost on the
+frames it learns and while lost.
 
 - Tracking, confident frame (or not eligible for a loss): commit as plain JSAR; the decision filter
   learns the frame if it is reliable.
@@ -129,7 +130,6 @@ class JsarReTracker:
             return self._lost_frame(frame)
         loc = self.core.locate(frame)
         verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
-        own = self.memory.score_sample(loc.sample_f, self.core.center_xy, loc.search_side)
         if verdict.lost:
             self.lost = True
             if self.probation is not None:
@@ -137,8 +137,9 @@ class JsarReTracker:
                 return self._lost_frame(frame)
             self.search = self._new_search()
             self.before_loss = copy.deepcopy(self.core)
-            return self._search_lost(frame, loc, verdict, own)
-        self._commit(frame, loc, verdict.reliable, own)
+            return self._search_lost(frame, loc, verdict, self._own(loc))
+        # The decision filter's score on the core's sample is needed only where the filter learns the frame.
+        self._commit(frame, loc, verdict.reliable, self._own(loc) if verdict.reliable else None)
         if self.probation is not None:
             self.probation.frames_left -= 1
             if self.probation.frames_left <= 0:
@@ -151,8 +152,12 @@ class JsarReTracker:
         assert self.memory is not None
         loc = self.core.locate(frame)
         verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
-        own = self.memory.score_sample(loc.sample_f, self.core.center_xy, loc.search_side)
-        return self._search_lost(frame, loc, verdict, own)
+        return self._search_lost(frame, loc, verdict, self._own(loc))
+
+    def _own(self, loc: Localisation) -> Candidate:
+        """The decision filter on the core's detection sample (before the core moves): peak px and score."""
+        assert self.memory is not None
+        return self.memory.score_sample(loc.sample_f, self.core.center_xy, loc.search_side)
 
     @staticmethod
     def _agrees(found: Candidate, loc: Localisation, search: LossSearch) -> bool:
@@ -176,12 +181,14 @@ class JsarReTracker:
         self.search.refuted.append(kept.taken)
 
     # ----------------------------------------------------------------- steps
-    def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate) -> None:
-        """Commit the core's detection; the decision filter learns it when reliable (own: its score there)."""
+    def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate | None) -> None:
+        """Commit the core's detection; the decision filter learns it when reliable (own: its score there,
+        needed then)."""
         assert self.memory is not None
         self.core.commit(frame, loc)
         self._remember_position()
         if reliable:
+            assert own is not None
             self.memory.train(self.core, own.score)
         else:
             self.memory.skip()

@@ -301,7 +301,7 @@ def test_score_windows_finds_a_target_placed_in_a_window():
     assert memory.score_windows(image, None, np.empty((0, 2)), float(TARGET)) == []
 
 
-def test_score_turned_recognises_a_target_that_turned_and_maps_its_position_back():
+def test_turned_windows_recognise_a_target_that_turned_and_map_its_position_back():
     background = _background()
     tracker = _tracker_on_target(background=background)
     memory = tracker.memory
@@ -321,8 +321,9 @@ def test_score_turned_recognises_a_target_that_turned_and_maps_its_position_back
     table = tracker.core.feature_colour_table
     window = (196.0, 158.0)  # a few px off the target's centre
     upright = memory.score_windows(image, table, np.array([window]), float(TARGET))[0]
-    turned_back = memory.score_turned(image, table, window, float(TARGET), -45.0)  # undoes the turn
-    turned_more = memory.score_turned(image, table, window, float(TARGET), 45.0)  # turns it further
+    turned_back, turned_more = memory.score_windows(image, table, np.array([window, window]), float(TARGET),
+                                                    np.array([-45.0, 45.0]))  # undoes the turn / turns it further
+    assert (turned_back.angle_deg, turned_more.angle_deg) == (-45.0, 45.0)
     assert turned_back.score > 1.5 * upright.score and turned_back.score > 1.5 * turned_more.score
     assert math.hypot(turned_back.x - 202.0, turned_back.y - 162.0) <= 4.0, turned_back  # in the frame's px
 

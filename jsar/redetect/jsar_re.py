@@ -224,14 +224,9 @@ class JsarReTracker:
             centres = np.vstack([centres, [[focus.x, focus.y]]])
             angles = np.append(angles, focus.angle_deg)
         side = search.side_px  # the last confident size (a coasting core's may have drifted)
-        colours = self.core.feature_colour_table
-        upright = angles == 0
-        found = [own] + self.memory.score_windows(image, colours, centres[upright], side)
+        found = self.memory.score_windows(image, self.core.feature_colour_table, centres, side, angles)
         factor = self.redetect.search.turned_score_factor
-        for (x, y), angle in zip(centres[~upright], angles[~upright]):
-            turned = self.memory.score_turned(image, colours, (float(x), float(y)), side, float(angle))
-            found.append(Candidate(turned.x, turned.y, turned.score * factor, float(angle)))
-        return found
+        return [own] + [c if c.angle_deg == 0 else Candidate(c.x, c.y, c.score * factor, c.angle_deg) for c in found]
 
     def _search_lost(self, frame: np.ndarray, loc: Localisation, verdict: Verdict, own: Candidate) -> TrackResult:
         """One lost frame: the core confident again where the decision filter recognises the target

@@ -49,47 +49,48 @@ class DecisionMemory:
         return Candidate(centre_xy[0] + dx * px_per_cell, centre_xy[1] + dy * px_per_cell, float(peak))
 
     def score_windows(self, image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray,
-                      target_side_px: float) -> list[Candidate]:
-        """Candidates (peak position px, raw peak) of windows of the filter's sample geometry for a
-        target of side target_side_px, centred (to the nearest cell) on centres_xy (N, 2) px."""
+                      target_side_px: float, angles_deg: np.ndarray | None = None) -> list[Candidate]:
+        """Candidates (peak position px, raw peak, angle) of windows of the filter's sample geometry for a
+        target of side target_side_px centred on centres_xy (N, 2) px, each scored with the image turned by
+        angles_deg (N,) degrees about its centre (cv2's sign: counter-clockwise as displayed; 0 or None:
+        upright). Upright windows are centred to the nearest cell of one shared feature map (centres on
+        the same cell share a window); a turned window's peak is mapped back to the unturned image. All
+        windows go through one batched FFT."""
+        centres_xy = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
+        angles = np.zeros(len(centres_xy)) if angles_deg is None else np.asarray(angles_deg, dtype=np.float64)
         if len(centres_xy) == 0:
             return []
-        cells = self.filter.shape_hw[0]
+        cells, cell_size = self.filter.shape_hw[0], self.params.cell_size
         px_per_cell = self.params.search_area_factor * target_side_px / cells
-        windows, window_centres = window_features(image, colour_table, centres_xy, px_per_cell, cells,
-                                                  self.params.cell_size)
-        stack = np.moveaxis(windows, -1, 1) * self.filter.cos_window[None, None]
-        spectra = fourier.rfft2(stack.astype(np.float32, copy=False))  # (M, C, H, W//2+1)
+        upright = angles == 0
+        stacks, window_centres, turns = [], [], []
+        if upright.any():
+            windows, upright_centres = window_features(image, colour_table, centres_xy[upright], px_per_cell, cells,
+                                                       cell_size)
+            stacks.append(windows)
+            window_centres.extend(upright_centres)
+            turns.extend([0.0] * len(upright_centres))
+        for centre, degrees in zip(centres_xy[~upright], angles[~upright]):
+            patch = turned_patch(image, (float(centre[0]), float(centre[1])), cells * px_per_cell, cells * cell_size,
+                                 float(degrees))
+            stacks.append(translation_features.extract_features(patch, cell_size, colour_table)[None])
+            window_centres.append(centre)
+            turns.append(float(degrees))
+        windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]
+        stack = np.ascontiguousarray(np.moveaxis(windows, -1, 1)) * self.filter.cos_window  # (M, C, H, W) float32
+        spectra = fourier.rfft2(stack)  # (M, C, H, W//2+1)
         assert self.filter.filter_f is not None
         response_f = np.einsum("chw,mchw->mhw", self.filter.filter_f.conj(), spectra)
         responses = fourier.irfft2(response_f, self.filter.shape_hw)
         found = []
-        for k in range(len(responses)):
+        for k, (centre, degrees) in enumerate(zip(window_centres, turns)):
             dy, dx, peak = dcf.subpixel_peak(responses[k], response_f[k], self.params.newton_iterations)
-            found.append(Candidate(window_centres[k, 0] + dx * px_per_cell, window_centres[k, 1] + dy * px_per_cell,
-                                   float(peak)))
+            offset = np.array([dx, dy]) * px_per_cell
+            if degrees:
+                # The window was turned by `degrees` about its centre: turn the offset back.
+                offset = cv2.getRotationMatrix2D((0.0, 0.0), -degrees, 1.0)[:, :2] @ offset
+            found.append(Candidate(float(centre[0] + offset[0]), float(centre[1] + offset[1]), float(peak), degrees))
         return found
-
-    def score_turned(self, image: np.ndarray, colour_table: np.ndarray | None, centre_xy: tuple[float, float],
-                     target_side_px: float, degrees: float) -> Candidate:
-        """The window on centre_xy px scored with the image turned by `degrees` about it (cv2's sign:
-        counter-clockwise as displayed): a target that turned since the filter learnt it. The
-        candidate's position is mapped back to the unturned image (px)."""
-        side = self.params.search_area_factor * target_side_px
-        half = int(math.ceil(side * math.sqrt(0.5))) + 2  # the turned window's corners stay inside the crop
-        x0, y0 = int(round(centre_xy[0])) - half, int(round(centre_xy[1])) - half
-        padded = cv2.copyMakeBorder(image, max(0, -y0), max(0, y0 + 2 * half + 1 - image.shape[0]),
-                                    max(0, -x0), max(0, x0 + 2 * half + 1 - image.shape[1]), cv2.BORDER_REPLICATE)
-        ox, oy = max(0, -x0), max(0, -y0)  # where the image's origin lies in the padded image
-        crop = padded[oy + y0: oy + y0 + 2 * half + 1, ox + x0: ox + x0 + 2 * half + 1]
-        pivot = (centre_xy[0] - x0, centre_xy[1] - y0)
-        turn = cv2.getRotationMatrix2D(pivot, degrees, 1.0)
-        turned = cv2.warpAffine(crop, turn, (crop.shape[1], crop.shape[0]), flags=cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_REPLICATE)
-        found = self.score_windows(turned, colour_table, np.array([pivot]), target_side_px)[0]
-        back = cv2.invertAffineTransform(turn)
-        x, y = back[:, :2] @ np.array([found.x, found.y]) + back[:, 2]
-        return Candidate(float(x) + x0, float(y) + y0, found.score)
 
     def train(self, core: JsarTracker, own_peak: float) -> None:
         """Learn the core's last training sample (a reliable committed frame); own_peak is this
@@ -108,6 +109,20 @@ class DecisionMemory:
     def skip(self) -> None:
         """The core trained on a frame this filter does not learn: their histories part."""
         self.in_sync = False
+
+
+def turned_patch(image: np.ndarray, centre_xy: tuple[float, float], side_px: float, out_px: int,
+                 degrees: float) -> np.ndarray:
+    """uint8 (out_px, out_px[, 3]) patch: the square of side side_px centred on centre_xy px of `image`,
+    turned by `degrees` about centre_xy (cv2's sign: counter-clockwise as displayed), borders
+    replicated; resampled as patches.sample_patch does. Only a canvas just covering the square is warped."""
+    half = int(math.ceil(side_px / 2.0)) + 2
+    x0, y0 = int(round(centre_xy[0])) - half, int(round(centre_xy[1])) - half  # the canvas origin (image px)
+    turn = cv2.getRotationMatrix2D(centre_xy, degrees, 1.0)
+    turn[:, 2] -= (x0, y0)  # turned image px -> canvas px
+    canvas = cv2.warpAffine(image, turn, (2 * half + 1, 2 * half + 1), flags=cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_REPLICATE)
+    return patches.sample_patch(canvas, (centre_xy[0] - x0, centre_xy[1] - y0), (side_px, side_px), (out_px, out_px))
 
 
 def window_features(image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray, px_per_cell: float,

@@ -374,6 +374,11 @@ class TrackingLoop:
             return self._lost_command(stamp, view)
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
+        if self.config.gimbal.backend != "none" and not view.alive(time.monotonic(),
+                                                                   self.config.mavlink.heartbeat_timeout_s):
+            # The gimbal is driven through the autopilot: with it silent no rate command arrives, the loop
+            # is open, and an integrator fed the growing error would overshoot when the link comes back.
+            self.gimbal = GimbalState()
         yaw_err, pitch_err = angular_error(self.box, size, self.hfov)
         self.gimbal, yaw_rate, pitch_rate = gimbal_step(self.gimbal, yaw_err, pitch_err, dt, self.gains)
         bearing: float | None = None

@@ -454,6 +454,48 @@ def test_loop_places_the_target_on_the_ground_from_vehicle_and_gimbal_attitude()
     assert commands[-1].bearing == pytest.approx(0.0)
 
 
+def test_gimbal_controller_does_not_integrate_while_the_autopilot_is_silent() -> None:
+    import time
+
+    import numpy as np
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
+
+    class Still:  # the target stays off-centre: the error is constant
+        def init(self, image, box):
+            self.box = box
+
+        def update(self, image):
+            from jsar.api import TrackResult
+            return TrackResult(self.box, 1.0, "tracking")
+
+    commands: list[ControlCommand] = []
+    selections: LatestSlot = LatestSlot()
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            commands.append(command)
+
+    views = [AutopilotView(system_id=1, last_heartbeat_s=time.monotonic())]  # heard: the first 20 frames take ms
+    loop = TrackingLoop(config, selections, Still, Record(), lambda: views[-1])
+    selections.put(c.TrackRectangle(0.70, 0.45, 0.80, 0.55))  # right of centre
+    image = np.zeros((100, 100, 3), np.uint8)
+    for k in range(20):
+        loop.step(Frame(image, k, 0.033 * k, 0.0))
+    alive_yaw = loop.gimbal.yaw
+    assert alive_yaw.integral > 0 and alive_yaw.last_output > 0  # closed loop: integrates and ramps up
+    views.append(dataclasses.replace(views[-1], last_heartbeat_s=time.monotonic() - 60.0))  # the link is down
+    for k in range(20, 60):
+        loop.step(Frame(image, k, 0.033 * k, 0.0))
+    silent_yaw = loop.gimbal.yaw
+    # Open loop: every frame starts from rest (no integral, the slew limit from zero): nothing winds up.
+    assert silent_yaw.integral < alive_yaw.integral / 10
+    assert commands[-1].rates is not None and 0 < commands[-1].rates[0] < alive_yaw.last_output
+    assert commands[-1].state == "tracking"  # still tracking: only the controller's memory is dropped
+
+
 def test_point_proposal_snaps_to_the_object_under_the_click() -> None:
     import cv2
     import numpy as np

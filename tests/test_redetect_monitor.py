@@ -10,7 +10,7 @@ from jsar.redetect.monitor import FailureMonitor, MonitorParams, box_is_inside, 
 
 IMAGE = (640, 480)
 BOX = (300.0, 200.0, 40.0, 30.0)  # 1200 px^2, wholly inside IMAGE
-P = MonitorParams()  # zeta_e 0.0105, zeta_s 0.013, relative_drop 0.6, reliable_fraction 0.7, warm-up 30
+P = MonitorParams()  # zeta_e 0.0105, zeta_s 0.013, relative_drop 0.6, warm-up 30
 AFTER_WARMUP = P.warmup_frames + 10
 
 
@@ -36,12 +36,12 @@ def test_absolute_thresholds_alone_before_any_reference():
 
 def test_relative_rules_against_the_reference():
     monitor = _primed(0.05)
-    # confident needs > 0.6 x 0.05 = 0.03, reliable > 0.7 x 0.05 = 0.035: both above the absolute zetas
+    # confident needs > 0.6 x 0.05 = 0.03 (far above zeta_e); reliable needs zeta_s alone
     assert monitor.judge(0.036) == (True, True)
-    assert monitor.judge(0.034) == (True, False)
-    assert monitor.judge(0.029) == (False, False)  # far above zeta_e: the target was replaced
-    # the paper's rule alone (both fractions 0): the reference plays no part
-    paper = _primed(0.05, params=MonitorParams(relative_drop=0.0, reliable_fraction=0.0))
+    assert monitor.judge(0.029) == (False, True)  # far above zeta_e: the target was replaced
+    assert monitor.judge(0.012) == (False, False)
+    # the paper's rule alone (relative_drop 0): the reference plays no part
+    paper = _primed(0.05, params=MonitorParams(relative_drop=0.0))
     assert paper.judge(0.011) == (True, False) and paper.judge(0.014) == (True, True)
 
 
@@ -60,7 +60,7 @@ def test_reference_rises_fast_and_falls_slowly():
     monitor.assess(0.06, BOX, IMAGE, AFTER_WARMUP + 1)
     assert monitor.reference == pytest.approx(0.05 + P.reference_rate * 0.01)  # 0.051
     up = monitor.reference
-    monitor.assess(0.04, BOX, IMAGE, AFTER_WARMUP + 2)  # reliable (> 0.7 x 0.051): the reference follows it down
+    monitor.assess(0.04, BOX, IMAGE, AFTER_WARMUP + 2)  # confident and reliable: the reference follows it down
     assert monitor.reference == pytest.approx(up + P.reference_fall_rate * (0.04 - up))
     assert up - monitor.reference < P.reference_rate * (up - 0.04)  # slower than it would rise
     assert updated_reference(None, 0.03, 0.1, 0.02) == 0.03
@@ -68,22 +68,25 @@ def test_reference_rises_fast_and_falls_slowly():
     assert updated_reference(0.05, 0.03, 0.1, 0.02) == pytest.approx(0.0496)
 
 
-def test_reference_is_frozen_below_the_reliable_band_and_on_a_loss():
+def test_reference_follows_reliable_committed_frames_and_is_frozen_on_a_loss():
     monitor = _primed(0.05, frames=10)
-    partial = monitor.assess(0.033, BOX, IMAGE, 60)  # confident (> 0.03) but not reliable (< 0.035)
-    assert partial.confident and not partial.reliable
-    for k in range(20):
-        monitor.assess(0.033, BOX, IMAGE, 61 + k)
-        assert monitor.reference == pytest.approx(0.05)
-    monitor.assess(0.001, BOX, IMAGE, 90)  # a loss
-    assert monitor.reference == pytest.approx(0.05)
+    confident = monitor.assess(0.033, BOX, IMAGE, 60)  # confident (> 0.03) and reliable (> zeta_s)
+    assert confident.confident and confident.reliable
+    assert monitor.reference == pytest.approx(0.05 + P.reference_fall_rate * (0.033 - 0.05))
+    before = monitor.reference
+    assert monitor.assess(0.001, BOX, IMAGE, 90).lost  # a loss
+    assert monitor.reference == pytest.approx(before)
+    unreliable = FailureMonitor(dataclasses.replace(P, relative_drop=0.0))
+    unreliable.assess(0.05, BOX, IMAGE, 1)
+    assert not unreliable.assess(0.012, BOX, IMAGE, 2).reliable  # below zeta_s: committed, not learnt
+    assert unreliable.reference == pytest.approx(0.05)
 
 
 def test_a_reliable_frame_that_is_a_loss_does_not_move_the_reference():
-    # With relative_drop above reliable_fraction a peak can be reliable and not confident: on an
-    # eligible frame it is a loss (not committed) and the reference must not learn it; in the warm-up
-    # the same frame is committed and does.
-    params = MonitorParams(relative_drop=0.9, reliable_fraction=0.5)
+    # A peak above zeta_s can be below relative_drop x the reference (reliable, not confident): on
+    # an eligible frame it is a loss (not committed) and the reference must not learn it; in the
+    # warm-up the same frame is committed and does.
+    params = MonitorParams(relative_drop=0.9)
     lost = _primed(0.05, params=params)
     verdict = lost.assess(0.04, BOX, IMAGE, AFTER_WARMUP + 1)
     assert verdict.reliable and verdict.lost
@@ -161,14 +164,10 @@ def test_gradual_decline_is_caught_while_still_above_the_absolute_thresholds():
     assert k is not None and 30 < k < 60
     assert peaks[k] > P.reliable_peak  # caught long before the absolute threshold
     assert peaks[k] < P.relative_drop * 0.057 + 1e-9
-    # the defect the design avoids: a running mean updated on every frame above zeta_s (fall rate =
-    # rise rate, no reliable band) is dragged down by the decline and never fires
-    dragged = dataclasses.replace(P, reference_fall_rate=P.reference_rate, reliable_fraction=0.0)
+    # the defect the slow fall rate avoids: a running mean falling as fast as it rises is dragged
+    # down by the decline and never fires
+    dragged = dataclasses.replace(P, reference_fall_rate=P.reference_rate)
     assert _first_loss(FailureMonitor(dragged), peaks) is None
-    # either remedy alone catches it: the slow fall rate, or freezing the reference below the band
-    for remedy in (dataclasses.replace(P, reliable_fraction=0.0),
-                   dataclasses.replace(P, reference_fall_rate=P.reference_rate)):
-        assert _first_loss(FailureMonitor(remedy), peaks) is not None
 
 
 def test_slow_appearance_change_is_followed_without_a_loss():
@@ -191,7 +190,6 @@ def test_non_finite_peak_is_rejected():
     ({"enable_peak": 0.02, "reliable_peak": 0.01}, "monitor.enable_peak"),
     ({"enable_peak": 0.0}, "monitor.enable_peak"),
     ({"relative_drop": 1.0}, "monitor.relative_drop"),
-    ({"reliable_fraction": -0.1}, "monitor.reliable_fraction"),
     ({"reference_rate": 0.0}, "monitor.reference_rate"),
     ({"reference_fall_rate": 1.5}, "monitor.reference_fall_rate"),
     ({"warmup_frames": -1}, "monitor.warmup_frames"),

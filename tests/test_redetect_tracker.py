@@ -387,6 +387,8 @@ def test_registry_passes_nested_overrides_and_core_overrides():
     ({"accept": {"reacquire": "teleport"}}, "redetect.accept.reacquire"),
     ({"monitor": {"enable_peak": 0.05}}, "redetect.monitor.enable_peak"),  # above reliable_peak
     ({"search": 3}, "redetect.search"),  # a group must be a mapping
+    ({"accept": {"coast_confirm_frames": -3}}, "redetect.accept.coast_confirm_frames"),
+    ({"monitor": {"reliable_fraction": 0.7}}, "redetect.monitor.reliable_fraction"),  # removed: unknown now
 ])
 def test_redetect_mapping_errors_name_the_key(mapping, key):
     pattern = re.escape(key) + r"\b"
@@ -572,6 +574,44 @@ def test_a_target_that_looks_otherwise_is_followed_while_lost_and_kept_after():
     # Without coasting the box waits where the target was predicted to be: it ends up off the target.
     held, _ = _run_with_a_dimming_target(0.0)
     assert max(math.dist(_centre(held[i][1]), _centre(truth[i])) for i in range(1, 70)) > 8
+
+
+def _run_with_a_target_that_changed_for_good(coast_confirm_frames: int) -> tuple[dict[int, tuple[str, Box]], list[Box]]:
+    """A target moving right 1.5 px per frame whose colours fade into a grey of the background's
+    level over frames 35..44 and stay faded (a car that turned, or drove into shade, for good): the
+    decision filter only ever learnt it as it was. Returns frame -> (state, box) and the target's boxes."""
+    background = _background(seed=7)
+    grey = np.full((TARGET, TARGET, 3), 110, np.uint8)
+    truth: list[Box] = []
+    frames = []
+    for index in range(120):
+        x, y = 40 + 3 * index // 2, 100
+        fade = min(max((index - 34) / 10.0, 0.0), 1.0)
+        image = background.copy()
+        _paste(image, cv2.addWeighted(_target(), 1.0 - 0.8 * fade, grey, 0.8 * fade, 0.0), (x, y))
+        frames.append(image)
+        truth.append(_target_box((x, y)))
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept={"coast_confirm_frames": coast_confirm_frames}))
+    tracker.init(frames[0], truth[0])
+    return _run(tracker, frames[1:]), truth
+
+
+def test_a_target_followed_confidently_while_lost_ends_the_loss_after_coast_confirm_frames():
+    frames_needed = RedetectParams().accept.coast_confirm_frames
+    assert frames_needed > 0
+    results, truth = _run_with_a_target_that_changed_for_good(frames_needed)
+    lost = [i for i in results if results[i][0] == "lost"]
+    assert lost, "the turn must cost the core its confidence: the scenario tests nothing"
+    # The core follows the turning target through the loss ...
+    for i in range(1, 120):
+        assert math.dist(_centre(results[i][1]), _centre(truth[i])) < 8, (i, results[i], truth[i])
+    # ... and the loss ends there, at least coast_confirm_frames lost frames after it began.
+    recovered = [i for i in results if results[i][0] == "recovered"]
+    assert recovered and recovered[0] - lost[0] >= frames_needed, (lost, recovered)
+    assert all(results[i][0] == "tracking" for i in range(recovered[-1] + 1, 120))
+    # Without the rule the decision filter, which knows the target upright only, never ends the loss.
+    stuck, _ = _run_with_a_target_that_changed_for_good(0)
+    assert stuck[119][0] == "lost" and "recovered" not in {state for state, _ in stuck.values()}
 
 
 # ---------------------------------------------------------------- a real sequence

@@ -19,7 +19,10 @@ frames it learns and while lost.
   learning nothing) when it lies within search.coast_radius_sides of the predicted centre, so a
   target still in view whose look changed is followed; else the core waits at the prediction. While
   the core coasts, a candidate away from it must beat accept.switch_margin x the core's own score,
-  and one confirmed where the core is ends the loss at the core's box.
+  and one confirmed where the core is ends the loss at the core's box. A core that coasted with a
+  confident peak for accept.coast_confirm_frames lost frames in a row ends the loss too: the target
+  changed for good (a car that turned), so the decision filter, which knew it as it was, would never
+  recognise it; back to tracking, the filter learns the new look.
 - A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
 
 Additions beyond the paper and their measured effect: docs/method.md and the ablation
@@ -202,16 +205,20 @@ class JsarReTracker:
         within coast_radius_sides of where the target was going (a target still there whose look
         changed moves on as predicted; an absent one's background does not); else the core waits at
         the prediction, learning nothing. The decision filter learns nothing either way."""
-        radius = self.redetect.search.coast_radius_sides
-        predicted = search.anchor_xy
-        if math.hypot(loc.center_xy[0] - predicted[0], loc.center_xy[1] - predicted[1]) <= radius * search.side_px:
+        if self._coasts(loc, search):
             self.core.commit(frame, loc)
             self.memory.skip()
             self._remember_position()  # the motion model follows a coasting target
             search.coasting = True
         else:
-            self.core.relocate(predicted)
+            self.core.relocate(search.anchor_xy)
             search.coasting = False
+
+    def _coasts(self, loc: Localisation, search: LossSearch) -> bool:
+        """Whether the core's detection lies within coast_radius_sides of the predicted centre (it
+        commits it if nothing is taken)."""
+        radius = self.redetect.search.coast_radius_sides * search.side_px
+        return math.hypot(loc.center_xy[0] - search.anchor_xy[0], loc.center_xy[1] - search.anchor_xy[1]) <= radius
 
     def _candidates(self, frame: np.ndarray, search: LossSearch, own: Candidate) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a
@@ -256,6 +263,10 @@ class JsarReTracker:
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
             self._coast(frame, loc, search)
+            search.confident_coasting = search.confident_coasting + 1 if search.coasting and verdict.confident else 0
+            sustained = self.redetect.accept.coast_confirm_frames
+            if sustained and search.confident_coasting >= sustained:
+                return self._found(loc.peak)
             return TrackResult(box=self.core.box, score=loc.peak, state="lost")
         if search.coasting and self._agrees(taken, loc, search):
             # The decision filter confirms the target where the coasting core already is: keep the core's

@@ -9,10 +9,10 @@ frame index (0 = the initialisation frame).
   being an asymmetric running mean of reliable peaks (fast up, slow down). The relative test is an
   addition: per-target peak levels range from about 0.013 (a deforming bird) to 0.06, so a target
   replaced by background can halve the peak and stay above the absolute zeta_e;
-- reliable <=> peak > reliable_peak (zeta_s) and peak > reliable_fraction x reference: the decision
-  filter trains on that sample and the reference follows it. Below the band the reference is frozen,
-  so a gradual occlusion (the synthetic scene's canopy: 0.057 -> 0.019 over ~20 frames) cannot drag
-  it down and hide the loss;
+- reliable <=> peak > reliable_peak (zeta_s, the paper's rule): the decision filter trains on that
+  sample, and on a committed frame the reference follows it, fast up and slowly down, so a gradual
+  occlusion (the synthetic scene's canopy: 0.057 -> 0.019 over ~20 frames) cannot drag it down far
+  enough to hide the loss;
 - eligible <=> frame_index >= warmup_frames, min_area < w*h < max_area and the box inside the image
   (`inside_rule`). A frame that is not confident but not eligible is committed as plain JSAR.
 """
@@ -75,7 +75,7 @@ class FailureMonitor:
         p = self.params
         reference = self.reference
         confident = peak > p.enable_peak and (reference is None or peak > p.relative_drop * reference)
-        reliable = peak > p.reliable_peak and (reference is None or peak > p.reliable_fraction * reference)
+        reliable = peak > p.reliable_peak
         return confident, reliable
 
     def assess(self, peak: float, box: tuple[float, float, float, float], image_wh: tuple[int, int],

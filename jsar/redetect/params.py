@@ -30,7 +30,6 @@ class MonitorParams:
     enable_peak: float = 0.0105  # zeta_e: a frame below it is not confident (paper; the authors' code 0.01)
     reliable_peak: float = 0.013  # zeta_s: the decision filter trains on frames above it (paper)
     relative_drop: float = 0.6  # not confident either below this x the running reference (0: paper's rule only)
-    reliable_fraction: float = 0.7  # reliable also needs this x the reference (0: zeta_s alone)
     reference_rate: float = 0.1  # running reference's update rate towards a higher peak
     reference_fall_rate: float = 0.02  # ... towards a lower one (slow: a gradual occlusion must not drag it)
     warmup_frames: int = 30  # no loss is declared before this frame (the authors' "after frame 30")
@@ -43,8 +42,6 @@ class MonitorParams:
         _require(prefix, "enable_peak", 0 < self.enable_peak <= self.reliable_peak,
                  f"0 < enable_peak <= reliable_peak, got {self.enable_peak}, {self.reliable_peak}")
         _require(prefix, "relative_drop", 0 <= self.relative_drop < 1, f"0 <= value < 1, got {self.relative_drop}")
-        _require(prefix, "reliable_fraction", 0 <= self.reliable_fraction < 1,
-                 f"0 <= value < 1, got {self.reliable_fraction}")
         for key in ("reference_rate", "reference_fall_rate"):
             value = getattr(self, key)
             _require(prefix, key, 0 < value <= 1, f"0 < value <= 1, got {value}")
@@ -125,7 +122,10 @@ class AcceptParams:
     filter's score on that detection.
     A re-acquisition from a loss that is lost again within `probation_frames` did not hold: the
     search it ended resumes (the tracker as it was before it), and a candidate near the refuted
-    place must score refute_margin x what the refuted one scored."""
+    place must score refute_margin x what the refuted one scored.
+    A core that coasted with a confident peak (the monitor's test) on `coast_confirm_frames` lost
+    frames in a row ends the loss at its box: it followed a target whose look changed for good. An
+    occluder the coasting core learns for that long ends it too (the limitation this accepts)."""
 
     accept_peak: float = 0.0  # eta_d, absolute part (paper 0.02; 0: relative only)
     accept_fraction: float = 0.5  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
@@ -141,6 +141,7 @@ class AcceptParams:
     switch_margin: float = 1.3
     probation_frames: int = 10  # a re-acquisition lost again within this many frames is refuted (0: never) ...
     refute_margin: float = 1.2  # ... and its place must then score this x its score to be taken again
+    coast_confirm_frames: int = 30  # a core coasting confidently this many lost frames in a row ends the loss (0: never)
 
     def validate(self, prefix: str = "accept") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
@@ -159,6 +160,8 @@ class AcceptParams:
         _require(prefix, "switch_margin", self.switch_margin >= 1, f">= 1, got {self.switch_margin}")
         _require(prefix, "probation_frames", self.probation_frames >= 0, f">= 0, got {self.probation_frames}")
         _require(prefix, "refute_margin", self.refute_margin >= 1, f">= 1, got {self.refute_margin}")
+        _require(prefix, "coast_confirm_frames", self.coast_confirm_frames >= 0,
+                 f">= 0, got {self.coast_confirm_frames}")
         for key in ("gate_base_sides", "gate_speed_factor", "gate_min_speed"):
             value = getattr(self, key)
             _require(prefix, key, value >= 0, f">= 0, got {value}")

@@ -324,6 +324,8 @@ def test_turned_windows_recognise_a_target_that_turned_and_map_its_position_back
     turned_back, turned_more = memory.score_windows(image, table, np.array([window, window]), float(TARGET),
                                                     np.array([-45.0, 45.0]))  # undoes the turn / turns it further
     assert (turned_back.angle_deg, turned_more.angle_deg) == (-45.0, 45.0)
+    with pytest.raises(ValueError, match="one angle per centre"):
+        memory.score_windows(image, table, np.array([window, window]), float(TARGET), np.array([45.0]))
     assert turned_back.score > 1.5 * upright.score and turned_back.score > 1.5 * turned_more.score
     assert math.hypot(turned_back.x - 202.0, turned_back.y - 162.0) <= 4.0, turned_back  # in the frame's px
 

@@ -55,9 +55,12 @@ class DecisionMemory:
         angles_deg (N,) degrees about its centre (cv2's sign: counter-clockwise as displayed; 0 or None:
         upright). Upright windows are centred to the nearest cell of one shared feature map (centres on
         the same cell share a window); a turned window's peak is mapped back to the unturned image. All
-        windows go through one batched FFT."""
+        windows go through one batched FFT. Order: the upright candidates (by cell), then the turned ones
+        as given."""
         centres_xy = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
         angles = np.zeros(len(centres_xy)) if angles_deg is None else np.asarray(angles_deg, dtype=np.float64)
+        if angles.shape != (len(centres_xy),):
+            raise ValueError(f"angles_deg must have one angle per centre, got {angles.shape} for {len(centres_xy)}")
         if len(centres_xy) == 0:
             return []
         cells, cell_size = self.filter.shape_hw[0], self.params.cell_size

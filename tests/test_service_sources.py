@@ -3,6 +3,7 @@ latest-frame-wins, frame size change, tracker failure, lost / stop behaviour."""
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -181,8 +182,9 @@ def make_loop(make_tracker=None) -> tuple[TrackingLoop, LatestSlot, RecordingOut
     config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "camera": {"hfov_deg": 60.0}})
     selections: LatestSlot = LatestSlot()
     outputs = RecordingOutputs()
+    # An autopilot heard on every frame: the gimbal loop is closed, so its controller integrates.
     loop = TrackingLoop(config, selections, make_tracker or (lambda: jsar.create("csrt")), outputs,
-                        lambda: AutopilotView(system_id=1))
+                        lambda: AutopilotView(system_id=1, last_heartbeat_s=time.monotonic()))
     return loop, selections, outputs
 
 

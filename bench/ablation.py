@@ -41,7 +41,6 @@ DEFAULT = "default"
 VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     # Loss = the paper's absolute zeta_e alone, no drop relative to the target's own peak level.
     "no-relative-drop": {"monitor": {"relative_drop": 0.0}},
-    # The decision filter trains on every frame above zeta_s, whatever the target's own level.
     # The paper's eta_d: an absolute 0.02 decaying by 1.005 per failed frame, nothing relative.
     "absolute-eta-d": {"accept": {"accept_fraction": 0.0, "accept_floor": 0.0, "accept_peak": 0.02}},
     # No lattice windows: the decision filter scores the core's own detection sample only.

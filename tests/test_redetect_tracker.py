@@ -544,22 +544,29 @@ def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_targe
     assert all(gated[i][0] == "tracking" and math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(61, 70))
 
 
-def _run_with_a_dimming_target(coast_radius_sides: float) -> tuple[dict[int, tuple[str, Box]], list[Box]]:
-    """A target moving right 3 px per frame whose colours fade into a grey of the background's level
-    over frames 35..44 (the core's peak falls: a loss), stays faded to frame 54 and comes back as it
-    was. Returns frame -> (state, box) and the target's boxes."""
+def _fading_target(count: int, start_x: int, half_px_per_frame: int,
+                   back_at: int | None) -> tuple[list[np.ndarray], list[Box]]:
+    """Frames of a target moving right half_px_per_frame / 2 px per frame from x = start_x whose colours
+    fade into a grey of the background's level over frames 35..44 (the core's peak falls: a loss), and
+    come back as they were from frame back_at (None: stay faded). Returns the frames and the target's boxes."""
     background = _background(seed=7)
     grey = np.full((TARGET, TARGET, 3), 110, np.uint8)
     truth: list[Box] = []
     frames = []
-    for index in range(70):
-        x, y = 60 + 3 * index, 100
-        fade = min(max((index - 34) / 10.0, 0.0), 1.0) if index < 55 else 0.0
-        patch = cv2.addWeighted(_target(), 1.0 - 0.8 * fade, grey, 0.8 * fade, 0.0)
+    for index in range(count):
+        x, y = start_x + half_px_per_frame * index // 2, 100
+        fade = min(max((index - 34) / 10.0, 0.0), 1.0) if back_at is None or index < back_at else 0.0
         image = background.copy()
-        _paste(image, patch, (x, y))
+        _paste(image, cv2.addWeighted(_target(), 1.0 - 0.8 * fade, grey, 0.8 * fade, 0.0), (x, y))
         frames.append(image)
         truth.append(_target_box((x, y)))
+    return frames, truth
+
+
+def _run_with_a_dimming_target(coast_radius_sides: float) -> tuple[dict[int, tuple[str, Box]], list[Box]]:
+    """The fading target moving 3 px per frame, faded to frame 54, back as it was from frame 55.
+    Returns frame -> (state, box) and the target's boxes."""
+    frames, truth = _fading_target(70, 60, 6, back_at=55)
     tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"coast_radius_sides": coast_radius_sides}))
     tracker.init(frames[0], truth[0])
     return _run(tracker, frames[1:]), truth
@@ -579,20 +586,10 @@ def test_a_target_that_looks_otherwise_is_followed_while_lost_and_kept_after():
 
 
 def _run_with_a_target_that_changed_for_good(coast_confirm_frames: int) -> tuple[dict[int, tuple[str, Box]], list[Box]]:
-    """A target moving right 1.5 px per frame whose colours fade into a grey of the background's
-    level over frames 35..44 and stay faded (a car that turned, or drove into shade, for good): the
-    decision filter only ever learnt it as it was. Returns frame -> (state, box) and the target's boxes."""
-    background = _background(seed=7)
-    grey = np.full((TARGET, TARGET, 3), 110, np.uint8)
-    truth: list[Box] = []
-    frames = []
-    for index in range(120):
-        x, y = 40 + 3 * index // 2, 100
-        fade = min(max((index - 34) / 10.0, 0.0), 1.0)
-        image = background.copy()
-        _paste(image, cv2.addWeighted(_target(), 1.0 - 0.8 * fade, grey, 0.8 * fade, 0.0), (x, y))
-        frames.append(image)
-        truth.append(_target_box((x, y)))
+    """The fading target moving 1.5 px per frame that stays faded (a car that turned, or drove into
+    shade, for good): the decision filter only ever learnt it as it was. Returns frame -> (state, box)
+    and the target's boxes."""
+    frames, truth = _fading_target(120, 40, 3, back_at=None)
     tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept={"coast_confirm_frames": coast_confirm_frames}))
     tracker.init(frames[0], truth[0])
     return _run(tracker, frames[1:]), truth
@@ -603,15 +600,15 @@ def test_a_target_followed_confidently_while_lost_ends_the_loss_after_coast_conf
     assert frames_needed > 0
     results, truth = _run_with_a_target_that_changed_for_good(frames_needed)
     lost = [i for i in results if results[i][0] == "lost"]
-    assert lost, "the turn must cost the core its confidence: the scenario tests nothing"
-    # The core follows the turning target through the loss ...
+    assert lost, "the fading must cost the core its confidence: the scenario tests nothing"
+    # The core follows the changed target through the loss ...
     for i in range(1, 120):
         assert math.dist(_centre(results[i][1]), _centre(truth[i])) < 8, (i, results[i], truth[i])
     # ... and the loss ends there, at least coast_confirm_frames lost frames after it began.
     recovered = [i for i in results if results[i][0] == "recovered"]
     assert recovered and recovered[0] - lost[0] >= frames_needed, (lost, recovered)
     assert all(results[i][0] == "tracking" for i in range(recovered[-1] + 1, 120))
-    # Without the rule the decision filter, which knows the target upright only, never ends the loss.
+    # Without the rule the decision filter, which knows the target only as it was, never ends the loss.
     stuck, _ = _run_with_a_target_that_changed_for_good(0)
     assert stuck[119][0] == "lost" and "recovered" not in {state for state, _ in stuck.values()}
 

@@ -418,6 +418,24 @@ def test_geo_status_message_carries_the_estimate() -> None:
     assert (unknown.lat, unknown.lon) == (0, 0) and math.isnan(unknown.alt)
 
 
+class _StillTracker:
+    """A tracker whose target never moves: every update reports the box it was started on."""
+
+    def init(self, image, box):
+        self.box = box
+
+    def update(self, image):
+        from jsar.api import TrackResult
+        return TrackResult(self.box, 1.0, "tracking")
+
+
+class _CommandLog(list):
+    """The loop's outputs: keeps every command applied, in order."""
+
+    def apply(self, now_s: float, command: ControlCommand) -> None:
+        self.append(command)
+
+
 def test_loop_places_the_target_on_the_ground_from_vehicle_and_gimbal_attitude() -> None:
     import numpy as np
     from service.loop import TrackingLoop
@@ -428,22 +446,9 @@ def test_loop_places_the_target_on_the_ground_from_vehicle_and_gimbal_attitude()
     view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
                          gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))
 
-    class Still:
-        def init(self, image, box):
-            self.box = box
-
-        def update(self, image):
-            from jsar.api import TrackResult
-            return TrackResult(self.box, 1.0, "tracking")
-
-    commands: list[ControlCommand] = []
+    commands = _CommandLog()
     selections: LatestSlot = LatestSlot()
-
-    class Record:
-        def apply(self, now_s: float, command: ControlCommand) -> None:
-            commands.append(command)
-
-    loop = TrackingLoop(config, selections, Still, Record(), lambda: view)
+    loop = TrackingLoop(config, selections, _StillTracker, commands, lambda: view)
     selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))  # centred target
     image = np.zeros((100, 100, 3), np.uint8)
     loop.step(Frame(image, 0, 0.0, 0.0))
@@ -463,23 +468,11 @@ def test_gimbal_controller_does_not_integrate_while_the_autopilot_is_silent() ->
 
     config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
 
-    class Still:  # the target stays off-centre: the error is constant
-        def init(self, image, box):
-            self.box = box
-
-        def update(self, image):
-            from jsar.api import TrackResult
-            return TrackResult(self.box, 1.0, "tracking")
-
-    commands: list[ControlCommand] = []
+    commands = _CommandLog()
     selections: LatestSlot = LatestSlot()
-
-    class Record:
-        def apply(self, now_s: float, command: ControlCommand) -> None:
-            commands.append(command)
-
     views = [AutopilotView(system_id=1, last_heartbeat_s=time.monotonic())]  # heard: the first 20 frames take ms
-    loop = TrackingLoop(config, selections, Still, Record(), lambda: views[-1])
+    # The target stays where it was selected (off-centre): the error is constant.
+    loop = TrackingLoop(config, selections, _StillTracker, commands, lambda: views[-1])
     selections.put(c.TrackRectangle(0.70, 0.45, 0.80, 0.55))  # right of centre
     image = np.zeros((100, 100, 3), np.uint8)
     for k in range(20):

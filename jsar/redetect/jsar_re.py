@@ -205,7 +205,8 @@ class JsarReTracker:
         within coast_radius_sides of where the target was going (a target still there whose look
         changed moves on as predicted; an absent one's background does not); else the core waits at
         the prediction, learning nothing. The decision filter learns nothing either way."""
-        if self._coasts(loc, search):
+        radius = self.redetect.search.coast_radius_sides * search.side_px
+        if math.hypot(loc.center_xy[0] - search.anchor_xy[0], loc.center_xy[1] - search.anchor_xy[1]) <= radius:
             self.core.commit(frame, loc)
             self.memory.skip()
             self._remember_position()  # the motion model follows a coasting target
@@ -213,12 +214,6 @@ class JsarReTracker:
         else:
             self.core.relocate(search.anchor_xy)
             search.coasting = False
-
-    def _coasts(self, loc: Localisation, search: LossSearch) -> bool:
-        """Whether the core's detection lies within coast_radius_sides of the predicted centre (it
-        commits it if nothing is taken)."""
-        radius = self.redetect.search.coast_radius_sides * search.side_px
-        return math.hypot(loc.center_xy[0] - search.anchor_xy[0], loc.center_xy[1] - search.anchor_xy[1]) <= radius
 
     def _candidates(self, frame: np.ndarray, search: LossSearch, own: Candidate) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a

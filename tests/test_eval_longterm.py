@@ -72,6 +72,7 @@ def test_longterm_scores_hand_case():
     result = longterm.longterm_scores(pred, states, gt, criteria)
     assert result["n_events"] == 1 and result["n_reacquired"] == 1
     assert result["frames_to_recover"] == [2]  # frame 8 - frame 6
+    assert result["events"][0]["on_target_before"]  # frame 2 on target
     assert result["absent_frames"] == 3
     # frame 3: jump from (5,5) to (65,65) while absent; frame 4: "recovered" while absent.
     assert result["false_reinit_absent"] == 2
@@ -81,8 +82,15 @@ def test_longterm_scores_hand_case():
     wrong = list(states)
     wrong[7] = "recovered"  # re-initialised onto something with IoU 0 while the target is visible
     assert longterm.longterm_scores(pred, wrong, gt, criteria)["false_reinit_wrong_object"] == 1
+    drifted = pred.copy()
+    drifted[2] = [60, 60, 10, 10]  # already off the target on the frame before the event
+    off = longterm.longterm_scores(drifted, states, gt, criteria)
+    assert not off["events"][0]["on_target_before"] and off["n_reacquired"] == 1
     summary = longterm.summarise_longterm([result, late])
     assert summary["reacquisition_rate"] == 0.5
+    assert summary["n_events_on_target_before"] == 2 and summary["reacquisition_rate_on_target_before"] == 0.5
+    began_off = longterm.summarise_longterm([off])
+    assert began_off["n_events_on_target_before"] == 0 and began_off["reacquisition_rate_on_target_before"] is None
     assert summary["false_reinit_rate"] == pytest.approx(4 / 6)
 
 

@@ -358,7 +358,8 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
     ([start, stop) frames, each absent in `groundtruth`): then only those frames count as absent
     frames, so a run scores its own events only. An event is re-acquired
     if the box is on target (see on_target) at some frame in [reappear, reappear + window);
-    frames_to_recover is that frame minus the reappearance frame. A false re-initialisation is an
+    frames_to_recover is that frame minus the reappearance frame; on_target_before says whether the box was
+    on target on the frame before the event. A false re-initialisation is an
     absent frame where the tracker reports "recovered" or its box jumps, or a visible frame where it
     reports "recovered" with IoU 0 (re-initialised onto a wrong object). absent_reported_lost counts
     the absent frames on which the tracker said so (state "lost").
@@ -387,6 +388,10 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
         hits = np.flatnonzero(hit[stop:window_end])
         events.append({
             "start": start, "length": stop - start,
+            # Whether the box was on target on the frame before the event: an event that begins with the
+            # track already off (a one-pass failure, or an earlier event not re-acquired) has no target to
+            # re-acquire in the tracker's memory.
+            "on_target_before": bool(start > 0 and hit[start - 1]),
             "reacquired": bool(hits.size),
             "frames_to_recover": int(hits[0]) if hits.size else None,
         })
@@ -417,9 +422,13 @@ def summarise_longterm(per_run: list[dict[str, object]]) -> dict[str, float | in
     false_absent = sum(int(r["false_reinit_absent"]) for r in per_run)
     wrong = sum(int(r["false_reinit_wrong_object"]) for r in per_run)
     reported = sum(int(r["absent_reported_lost"]) for r in per_run)
+    began_on = [e for r in per_run for e in r["events"] if e.get("on_target_before")]  # type: ignore[union-attr]
     return {
         "n_events": n_events,
         "reacquisition_rate": n_reacquired / n_events if n_events else None,
+        "n_events_on_target_before": len(began_on),
+        "reacquisition_rate_on_target_before": (sum(e["reacquired"] for e in began_on) / len(began_on)
+                                                if began_on else None),
         "mean_frames_to_recover": float(np.mean(frames)) if frames else None,
         "median_frames_to_recover": float(np.median(frames)) if frames else None,
         "absent_frames": absent,

@@ -78,7 +78,9 @@ def format_longterm_table(result: dict[str, object]) -> str:
         by_length = ", ".join(f"{k}:{v['rate']:.2f}/{v['events']}"
                               for k, v in row["reacquisition_by_length"].items())
         by_kind = ", ".join(f"{k}:{v['rate']:.2f}/{v['events']}" for k, v in row["reacquisition_by_kind"].items())
-        rows.append([name, f"{_fmt(lt['reacquisition_rate'], '.2f')} of {lt['n_events']}", by_length, by_kind,
+        rows.append([name, f"{_fmt(lt['reacquisition_rate'], '.2f')} of {lt['n_events']}",
+                     f"{_fmt(lt.get('reacquisition_rate_on_target_before'), '.2f')} of "
+                     f"{lt.get('n_events_on_target_before', '-')}", by_length, by_kind,
                      _fmt(lt["mean_frames_to_recover"], ".1f"), _fmt(lt["median_frames_to_recover"], ".1f"),
                      f"{_fmt(lt['false_reinit_rate'], '.3f')} ({lt['false_reinit_absent']}+"
                      f"{lt['false_reinit_wrong_object']}/{lt['absent_frames']})",
@@ -89,8 +91,8 @@ def format_longterm_table(result: dict[str, object]) -> str:
     note = (f"re-acquired: on target (IoU > {criteria['min_iou']} or centre error <= "
             f"{criteria['max_centre_error_px']} px) within {criteria['window']} frames of reappearance; "
             f"false re-init: 'recovered' state or box jump while absent + 'recovered' onto IoU 0, "
-            f"per absent frame; by length / kind = rate/events (kind real = the ground truth's own absent runs); absent: lost = share of absent frames reported lost; seed {result['seed']}")
-    text = _table(["tracker", "re-acquired", "by length", "by kind", "mean frames", "median frames",
+            f"per absent frame; began on target = the events whose previous frame the box was on target; by length / kind = rate/events (kind real = the ground truth's own absent runs); absent: lost = share of absent frames reported lost; seed {result['seed']}")
+    text = _table(["tracker", "re-acquired", "began on target: re-acquired", "by length", "by kind", "mean frames", "median frames",
                    "false re-init (abs+wrong/absent)", "absent: lost", "prec@20", "AUC", "fps", "fps/CSRT"], rows) + "\n" + note
     return text + _errors(summary)  # type: ignore[arg-type]
 

@@ -116,6 +116,10 @@ def test_decayed_bar_decays_to_its_floor_and_keeps_the_absolute_part():
     assert all(b1 <= b0 for b0, b1 in zip(bars, bars[1:]))
     assert bars[-1] == pytest.approx(0.06 * 0.45)  # the floor: 0.5 / 1.005^t < 0.45 from t = 22
     assert decayed_bar(None, 3, relative) == math.inf  # nothing to compare with yet
+    # Never below min_peak (JSAR-Re passes zeta_s): a target whose own level is low gets that bar instead.
+    assert decayed_bar(0.02, 30, relative, min_peak=0.013) == pytest.approx(0.013)
+    assert decayed_bar(0.06, 30, relative, min_peak=0.013) == pytest.approx(0.06 * 0.45)
+    assert decayed_bar(None, 3, relative, min_peak=0.013) == math.inf
     paper = AcceptParams(accept_peak=0.02, accept_fraction=0.0, accept_floor=0.0)  # the paper's eta_d
     assert decayed_bar(None, 0, paper) == pytest.approx(0.02)
     assert decayed_bar(0.5, 7, paper) == pytest.approx(0.02 / 1.005 ** 7)
@@ -170,17 +174,21 @@ def test_loss_search_windows_cycle_through_the_lattice_within_the_budget():
 
 
 def test_search_cycle_turns_the_centre_first_then_each_ring_upright_then_turned():
-    entries = search_cycle(5.0, 2.5, (45.0, -45.0))
+    entries = search_cycle(5.0, 2.5, (45.0, -45.0), turned_rings=1)
     ring = lattice_offsets(5.0, 2.5)
     assert entries.shape == (2 + 3 * 8, 3)
     assert np.allclose(entries[:2], [[0, 0, 45], [0, 0, -45]])  # the centre: the core's window, turned
     assert np.allclose(entries[2:10, :2], ring) and np.all(entries[2:10, 2] == 0)
     assert np.allclose(entries[10:18, :2], ring) and np.all(entries[10:18, 2] == 45)
     assert np.allclose(entries[18:, :2], ring) and np.all(entries[18:, 2] == -45)
-    two_rings = search_cycle(10.0, 2.5, (30.0,))
+    two_rings = search_cycle(10.0, 2.5, (30.0,), turned_rings=2)
     assert len(two_rings) == 1 + 2 * 8 + 2 * 16
     assert np.all(np.max(np.abs(two_rings[1 + 16:1 + 16 + 16, :2]), axis=1) == 5.0)  # ring 2 after ring 1
-    assert np.allclose(search_cycle(5.0, 2.5, ())[:, :2], ring)  # no angles: the upright lattice
+    near_turned = search_cycle(10.0, 2.5, (30.0,), turned_rings=1)  # ring 2 upright only
+    assert len(near_turned) == 1 + 2 * 8 + 16 and np.all(near_turned[1 + 16:, 2] == 0)
+    assert np.allclose(near_turned[:1 + 16], two_rings[:1 + 16])
+    assert np.allclose(search_cycle(5.0, 2.5, (), turned_rings=1)[:, :2], ring)  # no angles: the upright lattice
+    assert np.allclose(search_cycle(5.0, 2.5, (45.0,), turned_rings=0)[1:], search_cycle(5.0, 2.5, (), 1))
 
 
 def test_loss_search_windows_keep_only_centres_inside_the_frame_and_grow_with_the_loss():
@@ -241,6 +249,18 @@ def test_decide_ignores_candidates_beyond_the_motion_gate():
         == Candidate(179.0, 120.0, 0.04)
 
 
+def test_the_lead_is_the_best_candidate_found_off_its_window_centre():
+    search = _search()  # target side 10 px
+    centred_look_alike = Candidate(250.0, 120.0, 0.02, window_xy=(251.0, 121.0))  # 0.14 sides off: its score is known
+    off_centre = Candidate(180.0, 120.0, 0.012, window_xy=(160.0, 120.0))  # 2 sides off: worth a centred window
+    search.decide([centred_look_alike, off_centre], bar=0.03)
+    assert search.lead == off_centre
+    search.decide([centred_look_alike], bar=0.03)
+    assert search.lead is None  # nothing left to look at again
+    search.decide([Candidate(180.0, 120.0, 0.012)], bar=0.03)  # window unknown: counted as off centre
+    assert search.lead == Candidate(180.0, 120.0, 0.012)
+
+
 # ---------------------------------------------------------------- the decision filter and the core
 
 def _tracker_on_target(top_left: tuple[int, int] = (100, 100), background: np.ndarray | None = None,
@@ -288,6 +308,12 @@ def test_score_windows_finds_a_target_placed_in_a_window():
     assert on.score > 0.7 * memory.reference
     assert off.score < 0.2 * memory.reference
     assert math.dist((off.x, off.y), (60.0, 190.0)) <= 2.5 * TARGET  # its peak lies in its own window
+    # Each candidate names the window it came from (the window's centre, to the nearest cell): the target's
+    # peak lies ~21 px off its window's centre (a second, centred look would score it higher).
+    assert math.dist(on.window_xy, (185.0, 150.0)) <= px_per_cell and math.dist(off.window_xy, (60.0, 190.0)) <= px_per_cell
+    assert on.off_centre_sides(float(TARGET)) == pytest.approx(math.hypot(17.0, 12.0) / TARGET, abs=0.15)
+    centred = memory.score_windows(image, tracker.core.feature_colour_table, np.array([[on.x, on.y]]), float(TARGET))[0]
+    assert centred.off_centre_sides(float(TARGET)) < 0.2 and centred.score > on.score
     # Windows scored one by one (a patch each) or together (cut from one shared feature map): the same.
     ring = np.vstack([centres[:1], centres[:1] + [[24.0, 0.0], [0.0, 24.0]]])
     table = tracker.core.feature_colour_table
@@ -386,6 +412,7 @@ def test_registry_passes_nested_overrides_and_core_overrides():
     ({"monitor": {"enable_peak": True}}, "redetect.monitor.enable_peak"),  # a bool for a number
     ({"accept": {"gate_base_sides": float("inf")}}, "redetect.accept.gate_base_sides"),  # not finite
     ({"search": {"windows_per_frame": -1}}, "redetect.search.windows_per_frame"),  # invalid value
+    ({"search": {"turned_rings": -1}}, "redetect.search.turned_rings"),
     ({"accept": {"reacquire": "teleport"}}, "redetect.accept.reacquire"),
     ({"monitor": {"enable_peak": 0.05}}, "redetect.monitor.enable_peak"),  # above reliable_peak
     ({"search": 3}, "redetect.search"),  # a group must be a mapping

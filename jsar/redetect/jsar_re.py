@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -228,7 +229,7 @@ class JsarReTracker:
         side = search.side_px  # the last confident size (a coasting core's may have drifted)
         found = self.memory.score_windows(image, self.core.feature_colour_table, centres, side, angles)
         factor = self.redetect.search.turned_score_factor
-        return [own] + [c if c.angle_deg == 0 else Candidate(c.x, c.y, c.score * factor, c.angle_deg) for c in found]
+        return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
 
     def _search_lost(self, frame: np.ndarray, loc: Localisation, verdict: Verdict, own: Candidate) -> TrackResult:
         """One lost frame: the core confident again where the decision filter recognises the target
@@ -238,9 +239,10 @@ class JsarReTracker:
         assert self.search is not None and self.memory is not None
         search = self.search
         search.lost_frames += 1
-        # Never below zeta_e: a candidate the monitor would not call confident cannot hold a track.
-        bar = max(decayed_bar(self.memory.reference, search.lost_frames - 1, self.redetect.accept),
-                  self.redetect.monitor.enable_peak)
+        # Never below zeta_s: a candidate must score as a frame the decision filter would learn from
+        # (ending a loss on a weaker one took background, e.g. with a target whose own level is low).
+        bar = decayed_bar(self.memory.reference, search.lost_frames - 1, self.redetect.accept,
+                          self.redetect.monitor.reliable_peak)
         if verdict.confident and own.score >= bar and self._agrees(own, loc, search):
             self._commit(frame, loc, verdict.reliable, own)
             return self._found(loc.peak)

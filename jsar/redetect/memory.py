@@ -46,7 +46,8 @@ class DecisionMemory:
         response, response_f = self.filter.response(sample_f)
         dy, dx, peak = dcf.subpixel_peak(response, response_f, self.params.newton_iterations)
         px_per_cell = side_px / self.filter.shape_hw[0]
-        return Candidate(centre_xy[0] + dx * px_per_cell, centre_xy[1] + dy * px_per_cell, float(peak))
+        return Candidate(centre_xy[0] + dx * px_per_cell, centre_xy[1] + dy * px_per_cell, float(peak),
+                         window_xy=(float(centre_xy[0]), float(centre_xy[1])))
 
     def score_windows(self, image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray,
                       target_side_px: float, angles_deg: np.ndarray | None = None) -> list[Candidate]:
@@ -92,7 +93,8 @@ class DecisionMemory:
             if degrees:
                 # The window was turned by `degrees` about its centre: turn the offset back.
                 offset = cv2.getRotationMatrix2D((0.0, 0.0), -degrees, 1.0)[:, :2] @ offset
-            found.append(Candidate(float(centre[0] + offset[0]), float(centre[1] + offset[1]), float(peak), degrees))
+            found.append(Candidate(float(centre[0] + offset[0]), float(centre[1] + offset[1]), float(peak), degrees,
+                                   (float(centre[0]), float(centre[1]))))
         return found
 
     def train(self, core: JsarTracker, own_peak: float) -> None:

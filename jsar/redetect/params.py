@@ -66,9 +66,11 @@ class SearchParams:
     While lost, the core coasts: it commits its own detection (as plain JSAR; the decision filter
     learns nothing) when that lies within `coast_radius_sides` of the predicted centre, else it waits
     at the prediction.
-    Every lattice window, and the centre's, is also scored with the image turned by each of
-    `turned_angles_deg` (a car that turned at a junction or under a bridge no longer matches the
-    filter's gradient orientations), its score x turned_score_factor. `windows_per_frame` of these
+    The centre's window and the lattice windows of the first `turned_rings` rings are also scored with
+    the image turned by each of `turned_angles_deg` (a car that turned at a junction or under a bridge
+    no longer matches the filter's gradient orientations), its score x turned_score_factor; farther
+    rings are scored upright only (a target that turned did so where it was lost, and turned windows on
+    every ring made the cycle three times as long). `windows_per_frame` of these
     windows (upright or turned) are scored per lost frame, cycling through them ring by ring
     (search.search_cycle): the per-frame budget that bounds a lost frame's cost."""
 
@@ -78,6 +80,7 @@ class SearchParams:
     stride_sides: float = 2.5  # lattice stride (target sides): half a 5-side window
     windows_per_frame: int = 6  # budget: windows (upright or turned) per lost frame (0: the core's window only)
     turned_angles_deg: tuple[float, ...] = (45.0, -45.0)  # every window also scored turned by these ...
+    turned_rings: int = 2  # ... on the centre and this many lattice rings around it (farther: upright only)
     turned_score_factor: float = 0.9  # ... its score x this (an upright match should win: it keeps the pre-loss filters)
     coast_radius_sides: float = 0.5  # while lost the core follows its detection (as plain JSAR) within this of the prediction (0: never)
     motion_frames: int = 5  # the search follows the target's velocity over its last this-many committed frames ...
@@ -93,6 +96,7 @@ class SearchParams:
         _require(prefix, "windows_per_frame", self.windows_per_frame >= 0, f">= 0, got {self.windows_per_frame}")
         _require(prefix, "turned_angles_deg", all(-180 < a <= 180 and a != 0 for a in self.turned_angles_deg),
                  f"angles in (-180, 180] other than 0 (degrees), got {self.turned_angles_deg}")
+        _require(prefix, "turned_rings", self.turned_rings >= 0, f">= 0, got {self.turned_rings}")
         _require(prefix, "turned_score_factor", 0 < self.turned_score_factor <= 1,
                  f"0 < value <= 1, got {self.turned_score_factor}")
         _require(prefix, "coast_radius_sides", self.coast_radius_sides >= 0, f">= 0, got {self.coast_radius_sides}")

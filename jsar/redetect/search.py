@@ -6,9 +6,10 @@ pixels (x right, y down), scores are raw decision-filter peaks (MATLAB FFT conve
 The lattice holds window centres at stride x (i, j), (i, j) != (0, 0) (the centre window is the core
 tracker's own detection sample, scored apart), within a square of side area + stride (so the ring
 just beyond the paper's omega square is searched: its windows reach omega's corners), nearest ring
-first. Every window is also scored with the image turned by each of the search's angles (a target
-that turned while hidden): the cycle is the centre's turned windows, then ring by ring the ring's
-upright windows followed by its turned ones. Each lost frame scores `windows_per_frame` entries of
+first. The centre's window and those of the nearest `turned_rings` rings are also scored with the image
+turned by each of the search's angles (a target that turned while hidden, where it was lost): the cycle
+is the centre's turned windows, then ring by ring the ring's upright windows followed (near rings only)
+by its turned ones. Each lost frame scores `windows_per_frame` entries of
 the cycle; the area grows per lost frame (the paper's omega schedule), so farther rings join the
 cycle as the loss goes on.
 """
@@ -21,6 +22,8 @@ import numpy as np
 
 from jsar.redetect.params import AcceptParams, SearchParams
 
+RECENTRE_SIDES = 0.5  # a candidate this far (target sides) from its window's centre is worth a centred look
+
 
 @dataclass(frozen=True)
 class Candidate:
@@ -30,10 +33,15 @@ class Candidate:
     y: float
     score: float
     angle_deg: float = 0.0  # the window was scored with the image turned by this (0: upright)
+    window_xy: tuple[float, float] | None = None  # centre (px) of the window that found it (None: unknown)
 
     def distance_sides(self, other_xy: tuple[float, float], side_px: float) -> float:
         """Distance to other_xy (px) in target sides."""
         return math.hypot(self.x - other_xy[0], self.y - other_xy[1]) / side_px
+
+    def off_centre_sides(self, side_px: float) -> float:
+        """How far the peak lies from the centre of its window, in target sides (inf: window unknown)."""
+        return math.inf if self.window_xy is None else self.distance_sides(self.window_xy, side_px)
 
 
 def predicted_centre(track: list[tuple[int, float, float]], frame_index: int, max_frames: int) -> tuple[float, float]:
@@ -77,28 +85,30 @@ def lattice_offsets(area_sides: float, stride_sides: float) -> np.ndarray:
     return np.column_stack([i[order], j[order]]).astype(np.float64) * stride_sides
 
 
-def search_cycle(area_sides: float, stride_sides: float, angles_deg: tuple[float, ...]) -> np.ndarray:
+def search_cycle(area_sides: float, stride_sides: float, angles_deg: tuple[float, ...],
+                 turned_rings: int) -> np.ndarray:
     """(K, 3) lattice entries (dx, dy target sides, angle degrees): the centre (0, 0) at each turned
-    angle, then per ring (lattice_offsets' order) its upright windows, then the ring at each angle."""
+    angle, then per ring (lattice_offsets' order) its upright windows, then, for the first
+    turned_rings rings, the ring at each angle."""
     offsets = lattice_offsets(area_sides, stride_sides)
     rings = np.max(np.abs(offsets), axis=1) if len(offsets) else np.empty(0)
     entries = [np.array([[0.0, 0.0, a] for a in angles_deg]).reshape(-1, 3)]
     for ring in np.unique(np.rint(rings / stride_sides)):
         at_ring = offsets[np.rint(rings / stride_sides) == ring]
-        for angle in (0.0, *angles_deg):
+        for angle in (0.0, *(angles_deg if ring <= turned_rings else ())):
             entries.append(np.column_stack([at_ring, np.full(len(at_ring), angle)]))
     return np.vstack(entries)
 
 
-def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams) -> float:
+def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams, min_peak: float = 0.0) -> float:
     """The acceptance bar (raw peak) after `lost_frames` failed frames: max(accept_peak / decay^t,
-    reference x max(accept_floor, accept_fraction / decay^t)) (reference None: the absolute part
-    alone, or inf when that is 0: nothing to compare with yet)."""
+    reference x max(accept_floor, accept_fraction / decay^t), min_peak) (reference None: the absolute
+    part alone, or inf when that is 0: nothing to compare with yet)."""
     decay = accept.accept_decay ** lost_frames
     relative = (reference * max(accept.accept_floor, accept.accept_fraction / decay)
                 if reference is not None else 0.0)
     bar = max(accept.accept_peak / decay, relative)
-    return bar if bar > 0 else math.inf
+    return max(bar, min_peak) if bar > 0 else math.inf
 
 
 @dataclass
@@ -115,7 +125,7 @@ class LossSearch:
     lost_frames: int = 0
     cursor: int = 0
     pending: Candidate | None = None
-    lead: Candidate | None = None  # this frame's best candidate: next frame scores a window centred on it
+    lead: Candidate | None = None  # this frame's best candidate off its window's centre: next frame centres a window on it
     confirmations: int = 0
     scored_windows: int = field(default=0)
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
@@ -132,7 +142,8 @@ class LossSearch:
         """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright),
         at most windows_per_frame entries of search_cycle whose centre lies in the frame; advances
         the cycle."""
-        entries = search_cycle(self.area_sides(), self.search.stride_sides, self.search.turned_angles_deg)
+        entries = search_cycle(self.area_sides(), self.search.stride_sides, self.search.turned_angles_deg,
+                               self.search.turned_rings)
         budget = min(self.search.windows_per_frame, len(entries))
         if budget == 0:
             return np.empty((0, 2)), np.empty(0)
@@ -151,15 +162,19 @@ class LossSearch:
         return self.accept.refute_margin * max(near) if near else 0.0
 
     def decide(self, candidates: list[Candidate], bar: float) -> Candidate | None:
-        """The candidate taken on this frame, or None; the best candidate becomes the lead (a lattice
-        window rarely centres the target: the next frame looks again centred on it, at its angle).
+        """The candidate taken on this frame, or None; the best candidate found at least RECENTRE_SIDES
+        off its window's centre becomes the lead (a lattice window rarely centres the target, and scores
+        it lower the farther off: the next frame looks again centred on it, at its angle).
         A candidate above `bar` becomes pending; it is
         taken once a candidate above the bar lies within confirm_radius_sides of the pending one on
         confirm_frames consecutive frames (the pending one moves along with it). No candidate is
         taken in the first holdoff_frames lost frames, nor beyond reach_sides of anchor_xy, nor near a
         refuted re-acquisition unless it beats refute_margin x that one's score."""
-        if candidates:
-            self.lead = max(candidates, key=lambda c: c.score)
+        # The lead is the best candidate found off its window's centre: a window scores a target off its
+        # centre low (the cosine window), one centred on it tells its real score. A candidate already
+        # centred is known; re-centring on it again would let one look-alike hold the lead for good.
+        off_centre = [c for c in candidates if c.off_centre_sides(self.side_px) >= RECENTRE_SIDES]
+        self.lead = max(off_centre, key=lambda c: c.score) if off_centre else None
         above = [c for c in candidates if c.score >= max(bar, self.refuted_bar(c))
                  and c.distance_sides(self.anchor_xy, self.side_px) <= self.reach_sides]
         if self.pending is not None:

@@ -422,7 +422,7 @@ def summarise_longterm(per_run: list[dict[str, object]]) -> dict[str, float | in
     false_absent = sum(int(r["false_reinit_absent"]) for r in per_run)
     wrong = sum(int(r["false_reinit_wrong_object"]) for r in per_run)
     reported = sum(int(r["absent_reported_lost"]) for r in per_run)
-    began_on = [e for r in per_run for e in r["events"] if e.get("on_target_before")]  # type: ignore[union-attr]
+    began_on = [e for r in per_run for e in r["events"] if e["on_target_before"]]  # type: ignore[union-attr]
     return {
         "n_events": n_events,
         "reacquisition_rate": n_reacquired / n_events if n_events else None,

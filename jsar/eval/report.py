@@ -79,8 +79,8 @@ def format_longterm_table(result: dict[str, object]) -> str:
                               for k, v in row["reacquisition_by_length"].items())
         by_kind = ", ".join(f"{k}:{v['rate']:.2f}/{v['events']}" for k, v in row["reacquisition_by_kind"].items())
         rows.append([name, f"{_fmt(lt['reacquisition_rate'], '.2f')} of {lt['n_events']}",
-                     f"{_fmt(lt.get('reacquisition_rate_on_target_before'), '.2f')} of "
-                     f"{lt.get('n_events_on_target_before', '-')}", by_length, by_kind,
+                     f"{_fmt(lt['reacquisition_rate_on_target_before'], '.2f')} of "
+                     f"{lt['n_events_on_target_before']}", by_length, by_kind,
                      _fmt(lt["mean_frames_to_recover"], ".1f"), _fmt(lt["median_frames_to_recover"], ".1f"),
                      f"{_fmt(lt['false_reinit_rate'], '.3f')} ({lt['false_reinit_absent']}+"
                      f"{lt['false_reinit_wrong_object']}/{lt['absent_frames']})",

@@ -125,8 +125,13 @@ def test_decayed_bar_decays_to_its_floor_and_keeps_the_absolute_part():
     assert decayed_bar(0.5, 7, paper) == pytest.approx(0.02 / 1.005 ** 7)
     both = AcceptParams(accept_peak=0.02)
     assert decayed_bar(0.03, 0, both) == pytest.approx(0.02)  # a weak target: the absolute part wins
-    assert decayed_bar(0.08, 0, both) == pytest.approx(0.04)  # a strong one: the relative part wins
+    assert decayed_bar(0.08, 0, both) == pytest.approx(0.08 * 0.625)  # a strong one: the relative part wins
     assert decayed_bar(None, 0, both) == pytest.approx(0.02)
+    # The defaults: 0.625x the level at the first lost frame, 0.5x after 45 lost frames, the 0.45x floor from 66 on.
+    defaults = AcceptParams()
+    assert decayed_bar(1.0, 0, defaults) == pytest.approx(0.625)
+    assert decayed_bar(1.0, 45, defaults) == pytest.approx(0.5, abs=0.001)
+    assert decayed_bar(1.0, 65, defaults) > 0.45 and decayed_bar(1.0, 66, defaults) == pytest.approx(0.45)
 
 
 def test_track_speed_in_sides_per_frame_and_gate_reach_in_sides():

@@ -113,7 +113,10 @@ class AcceptParams:
     peaks on the frames it learnt. The paper's eta_d is the absolute accept_peak (0.02) decaying by
     1.005 per failed frame. Relative to how the target scored, the bar starts high (right after a
     loss the nearest thing to score is the occluder, or the background where the target was) and
-    relaxes to accept_floor as the loss goes on (the target may come back changed). A candidate is taken after it passes the bar on
+    relaxes to accept_floor as the loss goes on (the target may come back changed): 0.625x at the first
+    lost frame, 0.5x after 45, 0.45x from 66 on. Most false re-acquisitions come early in a loss (the
+    occluder where the target was, a look-alike nearby); a target that comes back changed after a long
+    loss (the closed loop's car out of the bridge, turned, ~0.5x) needs the low floor. A candidate is taken after it passes the bar on
     `confirm_frames` consecutive frames within `confirm_radius_sides` of where it was. Taking it
     either moves the core tracker there with its filters as they were before the loss ("relocate":
     nothing was learnt while lost) or retrains them from that one frame ("retrain", the paper).
@@ -132,7 +135,7 @@ class AcceptParams:
     occluder the coasting core learns for that long ends it too (the limitation this accepts)."""
 
     accept_peak: float = 0.0  # eta_d, absolute part (paper 0.02; 0: relative only)
-    accept_fraction: float = 0.5  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
+    accept_fraction: float = 0.625  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
     accept_decay: float = 1.005  # ... divided by this per lost frame (paper's value, there on the absolute eta_d) ...
     accept_floor: float = 0.45  # ... down to this
     confirm_frames: int = 1

@@ -132,6 +132,10 @@ def test_decayed_bar_decays_to_its_floor_and_keeps_the_absolute_part():
     assert decayed_bar(1.0, 0, defaults) == pytest.approx(0.625)
     assert decayed_bar(1.0, 45, defaults) == pytest.approx(0.5, abs=0.001)
     assert decayed_bar(1.0, 65, defaults) > 0.45 and decayed_bar(1.0, 66, defaults) == pytest.approx(0.45)
+    # The core's own confident detection: the same decay and floor from core_fraction (0.5x).
+    assert decayed_bar(1.0, 0, defaults, fraction=defaults.core_fraction) == pytest.approx(0.5)
+    assert decayed_bar(1.0, 22, defaults, fraction=defaults.core_fraction) == pytest.approx(0.45)
+    assert decayed_bar(0.02, 0, defaults, min_peak=0.013, fraction=0.5) == pytest.approx(0.013)
 
 
 def test_track_speed_in_sides_per_frame_and_gate_reach_in_sides():
@@ -418,6 +422,7 @@ def test_registry_passes_nested_overrides_and_core_overrides():
     ({"accept": {"gate_base_sides": float("inf")}}, "redetect.accept.gate_base_sides"),  # not finite
     ({"search": {"windows_per_frame": -1}}, "redetect.search.windows_per_frame"),  # invalid value
     ({"search": {"turned_rings": -1}}, "redetect.search.turned_rings"),
+    ({"accept": {"core_fraction": 0.3}}, "redetect.accept.core_fraction"),  # under the floor
     ({"accept": {"reacquire": "teleport"}}, "redetect.accept.reacquire"),
     ({"monitor": {"enable_peak": 0.05}}, "redetect.monitor.enable_peak"),  # above reliable_peak
     ({"search": 3}, "redetect.search"),  # a group must be a mapping

@@ -9,7 +9,8 @@ frames it learns and while lost.
   learns the frame if it is reliable.
 - Tracking, not confident: a loss; the frame is searched as below and reported "lost".
 - Lost: if the core's peak is confident again and the decision filter scores its sample above the
-  bar (params.AcceptParams), the frame is committed and the loss ends. Otherwise the decision filter
+  core's bar (params.AcceptParams.core_fraction; its peak within a side of the core's), the frame is
+  committed and the loss ends. Otherwise the decision filter
   scores the core's sample and a few lattice windows, upright and turned, around where the target
   was going (search.py: a per-frame budget, the square growing as the paper's omega); a candidate
   above the bar confirmed on the next frame is taken: the core moves there, with its filters as they
@@ -241,9 +242,11 @@ class JsarReTracker:
         search.lost_frames += 1
         # Never below zeta_s: a candidate must score as a frame the decision filter would learn from
         # (ending a loss on a weaker one took background, e.g. with a target whose own level is low).
-        bar = decayed_bar(self.memory.reference, search.lost_frames - 1, self.redetect.accept,
-                          self.redetect.monitor.reliable_peak)
-        if verdict.confident and own.score >= bar and self._agrees(own, loc, search):
+        accept, zeta_s = self.redetect.accept, self.redetect.monitor.reliable_peak
+        bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s)
+        # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
+        core_bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s, accept.core_fraction)
+        if verdict.confident and own.score >= core_bar and self._agrees(own, loc, search):
             self._commit(frame, loc, verdict.reliable, own)
             return self._found(loc.peak)
         search.anchor_xy = self._predicted_centre()

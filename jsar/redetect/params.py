@@ -116,7 +116,10 @@ class AcceptParams:
     relaxes to accept_floor as the loss goes on (the target may come back changed): 0.625x at the first
     lost frame, 0.5x after 45, 0.45x from 66 on. Most false re-acquisitions come early in a loss (the
     occluder where the target was, a look-alike nearby); a target that comes back changed after a long
-    loss (the closed loop's car out of the bridge, turned, ~0.5x) needs the low floor. A candidate is taken after it passes the bar on
+    loss (the closed loop's car out of the bridge, turned, ~0.5x) needs the low floor. The core's own
+    detection, confident again where the decision filter peaks, passes two tests: its bar starts from
+    core_fraction instead (0.5x; with 0.625x a wakeboarder's false loss on Surfing06 lasted until a
+    candidate beside him was taken). A candidate is taken after it passes the bar on
     `confirm_frames` consecutive frames within `confirm_radius_sides` of where it was. Taking it
     either moves the core tracker there with its filters as they were before the loss ("relocate":
     nothing was learnt while lost) or retrains them from that one frame ("retrain", the paper).
@@ -138,6 +141,7 @@ class AcceptParams:
     accept_fraction: float = 0.625  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
     accept_decay: float = 1.005  # ... divided by this per lost frame (paper's value, there on the absolute eta_d) ...
     accept_floor: float = 0.45  # ... down to this
+    core_fraction: float = 0.5  # ... starting from this instead for the core's own detection, confident again where the decision filter peaks
     confirm_frames: int = 1
     confirm_radius_sides: float = 1.5
     holdoff_frames: int = 5
@@ -159,6 +163,8 @@ class AcceptParams:
         _require(prefix, "accept_decay", self.accept_decay >= 1, f">= 1, got {self.accept_decay}")
         _require(prefix, "accept_floor", 0 <= self.accept_floor <= self.accept_fraction,
                  f"0 <= accept_floor <= accept_fraction, got {self.accept_floor}, {self.accept_fraction}")
+        _require(prefix, "core_fraction", self.accept_floor <= self.core_fraction <= 1,
+                 f"accept_floor <= core_fraction <= 1, got {self.core_fraction}, {self.accept_floor}")
         _require(prefix, "confirm_frames", self.confirm_frames >= 0, f">= 0, got {self.confirm_frames}")
         _require(prefix, "confirm_radius_sides", self.confirm_radius_sides > 0, f"> 0, got {self.confirm_radius_sides}")
         _require(prefix, "holdoff_frames", self.holdoff_frames >= 0, f">= 0, got {self.holdoff_frames}")

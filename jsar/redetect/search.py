@@ -100,13 +100,14 @@ def search_cycle(area_sides: float, stride_sides: float, angles_deg: tuple[float
     return np.vstack(entries)
 
 
-def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams, min_peak: float = 0.0) -> float:
+def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams, min_peak: float = 0.0,
+                fraction: float | None = None) -> float:
     """The acceptance bar (raw peak) after `lost_frames` failed frames: max(accept_peak / decay^t,
-    reference x max(accept_floor, accept_fraction / decay^t), min_peak) (reference None: the absolute
-    part alone, or inf when that is 0: nothing to compare with yet)."""
+    reference x max(accept_floor, fraction / decay^t), min_peak), fraction = accept_fraction unless given
+    (reference None: the absolute part alone, or inf when that is 0: nothing to compare with yet)."""
     decay = accept.accept_decay ** lost_frames
-    relative = (reference * max(accept.accept_floor, accept.accept_fraction / decay)
-                if reference is not None else 0.0)
+    start = accept.accept_fraction if fraction is None else fraction
+    relative = reference * max(accept.accept_floor, start / decay) if reference is not None else 0.0
     bar = max(accept.accept_peak / decay, relative)
     return max(bar, min_peak) if bar > 0 else math.inf
 

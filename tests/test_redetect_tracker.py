@@ -582,17 +582,18 @@ def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_targe
 
 
 def _fading_target(count: int, start_x: int, half_px_per_frame: int,
-                   back_at: int | None) -> tuple[list[np.ndarray], list[Box]]:
+                   back_at: int | None, back_fade: float = 0.0) -> tuple[list[np.ndarray], list[Box]]:
     """Frames of a target moving right half_px_per_frame / 2 px per frame from x = start_x whose colours
     fade into a grey of the background's level over frames 35..44 (the core's peak falls: a loss), and
-    come back as they were from frame back_at (None: stay faded). Returns the frames and the target's boxes."""
+    come back from frame back_at as they were, or only to `back_fade` (0..1) of that fading (None: stay
+    faded). Returns the frames and the target's boxes."""
     background = _background(seed=7)
     grey = np.full((TARGET, TARGET, 3), 110, np.uint8)
     truth: list[Box] = []
     frames = []
     for index in range(count):
         x, y = start_x + half_px_per_frame * index // 2, 100
-        fade = min(max((index - 34) / 10.0, 0.0), 1.0) if back_at is None or index < back_at else 0.0
+        fade = min(max((index - 34) / 10.0, 0.0), 1.0) if back_at is None or index < back_at else back_fade
         image = background.copy()
         _paste(image, cv2.addWeighted(_target(), 1.0 - 0.8 * fade, grey, 0.8 * fade, 0.0), (x, y))
         frames.append(image)
@@ -620,6 +621,30 @@ def test_a_target_that_looks_otherwise_is_followed_while_lost_and_kept_after():
     # Without coasting the box waits where the target was predicted to be: it ends up off the target.
     held, _ = _run_with_a_dimming_target(0.0)
     assert max(math.dist(_centre(held[i][1]), _centre(truth[i])) for i in range(1, 70)) > 8
+
+
+def test_the_core_confident_again_on_the_target_ends_the_loss_against_its_own_bar():
+    # The faded target comes back from frame 55 half faded: the core is confident on it again and the decision
+    # filter scores it about 0.67x its level. No search candidate is taken (held off for the whole run), nor
+    # does sustained coasting end the loss: only the core's own way out is open.
+    frames, truth = _fading_target(70, 60, 6, back_at=55, back_fade=0.5)
+
+    def run(core_fraction: float) -> dict[int, tuple[str, Box]]:
+        accept = {"holdoff_frames": 100, "coast_confirm_frames": 0, "accept_fraction": 1.0,
+                  "core_fraction": core_fraction}
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept=accept))
+        tracker.init(frames[0], truth[0])
+        return _run(tracker, frames[1:])
+
+    results = run(RedetectParams().accept.core_fraction)  # 0.5x
+    lost = [i for i in results if results[i][0] == "lost"]
+    assert lost and lost[0] < 55, "the fading must cost the core its confidence: the scenario tests nothing"
+    recovered = [i for i in results if results[i][0] == "recovered"]
+    assert recovered and 55 <= recovered[0] <= 58, (lost, recovered)
+    assert math.dist(_centre(results[recovered[0]][1]), _centre(truth[recovered[0]])) < 6
+    # With the core's bar at 0.8x the same way out stays shut: the bar it is held to is core_fraction's.
+    shut = run(0.8)
+    assert all(shut[i][0] == "lost" for i in range(lost[0], 70)), shut
 
 
 def _run_with_a_target_that_changed_for_good(coast_confirm_frames: int) -> tuple[dict[int, tuple[str, Box]], list[Box]]:

@@ -141,7 +141,7 @@ class AcceptParams:
     accept_fraction: float = 0.625  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
     accept_decay: float = 1.005  # ... divided by this per lost frame (paper's value, there on the absolute eta_d) ...
     accept_floor: float = 0.45  # ... down to this
-    core_fraction: float = 0.5  # ... starting from this instead for the core's own detection, confident again where the decision filter peaks
+    core_fraction: float = 0.5  # ... from this instead for the core's own detection, confident again there
     confirm_frames: int = 1
     confirm_radius_sides: float = 1.5
     holdoff_frames: int = 5

@@ -48,6 +48,12 @@ def _distractor() -> np.ndarray:
     return patch
 
 
+def _same_colour_look_alike() -> np.ndarray:
+    """The target's colours in the same amounts, its pattern moved down 3 px: the decision filter scores it
+    above the acceptance bar and the colour check cannot tell it from the target."""
+    return np.roll(_target(), 3, axis=0)
+
+
 def _other_object() -> np.ndarray:
     """Nothing like the target (green with a white stripe): the decision filter barely responds to it."""
     patch = np.zeros((TARGET, TARGET, 3), np.uint8)
@@ -256,6 +262,21 @@ def test_decide_ignores_candidates_beyond_the_motion_gate():
     assert search.decide([Candidate(181.0, 120.0, 0.09)], 0.03) is None and search.pending is None
     assert search.decide([Candidate(181.0, 120.0, 0.09), Candidate(179.0, 120.0, 0.04)], 0.03) \
         == Candidate(179.0, 120.0, 0.04)
+
+
+def test_decide_asks_the_check_only_of_candidates_that_passed_the_rest_and_skips_those_it_refuses():
+    search = _search(confirm_frames=0)
+    asked = []
+
+    def check(candidate: Candidate) -> bool:
+        asked.append(candidate)
+        return candidate.x < 170.0
+
+    below, refused, passed = Candidate(150.0, 120.0, 0.02), Candidate(175.0, 120.0, 0.09), Candidate(165.0, 120.0, 0.04)
+    assert search.decide([below, refused, passed], 0.03, check) == passed
+    assert asked == [refused, passed]  # never the candidate below the bar
+    search = _search(confirm_frames=0)
+    assert search.decide([refused], 0.03, check) is None and search.pending is None
 
 
 def test_the_lead_is_the_best_candidate_found_off_its_window_centre():
@@ -551,14 +572,14 @@ def test_gradual_occlusion_is_caught_before_the_target_is_gone_and_not_followed(
     assert on_target and on_target[0] <= 70 and on_target[-1] == 79, states
 
 
-def _run_with_static_look_alike(redetect: RedetectParams) -> dict[int, tuple[str, Box]]:
-    """The target stands at (100, 100) and is hidden on frames 35..59; a look-alike stands 150 px
+def _run_with_static_look_alike(redetect: RedetectParams, look_alike: np.ndarray) -> dict[int, tuple[str, Box]]:
+    """The target stands at (100, 100) and is hidden on frames 35..59; `look_alike` stands 150 px
     (6.25 sides) to its right the whole time. Returns frame -> (state, box)."""
     background = _background()
 
     def frame(index: int) -> np.ndarray:
         image = _frame(background, None if 35 <= index < 60 else (100, 100))
-        _paste(image, _distractor(), (250, 100))
+        _paste(image, look_alike, (250, 100))
         return image
 
     tracker = JsarReTracker(JsarParams.jsar_re(), redetect)
@@ -568,17 +589,29 @@ def _run_with_static_look_alike(redetect: RedetectParams) -> dict[int, tuple[str
 
 def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_target_is_hidden():
     target_centre, look_alike_centre = (112.0, 112.0), (262.0, 112.0)
-    # Without the gate the look-alike passes the bar: the scenario tests something.
-    ungated = _run_with_static_look_alike(_redetect(accept={"gate_base_sides": math.inf}))
+    # Without the gate the look-alike (the target's colours) passes the bar: the scenario tests something.
+    ungated = _run_with_static_look_alike(_redetect(accept={"gate_base_sides": math.inf}), _same_colour_look_alike())
     taken = [i for i in range(35, 60) if ungated[i][0] == "recovered"]
     assert taken, "the look-alike must pass the bar without the gate: the scenario tests nothing"
     assert math.dist(_centre(ungated[taken[0]][1]), look_alike_centre) < 6
     # With it (a still target: 1.5 + 3 x 0.05 x 25 = 5.25 sides after 25 lost frames < 6.25):
-    gated = _run_with_static_look_alike(RedetectParams())
+    gated = _run_with_static_look_alike(RedetectParams(), _same_colour_look_alike())
     assert all(gated[i][0] == "lost" for i in range(35, 60)), [gated[i][0] for i in range(35, 60)]
     assert all(math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(35, 60))
     assert gated[60][0] == "recovered"  # the target is back where it was: the core is confident on it
     assert all(gated[i][0] == "tracking" and math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(61, 70))
+
+
+def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_target_is_hidden():
+    ungated = {"gate_base_sides": math.inf}
+    # Without the colour check (and the gate) the decision filter's score takes the look-alike.
+    unchecked = _run_with_static_look_alike(_redetect(accept=ungated, colour={"min_match": 0.0}), _distractor())
+    taken = [i for i in range(35, 60) if unchecked[i][0] == "recovered"]
+    assert taken and math.dist(_centre(unchecked[taken[0]][1]), (262.0, 112.0)) < 6, taken
+    # With it the look-alike's colours refuse it; the target, back where it was, is taken up again.
+    checked = _run_with_static_look_alike(_redetect(accept=ungated), _distractor())
+    assert all(checked[i][0] == "lost" for i in range(35, 60)), [checked[i][0] for i in range(35, 60)]
+    assert checked[60][0] == "recovered" and math.dist(_centre(checked[60][1]), (112.0, 112.0)) < 3
 
 
 def _fading_target(count: int, start_x: int, half_px_per_frame: int,

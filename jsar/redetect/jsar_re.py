@@ -25,6 +25,9 @@ frames it learns and while lost.
   changed for good (a car that turned), so the decision filter, which knew it as it was, would never
   recognise it; back to tracking, the filter learns the new look.
 - A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
+- Every way out of a loss through the decision filter (the core confident again, a candidate taken)
+  also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
+  score alone took occluders and look-alikes of other colours.
 
 Additions beyond the paper and their measured effect: docs/method.md and the ablation
 (`python -m bench.ablation`).
@@ -42,6 +45,7 @@ import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
+from jsar.redetect.colour_check import ColourModel
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
@@ -87,6 +91,7 @@ class JsarReTracker:
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.memory: DecisionMemory | None = None
+        self.colour = self._new_colour_model()
         self.search: LossSearch | None = None  # the loss being searched
         self.lost = False
         self.frame_index = -1
@@ -103,6 +108,8 @@ class JsarReTracker:
         """Start tracking `box` (x, y, w, h px) in `frame`; trains the core and the decision filter."""
         self.core.init(frame, box)
         self.memory = DecisionMemory(self.params, self.core)
+        self.colour = self._new_colour_model()
+        self.colour.learn(frame, self.core.box)
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.search = None
         self.lost = False
@@ -195,6 +202,7 @@ class JsarReTracker:
         if reliable:
             assert own is not None
             self.memory.train(self.core, own.score)
+            self.colour.learn(frame, self.core.box)
         else:
             self.memory.skip()
 
@@ -246,7 +254,8 @@ class JsarReTracker:
         bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s)
         # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
         core_bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s, accept.core_fraction)
-        if verdict.confident and own.score >= core_bar and self._agrees(own, loc, search):
+        if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, search)
+                and self._colour_passes(frame, loc.center_xy)):
             self._commit(frame, loc, verdict.reliable, own)
             return self._found(loc.peak)
         search.anchor_xy = self._predicted_centre()
@@ -258,7 +267,7 @@ class JsarReTracker:
             margin = self.redetect.accept.switch_margin * own.score
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
-        taken = search.decide(candidates, bar)
+        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y)))
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
@@ -280,6 +289,20 @@ class JsarReTracker:
         result = self._found(taken.score)
         self.probation = kept
         return result
+
+    def _new_colour_model(self) -> ColourModel:
+        colour = self.redetect.colour
+        return ColourModel(colour.bins, colour.rate, colour.reference_rate, colour.surround_scale)
+
+    def _colour_passes(self, frame: np.ndarray, centre_xy: tuple[float, float]) -> bool:
+        """Whether a box of the target's size at the loss, centred on centre_xy px, matches the target's
+        colours at least colour.min_match x as well as the tracked target did (colour_check.py)."""
+        minimum = self.redetect.colour.min_match
+        if minimum <= 0:
+            return True
+        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
+        box = (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
+        return self.colour.relative_match(frame, box) >= minimum
 
     def _reacquire(self, frame: np.ndarray, at: Candidate) -> None:
         """Move the track to `at`: the core (as before the loss, or as it coasted) that responds more

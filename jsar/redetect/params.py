@@ -5,7 +5,8 @@ everything JSAR-Re adds lives here, grouped by the part that uses it:
 
 - `monitor`: when a frame is confident (commit), reliable (train the decision filter), or a loss;
 - `search`: where the decision filter looks while the target is lost, and how much per frame;
-- `accept`: when a candidate is taken, and what taking it does.
+- `accept`: when a candidate is taken, and what taking it does;
+- `colour`: the colour check a candidate must also pass to be taken.
 
 Thresholds on response peaks are raw values in the MATLAB FFT convention (see jsar.config), the
 unit of the paper's zeta_e, zeta_s and eta_d; distances and areas are in target sides sqrt(w*h)
@@ -181,18 +182,46 @@ class AcceptParams:
 
 
 @dataclass(frozen=True)
+class ColourParams:
+    """The colour check on candidates (colour_check.py): a candidate that passed the acceptance bar (the
+    core confident again included) is taken only if its box matches the target's colours at least
+    `min_match` x as well as the tracked target's boxes did: the larger of its histogram's similarity
+    to the target's and its share of pixels in the target's own colours (those likelier the target's
+    than the surround's, the box enlarged surround_scale times per side), each over its running mean on
+    the learnt boxes. Joint histograms of `bins` levels per channel, learnt on the frames the decision
+    filter learns, blended in at `rate`; the running means follow at `reference_rate`."""
+
+    min_match: float = 0.9  # relative to the tracked target (0: no check)
+    bins: int = 8  # levels per channel (8: 512 bins for a colour frame)
+    surround_scale: float = 2.0
+    rate: float = 0.05
+    reference_rate: float = 0.1
+
+    def validate(self, prefix: str = "colour") -> None:
+        """Raise ValueError naming `prefix.key` of the first invalid value."""
+        _require(prefix, "min_match", 0 <= self.min_match <= 1, f"0 <= value <= 1, got {self.min_match}")
+        _require(prefix, "bins", 2 <= self.bins <= 32, f"2 <= value <= 32, got {self.bins}")
+        _require(prefix, "surround_scale", self.surround_scale > 1, f"> 1, got {self.surround_scale}")
+        for key in ("rate", "reference_rate"):
+            value = getattr(self, key)
+            _require(prefix, key, 0 < value <= 1, f"0 < value <= 1, got {value}")
+
+
+@dataclass(frozen=True)
 class RedetectParams:
-    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance (see their classes)."""
+    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check (see their classes)."""
 
     monitor: MonitorParams = field(default_factory=MonitorParams)
     search: SearchParams = field(default_factory=SearchParams)
     accept: AcceptParams = field(default_factory=AcceptParams)
+    colour: ColourParams = field(default_factory=ColourParams)
 
     def validate(self, prefix: str = "redetect") -> None:
         """Raise ValueError naming the first invalid key as prefix.group.key."""
         self.monitor.validate(f"{prefix}.monitor")
         self.search.validate(f"{prefix}.search")
         self.accept.validate(f"{prefix}.accept")
+        self.colour.validate(f"{prefix}.colour")
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any] | None, prefix: str = "redetect") -> "RedetectParams":
@@ -201,7 +230,7 @@ class RedetectParams:
         if mapping is None:
             return params
         if not isinstance(mapping, Mapping):
-            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept), got {mapping!r}")
+            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour), got {mapping!r}")
         groups = {f.name: getattr(params, f.name) for f in dataclasses.fields(cls)}
         replaced: dict[str, Any] = {}
         for group, values in mapping.items():

@@ -1,0 +1,132 @@
+"""A colour check on re-detection candidates: does a candidate box have the target's colours?
+
+The decision filter is a template of the target's box alone (gradient orientations and colour names,
+laid out in space): a look-alike, or the occluder where the target was, can score near its level. A
+colour model has no layout: it tells a red car from the grey road it was lost on, a surfer in red from
+the surf around him. The check is a second, independent test on a candidate that already passed the
+acceptance bar.
+
+Two measures, each relative to its running mean on the boxes the model learnt (the tracked target);
+a candidate's match is the larger:
+- similarity: the Bhattacharyya coefficient of the candidate box's joint colour histogram with the
+  target's. It refuses most wrong takes on the evaluation sets, but a loose box's background weighs as
+  much as the target: a car that drove from grey pavement onto brown ground scores half;
+- share of the target's colours: the fraction of the candidate box's pixels in colours where
+  P(target | colour) > 1/2, from the histograms of the target's box and of its surround (the box
+  enlarged `surround_scale` times per side, without the box; the areas as priors), as in
+  distractor-aware tracking. It does not care about new ground, but alone it refused right takes
+  on the evaluation sets, where the target's own colours are a small, noisy part of a small box.
+
+Conventions: boxes (x, y, w, h) px; frames uint8 HxWx3 (any channel order, used as given) or HxW;
+histograms are joint histograms of `bins` levels per channel, normalised to sum 1.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+Box = tuple[float, float, float, float]
+MAX_PIXELS = 4096  # a histogram of up to 8^3 bins needs no more: larger regions are sampled on a grid
+
+
+def region_pixels(frame: np.ndarray, box: Box, scale: float = 1.0,
+                  max_pixels: int = MAX_PIXELS) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels (N, C) or (N,) of `box` (x, y, w, h px) enlarged `scale` times per side about its
+    centre, rounded to whole pixels and clipped to the frame, every k-th row and column with the
+    smallest k that keeps at most about max_pixels; and (N,) whether each lies inside the unenlarged box."""
+    x, y, w, h = box
+    cx, cy = x + w / 2.0, y + h / 2.0
+    height, width = frame.shape[:2]
+    x0, y0 = max(int(round(cx - scale * w / 2.0)), 0), max(int(round(cy - scale * h / 2.0)), 0)
+    x1, y1 = min(int(round(cx + scale * w / 2.0)), width), min(int(round(cy + scale * h / 2.0)), height)
+    if x1 <= x0 or y1 <= y0:
+        return frame[:0, :0].reshape((0,) + frame.shape[2:]), np.empty(0, bool)
+    step = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / max_pixels)))
+    rows, cols = np.arange(y0, y1, step), np.arange(x0, x1, step)
+    region = frame[y0:y1:step, x0:x1:step]
+    inside_rows = (rows >= round(y)) & (rows < round(y + h))
+    inside_cols = (cols >= round(x)) & (cols < round(x + w))
+    inside = inside_rows[:, None] & inside_cols[None, :]
+    return region.reshape((-1,) + frame.shape[2:]), inside.ravel()
+
+
+def histogram(pixels: np.ndarray, bins: int) -> np.ndarray | None:
+    """Joint histogram (bins^C,) of uint8 pixels (N, C) or (N,), summing to 1 (None for no pixels)."""
+    if len(pixels) == 0:
+        return None
+    channels = 1 if pixels.ndim == 1 else pixels.shape[1]
+    index = (pixels.astype(np.int32) * bins) >> 8
+    if pixels.ndim == 2:
+        index = np.ravel_multi_index(tuple(index.T), (bins,) * channels)
+    counts = np.bincount(index, minlength=bins ** channels).astype(np.float64)
+    return counts / counts.sum()
+
+
+def bhattacharyya(p: np.ndarray, q: np.ndarray) -> float:
+    """Bhattacharyya coefficient sum(sqrt(p q)) of two normalised histograms of the same shape, in [0, 1]."""
+    return float(np.sqrt(p * q).sum())
+
+
+def target_colours(object_hist: np.ndarray, surround_hist: np.ndarray, surround_prior: float) -> np.ndarray:
+    """(bins,) bool: the colours where P(target | colour) > 1/2, i.e. object_hist > surround_prior x
+    surround_hist (histograms normalised; surround_prior = surround area / object area). A colour seen in
+    neither is not the target's."""
+    return object_hist > surround_prior * surround_hist
+
+
+def running_mean(mean: float | None, value: float, rate: float) -> float:
+    """Exponential running mean (the first value starts it)."""
+    return value if mean is None else mean + rate * (value - mean)
+
+
+class ColourModel:
+    """The target's colours and its surround's, learnt on the frames the decision filter learns
+    (histograms blended in at `rate`), with the running means (`reference_rate`) of both measures on the
+    learnt boxes: `similarity_reference` and `share_reference`."""
+
+    def __init__(self, bins: int, rate: float, reference_rate: float, surround_scale: float = 2.0) -> None:
+        self.bins = bins
+        self.rate = rate
+        self.reference_rate = reference_rate
+        self.surround_scale = surround_scale
+        self.surround_prior = surround_scale ** 2 - 1.0  # the ring's area over the box's
+        self.object_hist: np.ndarray | None = None
+        self.surround_hist: np.ndarray | None = None
+        self.similarity_reference: float | None = None
+        self.share_reference: float | None = None
+
+    def learn(self, frame: np.ndarray, box: Box) -> None:
+        """Blend the histograms of `box` and of its surround in `frame` into the model, then update both
+        references with the box's measures (a box without pixels in the frame, or without surround,
+        teaches nothing)."""
+        pixels, inside = region_pixels(frame, box, self.surround_scale)
+        observed_object, observed_surround = histogram(pixels[inside], self.bins), histogram(pixels[~inside], self.bins)
+        if observed_object is None or observed_surround is None:
+            return
+        if self.object_hist is None or self.surround_hist is None:
+            self.object_hist, self.surround_hist = observed_object, observed_surround
+        else:
+            self.object_hist = (1.0 - self.rate) * self.object_hist + self.rate * observed_object
+            self.surround_hist = (1.0 - self.rate) * self.surround_hist + self.rate * observed_surround
+        share = float(observed_object[self._target_colours()].sum())
+        self.share_reference = running_mean(self.share_reference, share, self.reference_rate)
+        similarity = bhattacharyya(self.object_hist, observed_object)
+        self.similarity_reference = running_mean(self.similarity_reference, similarity, self.reference_rate)
+
+    def relative_match(self, frame: np.ndarray, box: Box) -> float:
+        """The larger of box's similarity and share of the target's colours in `frame`, each over its
+        reference (1: as the tracked target; 0 for a box outside the frame; inf before anything was
+        learnt, or with a zero reference: nothing to judge with)."""
+        if self.object_hist is None or not self.share_reference or not self.similarity_reference:
+            return math.inf
+        pixels, _ = region_pixels(frame, box)
+        observed = histogram(pixels, self.bins)
+        if observed is None:
+            return 0.0
+        share = float(observed[self._target_colours()].sum()) / self.share_reference
+        return max(share, bhattacharyya(self.object_hist, observed) / self.similarity_reference)
+
+    def _target_colours(self) -> np.ndarray:
+        assert self.object_hist is not None and self.surround_hist is not None
+        return target_colours(self.object_hist, self.surround_hist, self.surround_prior)

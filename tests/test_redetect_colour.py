@@ -104,8 +104,8 @@ def test_the_model_blends_a_new_look_in_at_its_rate():
     assert np.allclose(model.object_hist, 0.75 * red_object + 0.25 * blue_object)
 
 
-@pytest.mark.parametrize("key, value", [("min_match", 1.5), ("bins", 1), ("surround_scale", 1.0), ("rate", 0.0),
-                                        ("reference_rate", 2.0)])
+@pytest.mark.parametrize("key, value", [("min_match", 1.5), ("core_min_match", -0.1), ("bins", 1), ("surround_scale", 1.0),
+                                        ("rate", 0.0), ("reference_rate", 2.0)])
 def test_colour_parameters_are_validated_with_the_key_named(key, value):
     with pytest.raises(ValueError, match=f"redetect.colour.{key}"):
         RedetectParams.from_mapping({"colour": {key: value}})

@@ -605,7 +605,7 @@ def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_targe
 def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_target_is_hidden():
     ungated = {"gate_base_sides": math.inf}
     # Without the colour check (and the gate) the decision filter's score takes the look-alike.
-    unchecked = _run_with_static_look_alike(_redetect(accept=ungated, colour={"min_match": 0.0}), _distractor())
+    unchecked = _run_with_static_look_alike(_redetect(accept=ungated, colour={"min_match": 0.0, "core_min_match": 0.0}), _distractor())
     taken = [i for i in range(35, 60) if unchecked[i][0] == "recovered"]
     assert taken and math.dist(_centre(unchecked[taken[0]][1]), (262.0, 112.0)) < 6, taken
     # With it the look-alike's colours refuse it; the target, back where it was, is taken up again.

@@ -255,7 +255,7 @@ class JsarReTracker:
         # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
         core_bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s, accept.core_fraction)
         if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, search)
-                and self._colour_passes(frame, loc.center_xy)):
+                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)):
             self._commit(frame, loc, verdict.reliable, own)
             return self._found(loc.peak)
         search.anchor_xy = self._predicted_centre()
@@ -267,7 +267,8 @@ class JsarReTracker:
             margin = self.redetect.accept.switch_margin * own.score
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
-        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y)))
+        minimum = self.redetect.colour.min_match
+        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum))
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
@@ -294,10 +295,9 @@ class JsarReTracker:
         colour = self.redetect.colour
         return ColourModel(colour.bins, colour.rate, colour.reference_rate, colour.surround_scale)
 
-    def _colour_passes(self, frame: np.ndarray, centre_xy: tuple[float, float]) -> bool:
+    def _colour_passes(self, frame: np.ndarray, centre_xy: tuple[float, float], minimum: float) -> bool:
         """Whether a box of the target's size at the loss, centred on centre_xy px, matches the target's
-        colours at least colour.min_match x as well as the tracked target did (colour_check.py)."""
-        minimum = self.redetect.colour.min_match
+        colours at least `minimum` x as well as the tracked target did (colour_check.py; 0: always)."""
         if minimum <= 0:
             return True
         w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh

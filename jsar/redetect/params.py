@@ -185,13 +185,16 @@ class AcceptParams:
 class ColourParams:
     """The colour check on candidates (colour_check.py): a candidate that passed the acceptance bar (the
     core confident again included) is taken only if its box matches the target's colours at least
-    `min_match` x as well as the tracked target's boxes did: the larger of its histogram's similarity
+    `min_match` x as well as the tracked target's boxes did (`core_min_match` x for the core confident
+    again where the decision filter peaks: two tests already agree there, and a false loss in plain view,
+    the box half a side off, must end at once): the larger of its histogram's similarity
     to the target's and its share of pixels in the target's own colours (those likelier the target's
     than the surround's, the box enlarged surround_scale times per side), each over its running mean on
     the learnt boxes. Joint histograms of `bins` levels per channel, learnt on the frames the decision
     filter learns, blended in at `rate`; the running means follow at `reference_rate`."""
 
     min_match: float = 0.9  # relative to the tracked target (0: no check)
+    core_min_match: float = 0.75  # ... for the core's own way out (0: no check there)
     bins: int = 8  # levels per channel (8: 512 bins for a colour frame)
     surround_scale: float = 2.0
     rate: float = 0.05
@@ -200,6 +203,7 @@ class ColourParams:
     def validate(self, prefix: str = "colour") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
         _require(prefix, "min_match", 0 <= self.min_match <= 1, f"0 <= value <= 1, got {self.min_match}")
+        _require(prefix, "core_min_match", 0 <= self.core_min_match <= 1, f"0 <= value <= 1, got {self.core_min_match}")
         _require(prefix, "bins", 2 <= self.bins <= 32, f"2 <= value <= 32, got {self.bins}")
         _require(prefix, "surround_scale", self.surround_scale > 1, f"> 1, got {self.surround_scale}")
         for key in ("rate", "reference_rate"):

@@ -614,6 +614,29 @@ def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_
     assert checked[60][0] == "recovered" and math.dist(_centre(checked[60][1]), (112.0, 112.0)) < 3
 
 
+def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target_was_does_not_end_the_loss():
+    """The target is hidden on frames 35..59; from frame 45 an object of its layout in other colours stands
+    where it was (the core and the decision filter both respond to it), and on frame 60 the target is back."""
+    background = _background()
+
+    def frame(index: int) -> np.ndarray:
+        image = _frame(background, None if 35 <= index < 60 else (100, 100))
+        if 45 <= index < 60:
+            _paste(image, _distractor(), (100, 100))
+        return image
+
+    def run(core_min_match: float) -> dict[int, tuple[str, Box]]:
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(colour={"core_min_match": core_min_match}))
+        tracker.init(frame(0), _target_box((100, 100)))
+        return _run(tracker, [frame(i) for i in range(1, 70)])
+
+    unchecked = run(0.0)  # the search's candidates are still checked: the core's own way out ends the loss
+    assert any(unchecked[i][0] == "recovered" for i in range(45, 60)), [unchecked[i][0] for i in range(35, 60)]
+    checked = run(RedetectParams().colour.core_min_match)
+    assert all(checked[i][0] == "lost" for i in range(36, 60)), [checked[i][0] for i in range(35, 60)]
+    assert checked[60][0] == "recovered" and all(checked[i][0] == "tracking" for i in range(61, 70))
+
+
 def _fading_target(count: int, start_x: int, half_px_per_frame: int,
                    back_at: int | None, back_fade: float = 0.0) -> tuple[list[np.ndarray], list[Box]]:
     """Frames of a target moving right half_px_per_frame / 2 px per frame from x = start_x whose colours

@@ -69,7 +69,7 @@ def test_bhattacharyya_is_one_for_the_same_histogram_and_zero_for_disjoint_ones(
 
 def test_the_model_matches_a_box_by_the_better_of_similarity_and_share_of_the_targets_colours():
     frame = _scene()
-    model = ColourModel(bins=8, rate=0.05, reference_rate=0.1)
+    model = ColourModel(bins=8, rate=0.05, reference_rate=0.1, surround_scale=2.0)
     assert model.relative_match(frame, TARGET) == math.inf  # nothing learnt yet
     model.learn(frame, TARGET)
     # Red is the target's colour, grey is everywhere around it: half the box is in the target's colours.
@@ -88,7 +88,7 @@ def test_the_model_matches_a_box_by_the_better_of_similarity_and_share_of_the_ta
 
 def test_the_model_blends_a_new_look_in_at_its_rate():
     frame = _scene()
-    model = ColourModel(bins=8, rate=0.25, reference_rate=0.5)
+    model = ColourModel(bins=8, rate=0.25, reference_rate=0.5, surround_scale=2.0)
     model.learn(frame, TARGET)
     red_object, red_surround = model.object_hist.copy(), model.surround_hist.copy()
     blue_box = (120.0, 40.0, 20.0, 20.0)

@@ -85,7 +85,7 @@ class ColourModel:
     (histograms blended in at `rate`), with the running means (`reference_rate`) of both measures on the
     learnt boxes: `similarity_reference` and `share_reference`."""
 
-    def __init__(self, bins: int, rate: float, reference_rate: float, surround_scale: float = 2.0) -> None:
+    def __init__(self, bins: int, rate: float, reference_rate: float, surround_scale: float) -> None:
         self.bins = bins
         self.rate = rate
         self.reference_rate = reference_rate

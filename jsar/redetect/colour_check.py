@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from jsar.redetect.monitor import updated_reference
+
 Box = tuple[float, float, float, float]
 MAX_PIXELS = 4096  # a histogram of up to 8^3 bins needs no more: larger regions are sampled on a grid
 
@@ -75,11 +77,6 @@ def target_colours(object_hist: np.ndarray, surround_hist: np.ndarray, surround_
     return object_hist > surround_prior * surround_hist
 
 
-def running_mean(mean: float | None, value: float, rate: float) -> float:
-    """Exponential running mean (the first value starts it)."""
-    return value if mean is None else mean + rate * (value - mean)
-
-
 class ColourModel:
     """The target's colours and its surround's, learnt on the frames the decision filter learns
     (histograms blended in at `rate`), with the running means (`reference_rate`) of both measures on the
@@ -110,9 +107,10 @@ class ColourModel:
             self.object_hist = (1.0 - self.rate) * self.object_hist + self.rate * observed_object
             self.surround_hist = (1.0 - self.rate) * self.surround_hist + self.rate * observed_surround
         share = float(observed_object[self._target_colours()].sum())
-        self.share_reference = running_mean(self.share_reference, share, self.reference_rate)
+        self.share_reference = updated_reference(self.share_reference, share, self.reference_rate, self.reference_rate)
         similarity = bhattacharyya(self.object_hist, observed_object)
-        self.similarity_reference = running_mean(self.similarity_reference, similarity, self.reference_rate)
+        self.similarity_reference = updated_reference(self.similarity_reference, similarity, self.reference_rate,
+                                                       self.reference_rate)
 
     def relative_match(self, frame: np.ndarray, box: Box) -> float:
         """The larger of box's similarity and share of the target's colours in `frame`, each over its

@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from jsar.eval.runner import cap_loaded_pools, limit_threads_env
+from jsar.eval.runner import cap_loaded_pools, describe_pools, limit_threads_env
 
 limit_threads_env()  # before the trackers' modules (scipy, ...) are imported below
 
@@ -275,8 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"error: {exc}") from exc
     factories[DEFAULT]()  # import the tracker's modules now, so the thread cap below covers their libraries
     threads = cap_loaded_pools()
-    print(f"threads: cv2 {threads['cv2']}, " + ", ".join(
-        f"{p['prefix']} {p['threads']}" for p in threads["pools"]), file=sys.stderr)
+    print(describe_pools(threads), file=sys.stderr)
     total = _frames_to_run(sequences, kinds, seeds, args.max_frames)
     with tqdm(total=total, unit="frame", disable=args.no_progress, file=sys.stderr) as bar:
         try:

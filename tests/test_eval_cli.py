@@ -47,6 +47,8 @@ def test_one_pass_eval_writes_table_json_and_plots(synthetic_root, tmp_path):
         assert needle in proc.stdout
     result = json.loads(out_json.read_text())
     assert all(p["threads"] == 1 for p in result["threads"]["pools"])
+    # The BLAS kernels are named (JSAR-Re's decisions depend on their rounding).
+    assert all(p["architecture"] for p in result["threads"]["pools"] if p["library"] == "openblas")
     csrt = result["sequences"]["syn_a"]["trackers"]["csrt"]
     first_truth = dataset.load_sequence(synthetic_root / "syn_a").groundtruth[0]
     assert len(csrt["boxes"]) == N_FRAMES and csrt["boxes"][0] == first_truth.tolist()

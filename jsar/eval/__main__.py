@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from jsar.eval.runner import cap_loaded_pools, limit_threads_env
+from jsar.eval.runner import cap_loaded_pools, describe_pools, limit_threads_env
 
 limit_threads_env()  # before the trackers' modules (scipy, ...) are imported below
 
@@ -61,8 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     for factory in factories.values():
         factory()  # import every tracker's modules now, so the thread cap below covers their libraries
     threads = cap_loaded_pools()
-    print(f"threads: cv2 {threads['cv2']}, " + ", ".join(
-        f"{p['prefix']} {p['threads']}" for p in threads["pools"]), file=sys.stderr)
+    print(describe_pools(threads), file=sys.stderr)
     kinds = _csv(args.kinds)
     lengths = tuple(int(v) for v in _csv(args.lengths))
     total = sum(min(len(s), args.max_frames or len(s)) for s in sequences) * (len(kinds) if args.longterm else 1)

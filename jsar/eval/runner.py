@@ -68,7 +68,10 @@ def limit_threads_env() -> None:
 
 def cap_loaded_pools() -> dict[str, object]:
     """Cap the thread pools of BLAS / OpenMP libraries already loaded to one (threadpoolctl), and
-    OpenCV's to one; return what is in force: {"cv2": n, "pools": [{library, prefix, threads}]}.
+    OpenCV's to one; return what is in force: {"cv2": n, "pools": [{library, prefix, threads,
+    architecture}]}. architecture is the CPU kernel set OpenBLAS chose (e.g. Haswell, SkylakeX; None for
+    other libraries): JSAR-Re's loss decisions are thresholds on sums whose rounding depends on it, so a
+    long-term result is reproduced bit for bit only on the same kernels (OPENBLAS_CORETYPE sets them).
 
     The cap is process-wide and deliberately not undone: this is for the evaluation / demo processes.
     """
@@ -77,8 +80,17 @@ def cap_loaded_pools() -> dict[str, object]:
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
     return {"cv2": cv2.getNumThreads(),
-            "pools": [{"library": p["internal_api"], "prefix": p["prefix"], "threads": p["num_threads"]}
-                      for p in threadpool_info()]}
+            "pools": [{"library": p["internal_api"], "prefix": p["prefix"], "threads": p["num_threads"],
+                       "architecture": p.get("architecture")} for p in threadpool_info()]}
+
+
+def describe_pools(threads: dict[str, object]) -> str:
+    """One line for a run's log: what cap_loaded_pools() put in force, e.g.
+    "threads: cv2 1, libscipy_openblas 1 (SkylakeX)"."""
+    pools = threads["pools"]
+    assert isinstance(pools, list)
+    return f"threads: cv2 {threads['cv2']}, " + ", ".join(
+        f"{p['prefix']} {p['threads']}" + (f" ({p['architecture']})" if p["architecture"] else "") for p in pools)
 
 
 def track_lockstep(frames: Iterable[np.ndarray], n_frames: int, init_box: np.ndarray,

@@ -59,8 +59,6 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     "no-holdoff": {"accept": {"holdoff_frames": 0}},
     # No colour check: a candidate above the bar (the core confident again included) is taken on its score.
     "no-colour": {"colour": {"min_match": 0.0, "core_min_match": 0.0}},
-    # No look-alike check: a candidate that passed the bar and the colour check is taken.
-    "no-lookalike": {"lookalike": {"min_margin": -2.0, "core_min_margin": -2.0}},
     # The paper's re-initialisation: the core's filters retrained from the re-acquired frame.
     "retrain": {"accept": {"reacquire": "retrain"}},
     # The paper's omega grows without bound; 1000 sides is beyond any frame of up to 2000 px for a lost

@@ -769,30 +769,3 @@ def test_real_sequence_injected_occlusion_is_detected_and_recovered(data_root):
     # re-acquired within 15 frames of the reappearance: centre within 20 px of the ground truth
     assert min(centre_error(i) for i in range(52, 52 + 15)) <= 20
     assert centre_error(74) <= 20  # and kept
-
-
-def test_a_look_alike_seen_next_to_the_target_is_refused_by_the_lookalike_check_while_the_target_is_hidden():
-    """A look-alike of the target's colours stands 1.25 sides to its right the whole time (in the core's
-    search window: a secondary peak of its response); the target is hidden on frames 35..59, then back
-    where it was."""
-    background = _background()
-
-    def frame(index: int) -> np.ndarray:
-        image = _frame(background, None if 35 <= index < 60 else (100, 100))
-        _paste(image, _same_colour_look_alike(), (130, 100))
-        return image
-
-    def run(min_margin: float) -> tuple[dict[int, tuple[str, Box]], JsarReTracker]:
-        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(lookalike={"min_margin": min_margin,
-                                                                           "core_min_margin": min_margin}))
-        tracker.init(frame(0), _target_box((100, 100)))
-        return _run(tracker, [frame(i) for i in range(1, 70)]), tracker
-
-    look_alike_centre = (142.0, 112.0)
-    unchecked, _ = run(-2.0)  # without the check the look-alike is taken while the target is hidden
-    taken = [i for i in range(35, 60) if unchecked[i][0] == "recovered"]
-    assert taken and math.dist(_centre(unchecked[taken[0]][1]), look_alike_centre) < 6, taken
-    checked, tracker = run(RedetectParams().lookalike.min_margin)
-    assert tracker.lookalikes.negatives, "the look-alike was never learnt as one"
-    assert all(checked[i][0] == "lost" for i in range(35, 60)), [checked[i][0] for i in range(35, 60)]
-    assert checked[60][0] == "recovered" and math.dist(_centre(checked[60][1]), (112.0, 112.0)) < 3

@@ -27,9 +27,7 @@ frames it learns and while lost.
 - A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
 - Every way out of a loss through the decision filter (the core confident again, a candidate taken)
   also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
-  score alone took occluders and look-alikes of other colours. And it must be nearer to the target's
-  appearances than to the look-alikes' seen next to it while it was tracked (lookalikes.py,
-  params.LookalikeParams): colours do not tell the target from another walker or car like it.
+  score alone took occluders and look-alikes of other colours.
 
 Additions beyond the paper and their measured effect: docs/method.md and the ablation
 (`python -m bench.ablation`).
@@ -48,7 +46,6 @@ import numpy as np
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
 from jsar.redetect.colour_check import ColourModel
-from jsar.redetect.lookalikes import LookalikeBank, appearance_descriptor, secondary_peaks
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
@@ -81,7 +78,6 @@ class Probation:
     taken: Candidate
     frames_left: int
     before_loss: JsarTracker | None
-    taken_look: np.ndarray  # the appearance descriptor of the taken place (a look-alike if refuted)
 
 
 class JsarReTracker:
@@ -96,8 +92,6 @@ class JsarReTracker:
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.memory: DecisionMemory | None = None
         self.colour = self._new_colour_model()
-        self.lookalikes = LookalikeBank(self.redetect.lookalike.bank_size)
-        self.reliable_frames = 0
         self.search: LossSearch | None = None  # the loss being searched
         self.lost = False
         self.frame_index = -1
@@ -116,9 +110,6 @@ class JsarReTracker:
         self.memory = DecisionMemory(self.params, self.core)
         self.colour = self._new_colour_model()
         self.colour.learn(frame, self.core.box)
-        self.lookalikes = LookalikeBank(self.redetect.lookalike.bank_size)
-        self.reliable_frames = 0
-        self.lookalikes.add_positive(self._descriptor(frame, self.core.box))
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.search = None
         self.lost = False
@@ -200,7 +191,6 @@ class JsarReTracker:
         self.search = kept.search
         self.search.pending, self.search.confirmations = None, 0
         self.search.refuted.append(kept.taken)
-        self.lookalikes.add_negative(kept.taken_look)
 
     # ----------------------------------------------------------------- steps
     def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate | None) -> None:
@@ -213,10 +203,6 @@ class JsarReTracker:
             assert own is not None
             self.memory.train(self.core, own.score)
             self.colour.learn(frame, self.core.box)
-            self.reliable_frames += 1
-            # Not while a re-acquisition is on probation: it may be the look-alike.
-            if self.probation is None and self.reliable_frames % self.redetect.lookalike.learn_every == 0:
-                self._learn_lookalikes(frame, loc)
         else:
             self.memory.skip()
 
@@ -269,8 +255,7 @@ class JsarReTracker:
         # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
         core_bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s, accept.core_fraction)
         if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, search)
-                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)
-                and self._lookalike_margin(frame, loc.center_xy) >= self.redetect.lookalike.core_min_margin):
+                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)):
             self._commit(frame, loc, verdict.reliable, own)
             return self._found(loc.peak)
         search.anchor_xy = self._predicted_centre()
@@ -283,9 +268,7 @@ class JsarReTracker:
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
         minimum = self.redetect.colour.min_match
-        min_margin = self.redetect.lookalike.min_margin
-        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum)
-                              and self._lookalike_margin(frame, (c.x, c.y)) >= min_margin)
+        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum))
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
@@ -302,8 +285,7 @@ class JsarReTracker:
             return self._found(taken.score)
         probation = self.redetect.accept.probation_frames
         kept = (Probation(search, copy.deepcopy(self.core), copy.deepcopy(self.monitor), list(self._track), taken,
-                          probation, self.before_loss, self._look_at(frame, (taken.x, taken.y)))
-                if probation > 0 else None)
+                          probation, self.before_loss) if probation > 0 else None)
         self._reacquire(frame, taken)
         result = self._found(taken.score)
         self.probation = kept
@@ -321,33 +303,6 @@ class JsarReTracker:
         w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
         box = (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
         return self.colour.relative_match(frame, box) >= minimum
-
-    def _descriptor(self, frame: np.ndarray, box: Box) -> np.ndarray:
-        return appearance_descriptor(self.core.prepare(frame), box, self.core.feature_colour_table)
-
-    def _learn_lookalikes(self, frame: np.ndarray, loc: Localisation) -> None:
-        """The committed box joins the positives; secondary peaks of the core's response on this frame
-        (look-alikes within its search window) join the negatives."""
-        params = self.redetect.lookalike
-        self.lookalikes.add_positive(self._descriptor(frame, self.core.box))
-        w, h = self.core.size_wh
-        px_per_cell = loc.search_side / loc.response.shape[0]
-        dy0, dx0 = loc.displacement_cells
-        sample_x, sample_y = loc.center_xy[0] - dx0 * px_per_cell, loc.center_xy[1] - dy0 * px_per_cell
-        for dy, dx, _ in secondary_peaks(loc.response, (h / px_per_cell, w / px_per_cell), params.peak_fraction,
-                                         params.peaks_per_frame):
-            cx, cy = sample_x + dx * px_per_cell, sample_y + dy * px_per_cell
-            self.lookalikes.add_negative(self._descriptor(frame, (cx - w / 2.0, cy - h / 2.0, w, h)))
-
-    def _look_at(self, frame: np.ndarray, centre_xy: tuple[float, float]) -> np.ndarray:
-        """The appearance descriptor of a box of the target's size at the loss centred on centre_xy px."""
-        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
-        return self._descriptor(frame, (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h))
-
-    def _lookalike_margin(self, frame: np.ndarray, centre_xy: tuple[float, float]) -> float:
-        """How much nearer a box of the target's size at the loss, centred on centre_xy px, is to the
-        target's appearances than to every look-alike's (cosine similarity; inf without look-alikes)."""
-        return self.lookalikes.margin(self._look_at(frame, centre_xy))
 
     def _reacquire(self, frame: np.ndarray, at: Candidate) -> None:
         """Move the track to `at`: the core (as before the loss, or as it coasted) that responds more

@@ -6,8 +6,7 @@ everything JSAR-Re adds lives here, grouped by the part that uses it:
 - `monitor`: when a frame is confident (commit), reliable (train the decision filter), or a loss;
 - `search`: where the decision filter looks while the target is lost, and how much per frame;
 - `accept`: when a candidate is taken, and what taking it does;
-- `colour`: the colour check a candidate must also pass to be taken;
-- `lookalike`: the look-alike check it must pass after that.
+- `colour`: the colour check a candidate must also pass to be taken.
 
 Thresholds on response peaks are raw values in the MATLAB FFT convention (see jsar.config), the
 unit of the paper's zeta_e, zeta_s and eta_d; distances and areas are in target sides sqrt(w*h)
@@ -213,44 +212,13 @@ class ColourParams:
 
 
 @dataclass(frozen=True)
-class LookalikeParams:
-    """The look-alike check on candidates (lookalikes.py): a candidate that passed the acceptance bar and
-    the colour check (the core confident again included) is taken only if its appearance is nearer to one
-    of the target's than to every look-alike's by `min_margin` (`core_min_margin` for the core's own way
-    out), in cosine similarity of appearance descriptors. Every `learn_every`-th frame the decision filter
-    learns (outside a re-acquisition's probation), the target's box joins the positives and up to
-    `peaks_per_frame` local maxima of the core's response at least a target size off its main peak and
-    at least `peak_fraction` x its value join the negatives (the cosine window damps a look-alike 1.5
-    sides off to about 0.2-0.4 x the target's peak); a refuted re-acquisition's place joins them too.
-    Each bank keeps `bank_size` descriptors (and the first positive for good)."""
-
-    min_margin: float = 0.05  # cosine similarity, in [-2, 2] (-2: no check)
-    core_min_margin: float = 0.05  # ... for the core confident again where the decision filter peaks
-    peak_fraction: float = 0.15
-    peaks_per_frame: int = 2
-    learn_every: int = 3
-    bank_size: int = 30
-
-    def validate(self, prefix: str = "lookalike") -> None:
-        """Raise ValueError naming `prefix.key` of the first invalid value."""
-        for key in ("min_margin", "core_min_margin"):
-            value = getattr(self, key)
-            _require(prefix, key, -2 <= value <= 2, f"-2 <= value <= 2 (-2: no check), got {value}")
-        _require(prefix, "peak_fraction", 0 < self.peak_fraction <= 1, f"0 < value <= 1, got {self.peak_fraction}")
-        for key in ("peaks_per_frame", "learn_every", "bank_size"):
-            value = getattr(self, key)
-            _require(prefix, key, value >= 1, f">= 1, got {value}")
-
-
-@dataclass(frozen=True)
 class RedetectParams:
-    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour and look-alike checks (see their classes)."""
+    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check (see their classes)."""
 
     monitor: MonitorParams = field(default_factory=MonitorParams)
     search: SearchParams = field(default_factory=SearchParams)
     accept: AcceptParams = field(default_factory=AcceptParams)
     colour: ColourParams = field(default_factory=ColourParams)
-    lookalike: LookalikeParams = field(default_factory=LookalikeParams)
 
     def validate(self, prefix: str = "redetect") -> None:
         """Raise ValueError naming the first invalid key as prefix.group.key."""
@@ -258,7 +226,6 @@ class RedetectParams:
         self.search.validate(f"{prefix}.search")
         self.accept.validate(f"{prefix}.accept")
         self.colour.validate(f"{prefix}.colour")
-        self.lookalike.validate(f"{prefix}.lookalike")
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any] | None, prefix: str = "redetect") -> "RedetectParams":
@@ -267,7 +234,7 @@ class RedetectParams:
         if mapping is None:
             return params
         if not isinstance(mapping, Mapping):
-            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour, lookalike), got {mapping!r}")
+            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour), got {mapping!r}")
         groups = {f.name: getattr(params, f.name) for f in dataclasses.fields(cls)}
         replaced: dict[str, Any] = {}
         for group, values in mapping.items():

@@ -74,6 +74,7 @@ class JsarParams:
     size_subcell_peak: bool = True  # parabola-refined best cell (False: the original's best cell)
     size_deadband_cells: float = 0.0  # sub-cell: an offset below this (grid cells) is ignored; see the docstring
     size_grid_window: bool = False  # Hann window over the grid (DSST-style); off: see size_filter
+    size_peak_rate: float = 0.1  # running mean of the size filter's response peaks (JsarTracker.hold_size_until_recognised)
     min_target_side_px: float = 3.0  # lower size clamp: a 6 px target must keep tracking
     aspect_band: float = 4.0  # w/h stays within [r0 / band, r0 * band], r0 = initial w/h
 
@@ -126,6 +127,8 @@ class JsarParams:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if not 0.0 < self.size_learning_rate <= 1.0:
             raise ValueError(f"size_learning_rate must be in (0, 1], got {self.size_learning_rate}")
+        if not 0.0 < self.size_peak_rate <= 1.0:
+            raise ValueError(f"size_peak_rate must be in (0, 1], got {self.size_peak_rate}")
         if self.search_patch_px % self.cell_size:
             raise ValueError(
                 f"search_patch_px ({self.search_patch_px}) must be a multiple of cell_size "

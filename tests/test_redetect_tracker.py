@@ -447,7 +447,8 @@ def test_registry_passes_nested_overrides_and_core_overrides():
     ({"accept": {"reacquire": "teleport"}}, "redetect.accept.reacquire"),
     ({"monitor": {"enable_peak": 0.05}}, "redetect.monitor.enable_peak"),  # above reliable_peak
     ({"search": 3}, "redetect.search"),  # a group must be a mapping
-    ({"accept": {"coast_confirm_frames": -3}}, "redetect.accept.coast_confirm_frames"),
+    ({"accept": {"coast_confirm_frames": 30}}, "redetect.accept.coast_confirm_frames"),  # removed: unknown now
+    ({"accept": {"size_hold_fraction": 1.0}}, "redetect.accept.size_hold_fraction"),
     ({"monitor": {"reliable_fraction": 0.7}}, "redetect.monitor.reliable_fraction"),  # removed: unknown now
 ])
 def test_redetect_mapping_errors_name_the_key(mapping, key):
@@ -681,12 +682,12 @@ def test_a_target_that_looks_otherwise_is_followed_while_lost_and_kept_after():
 
 def test_the_core_confident_again_on_the_target_ends_the_loss_against_its_own_bar():
     # The faded target comes back from frame 55 half faded: the core is confident on it again and the decision
-    # filter scores it about 0.67x its level. No search candidate is taken (held off for the whole run), nor
-    # does sustained coasting end the loss: only the core's own way out is open.
+    # filter scores it about 0.67x its level. No search candidate is taken (held off for the whole run): only
+    # the core's own way out is open.
     frames, truth = _fading_target(70, 60, 6, back_at=55, back_fade=0.5)
 
     def run(core_fraction: float) -> dict[int, tuple[str, Box]]:
-        accept = {"holdoff_frames": 100, "coast_confirm_frames": 0, "accept_fraction": 1.0,
+        accept = {"holdoff_frames": 100, "accept_fraction": 1.0,
                   "core_fraction": core_fraction}
         tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept=accept))
         tracker.init(frames[0], truth[0])
@@ -703,32 +704,20 @@ def test_the_core_confident_again_on_the_target_ends_the_loss_against_its_own_ba
     assert all(shut[i][0] == "lost" for i in range(lost[0], 70)), shut
 
 
-def _run_with_a_target_that_changed_for_good(coast_confirm_frames: int) -> tuple[dict[int, tuple[str, Box]], list[Box]]:
-    """The fading target moving 1.5 px per frame that stays faded (a car that turned, or drove into
-    shade, for good): the decision filter only ever learnt it as it was. Returns frame -> (state, box)
-    and the target's boxes."""
+def test_a_target_that_changed_for_good_is_followed_but_the_loss_ends_only_through_the_decision_filter():
+    """The fading target moving 1.5 px per frame stays faded (a car that turned, or drove into shade, for
+    good): the decision filter only ever learnt it as it was. The coasting core follows it, its box on
+    the target, but a core confident on what it follows does not end the loss by itself: it learns
+    whatever it follows, an occluder as well (the closed loop's bridge)."""
     frames, truth = _fading_target(120, 40, 3, back_at=None)
-    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept={"coast_confirm_frames": coast_confirm_frames}))
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect())
     tracker.init(frames[0], truth[0])
-    return _run(tracker, frames[1:]), truth
-
-
-def test_a_target_followed_confidently_while_lost_ends_the_loss_after_coast_confirm_frames():
-    frames_needed = RedetectParams().accept.coast_confirm_frames
-    assert frames_needed > 0
-    results, truth = _run_with_a_target_that_changed_for_good(frames_needed)
+    results = _run(tracker, frames[1:])
     lost = [i for i in results if results[i][0] == "lost"]
     assert lost, "the fading must cost the core its confidence: the scenario tests nothing"
-    # The core follows the changed target through the loss ...
     for i in range(1, 120):
         assert math.dist(_centre(results[i][1]), _centre(truth[i])) < 8, (i, results[i], truth[i])
-    # ... and the loss ends there, at least coast_confirm_frames lost frames after it began.
-    recovered = [i for i in results if results[i][0] == "recovered"]
-    assert recovered and recovered[0] - lost[0] >= frames_needed, (lost, recovered)
-    assert all(results[i][0] == "tracking" for i in range(recovered[-1] + 1, 120))
-    # Without the rule the decision filter, which knows the target only as it was, never ends the loss.
-    stuck, _ = _run_with_a_target_that_changed_for_good(0)
-    assert stuck[119][0] == "lost" and "recovered" not in {state for state, _ in stuck.values()}
+    assert all(results[i][0] == "lost" for i in range(lost[0], 120))
 
 
 # ---------------------------------------------------------------- a real sequence

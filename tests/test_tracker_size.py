@@ -197,6 +197,49 @@ def test_tracker_box_follows_a_shrinking_target_with_the_default_size_estimate()
     assert box[3] / (40.0 * 0.995**120) == pytest.approx(1.0, abs=0.12)
 
 
+def _tracked_car(frames: int = 8):
+    """A JSAR-Re core that tracked the upright car (90 x 40 px at the image centre) for `frames` frames."""
+    from jsar.tracking.jsar_tracker import JsarTracker
+
+    tracker = JsarTracker(JsarParams.jsar_re())
+    tracker.init(_textured_scene((90.0, 40.0)), (275.0, 220.0, 90.0, 40.0))
+    for _ in range(frames):
+        tracker.update(_textured_scene((90.0, 40.0)))
+    return tracker
+
+
+def test_a_size_hold_keeps_the_size_while_the_size_filter_does_not_recognise_the_target_and_it_learns():
+    """The car turned 90 degrees (as after a loss): its size filter's peak falls under 0.75 x its running
+    mean, so the size is kept on those frames while the filter learns them; the hold ends by itself (the
+    mean follows the lower peaks), after which the size is estimated again."""
+    tracker = _tracked_car()
+    turned = _textured_scene((90.0, 40.0), angle_deg=90.0)
+    tracker.hold_size_until_recognised(0.75)
+    size, numerator = tracker.size_wh, tracker.size_filter.numerator.copy()
+    held_frames = 0
+    while tracker.size_hold_fraction is not None and held_frames < 40:
+        mean = tracker.size_peak_mean
+        tracker.update(turned)
+        if tracker.size_hold_fraction is not None:
+            held_frames += 1
+            assert tracker.size_wh == size  # kept ...
+            assert tracker.size_peak_mean < mean  # ... while the mean follows the lower peaks
+    assert 1 <= held_frames < 40, held_frames
+    assert not np.array_equal(tracker.size_filter.numerator, numerator)  # it learnt the turned car
+
+
+def test_a_size_hold_on_a_recognised_target_ends_at_once_and_changes_nothing():
+    """Where the size filter recognises the target the hold ends on the first frame, with the same box as
+    without it: the hold costs nothing when the target looks as before."""
+    held, free = _tracked_car(), _tracked_car()
+    held.hold_size_until_recognised(0.75)
+    smaller = _textured_scene((85.0, 38.0))
+    assert held.update(smaller).box == free.update(smaller).box
+    assert held.size_hold_fraction is None and held.box != (275.0, 220.0, 90.0, 40.0)
+    with pytest.raises(ValueError, match="fraction"):
+        held.hold_size_until_recognised(1.0)
+
+
 def test_bound_side_scales_about_the_aspect_ratio_into_the_bounds():
     assert bound_side((40.0, 10.0), None) == (40.0, 10.0)
     assert bound_side((40.0, 10.0), (10.0, 30.0)) == (40.0, 10.0)  # side 20: inside
@@ -257,3 +300,30 @@ def test_jsar_re_reacquires_within_the_side_bounds(reacquire):
     else:
         assert np.hypot(centre[0] - 320.0, centre[1] - 240.0) < 2.0
     assert tracker.reacquisitions == 1 and tracker.monitor.reference is None
+    # "relocate" keeps the core's size model, so its size is held until that model recognises the car
+    # (here at once: the same car); "retrain" trains a new one on this frame.
+    assert tracker.core.size_hold_fraction is None
+
+
+def test_a_relocated_take_holds_the_size_until_the_size_filter_recognises_the_target():
+    """The take's frame shows the car turned by 30 degrees (a relocated core still finds it; at 45 the
+    core is retrained there): the relocated core keeps its size and stays on hold;
+    with accept.size_hold_fraction 0 its old size model estimates a new size on that frame."""
+    from jsar.redetect.jsar_re import JsarReTracker
+    from jsar.redetect.params import RedetectParams
+    from jsar.redetect.search import Candidate
+
+    sizes = {}
+    for fraction in (0.75, 0.0):
+        tracker = JsarReTracker(redetect=RedetectParams.from_mapping({"accept": {"size_hold_fraction": fraction}}))
+        upright = _textured_scene((90.0, 40.0))
+        tracker.init(upright, (275.0, 220.0, 90.0, 40.0))
+        for _ in range(8):
+            tracker.update(upright)
+        before = tracker.core.size_wh
+        tracker._reacquire(_textured_scene((90.0, 40.0), angle_deg=30.0), Candidate(320.0, 240.0, 1.0))
+        sizes[fraction] = (before, tracker.core.size_wh, tracker.core.size_hold_fraction)
+    before, after, hold = sizes[0.75]
+    assert after == before and hold == 0.75
+    before, after, hold = sizes[0.0]
+    assert after != before and hold is None

@@ -20,10 +20,9 @@ frames it learns and while lost.
   learning nothing) when it lies within search.coast_radius_sides of the predicted centre, so a
   target still in view whose look changed is followed; else the core waits at the prediction. While
   the core coasts, a candidate away from it must beat accept.switch_margin x the core's own score,
-  and one confirmed where the core is ends the loss at the core's box. A core that coasted with a
-  confident peak for accept.coast_confirm_frames lost frames in a row ends the loss too: the target
-  changed for good (a car that turned), so the decision filter, which knew it as it was, would never
-  recognise it; back to tracking, the filter learns the new look.
+  and one confirmed where the core is ends the loss at the core's box. Nothing else ends a loss: a
+  target that changed for good is followed (the box on it) but reported lost until the decision
+  filter recognises it, since a coasting core learns whatever it follows (an occluder too).
 - A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
 - Every way out of a loss through the decision filter (the core confident again, a candidate taken)
   also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
@@ -273,10 +272,6 @@ class JsarReTracker:
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
             self._coast(frame, loc, search)
-            search.confident_coasting = search.confident_coasting + 1 if search.coasting and verdict.confident else 0
-            sustained = self.redetect.accept.coast_confirm_frames
-            if sustained and search.confident_coasting >= sustained:
-                return self._found(loc.peak)
             return TrackResult(box=self.core.box, score=loc.peak, state="lost")
         if search.coasting and self._agrees(taken, loc, search):
             # The decision filter confirms the target where the coasting core already is: keep the core's
@@ -306,7 +301,8 @@ class JsarReTracker:
 
     def _reacquire(self, frame: np.ndarray, at: Candidate) -> None:
         """Move the track to `at`: the core (as before the loss, or as it coasted) that responds more
-        strongly there, relocated, learns this frame; if neither responds above zeta_e (a target that
+        strongly there, relocated, learns this frame (its size kept until its size filter recognises
+        the target: params.AcceptParams.size_hold_fraction); if neither responds above zeta_e (a target that
         turned while hidden), or params.AcceptParams.reacquire is "retrain", the pre-loss core is
         retrained there from this frame (the paper's re-initialisation)."""
         assert self.memory is not None
@@ -324,6 +320,9 @@ class JsarReTracker:
                     best = (moved, loc)
         if best is not None:
             self.core = best[0]
+            if self.redetect.accept.size_hold_fraction > 0:
+                # The size model knew the target as it was: keep the size until it recognises it again.
+                self.core.hold_size_until_recognised(self.redetect.accept.size_hold_fraction)
             self.core.commit(frame, best[1])
         else:
             self.core = copy.deepcopy(options[0])

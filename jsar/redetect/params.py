@@ -134,9 +134,10 @@ class AcceptParams:
     A re-acquisition from a loss that is lost again within `probation_frames` did not hold: the
     search it ended resumes (the tracker as it was before it), and a candidate near the refuted
     place must score refute_margin x what the refuted one scored.
-    A core that coasted with a confident peak (the monitor's test) on `coast_confirm_frames` lost
-    frames in a row ends the loss at its box: it followed a target whose look changed for good. An
-    occluder the coasting core learns for that long ends it too (the limitation this accepts)."""
+    `size_hold_fraction`: after a candidate is taken the core keeps its size until its size filter's
+    response peak is back to this x the running mean of its peaks (JsarTracker.hold_size_until_recognised;
+    0: no hold): judged by the size model of its old look, a target that came back turned had its box
+    widen by ~2 % a frame to twice the car's width (the closed loop's car after the bridge)."""
 
     accept_peak: float = 0.0  # eta_d, absolute part (paper 0.02; 0: relative only)
     accept_fraction: float = 0.625  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
@@ -153,7 +154,7 @@ class AcceptParams:
     switch_margin: float = 1.3
     probation_frames: int = 10  # a re-acquisition lost again within this many frames is refuted (0: never) ...
     refute_margin: float = 1.2  # ... and its place must then score this x its score to be taken again
-    coast_confirm_frames: int = 30  # a core coasting confidently this many lost frames in a row ends the loss (0: never)
+    size_hold_fraction: float = 0.75  # after a take the size is kept until the size filter peaks at this x its mean (0: no hold)
 
     def validate(self, prefix: str = "accept") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
@@ -174,8 +175,8 @@ class AcceptParams:
         _require(prefix, "switch_margin", self.switch_margin >= 1, f">= 1, got {self.switch_margin}")
         _require(prefix, "probation_frames", self.probation_frames >= 0, f">= 0, got {self.probation_frames}")
         _require(prefix, "refute_margin", self.refute_margin >= 1, f">= 1, got {self.refute_margin}")
-        _require(prefix, "coast_confirm_frames", self.coast_confirm_frames >= 0,
-                 f">= 0, got {self.coast_confirm_frames}")
+        _require(prefix, "size_hold_fraction", 0 <= self.size_hold_fraction < 1,
+                 f"0 <= value < 1, got {self.size_hold_fraction}")
         for key in ("gate_base_sides", "gate_speed_factor", "gate_min_speed"):
             value = getattr(self, key)
             _require(prefix, key, value >= 0, f">= 0, got {value}")

@@ -22,7 +22,8 @@ from jsar.api import Box, TrackResult, validate_box, validate_frame
 from jsar.config import JsarParams
 from jsar.features import colour, patches
 from jsar.features import translation as translation_features
-from jsar.tracking.size_filter import SizeFilter, bound_side, clamp_size
+from jsar.tracking.size_filter import (SizeFilter, best_cell, bound_side, clamp_size, refined_position,
+                                       updated_mean)
 from jsar.tracking.translation import TranslationFilter
 
 
@@ -175,6 +176,16 @@ class JsarTracker:
             raise ValueError(f"centre must be finite, got {center_xy}")
         self.center_xy = (cx, cy)
 
+    def hold_size_until_recognised(self, fraction: float) -> None:
+        """Keep the size (the size filter still learns each frame at it) until the size filter's
+        response peak reaches `fraction` x the running mean of its peaks (rate params.size_peak_rate,
+        every frame, so a hold ends within a few frames even if the level stays low). For a target
+        found again after a loss: the size model of its old look misjudges a target that came back
+        turned and can widen its box frame after frame."""
+        if not 0.0 < fraction < 1.0:
+            raise ValueError(f"fraction must be in (0, 1), got {fraction}")
+        self.size_hold_fraction = fraction
+
     def target_cells(self) -> tuple[float, float]:
         """Target (h, w) in feature cells of the translation filter's search patch."""
         return self._target_cells()
@@ -204,6 +215,8 @@ class JsarTracker:
         self._cells = p.search_patch_px // p.cell_size
         self.translation = TranslationFilter(p, (self._cells, self._cells), self._target_cells())
         self.size_filter = SizeFilter(p, (w, h)) if self.use_size_filter else None
+        self.size_peak_mean: float | None = None  # running mean of the size filter's response peaks
+        self.size_hold_fraction: float | None = None  # see hold_size_until_recognised
         sample_f = self._sample_spectrum(image, self.center_xy, self._search_side())
         self.translation.train(sample_f)
         self.last_training_sample_f = sample_f
@@ -213,14 +226,22 @@ class JsarTracker:
         self._initialised = True
 
     def _update_size(self, image: np.ndarray) -> None:
-        """Estimate scale and aspect at the new centre; train the size filter at the new size."""
+        """Estimate scale and aspect at the new centre; train the size filter at the new size (at the
+        old one during a hold: hold_size_until_recognised)."""
         assert self.size_filter is not None
         sample = self.size_filter.sample(image, self.center_xy, self.size_wh)
         sample_f = self.size_filter.spectrum(sample)
+        resp = self.size_filter.response(sample_f)
+        peak, mean = float(resp.max()), self.size_peak_mean
+        self.size_peak_mean = updated_mean(mean, peak, self.params.size_peak_rate)
+        if self.size_hold_fraction is not None:
+            if mean is not None and peak < self.size_hold_fraction * mean:
+                self.size_filter.train(sample_f)
+                return
+            self.size_hold_fraction = None  # recognised: estimate from here on
         if self.params.size_subcell_peak:
             # A fractional step: the new grid shares no cell with the old one, so sample it afresh.
-            fw, fh = self.size_filter.cell_factors(*self.size_filter.refined_peak(
-                sample_f, self.params.size_deadband_cells))
+            fw, fh = self.size_filter.cell_factors(*refined_position(resp, self.params.size_deadband_cells))
             w, h = self.size_wh
             new_size = self._clamp((w * fw, h * fh), image)
             if new_size != self.size_wh:
@@ -228,7 +249,7 @@ class JsarTracker:
                 sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.center_xy, new_size))
             self.size_filter.train(sample_f)
             return
-        i, j = self.size_filter.estimate(sample_f)
+        i, j = best_cell(resp)
         fw, fh = self.size_filter.cell_factors(i, j)
         w, h = self.size_wh
         grid_size = (w * fw, h * fh)

@@ -163,25 +163,11 @@ class SizeFilter:
 
     def estimate(self, sample_f: np.ndarray) -> tuple[int, int]:
         """(i, j) grid cell of the response maximum (centre = no change)."""
-        resp = self.response(sample_f)
-        i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
-        return int(i), int(j)
+        return best_cell(self.response(sample_f))
 
     def refined_peak(self, sample_f: np.ndarray, deadband_cells: float = 0.0) -> tuple[float, float]:
-        """(i, j) fractional grid position of the response maximum: argmax + a parabola per axis, each
-        axis's offset from the grid centre set to 0 when below deadband_cells (grid cells).
-
-        The grid is periodic (the response is an inverse DFT), so the neighbours wrap around.
-        """
-        resp = self.response(sample_f)
-        i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
-        n_s, n_a = resp.shape
-        di = parabola_offset(resp[(i - 1) % n_s, j], resp[i, j], resp[(i + 1) % n_s, j])
-        dj = parabola_offset(resp[i, (j - 1) % n_a], resp[i, j], resp[i, (j + 1) % n_a])
-        centre_i, centre_j = (n_s - 1) / 2.0, (n_a - 1) / 2.0
-        fi, fj = i + di, j + dj
-        return (centre_i if abs(fi - centre_i) < deadband_cells else fi,
-                centre_j if abs(fj - centre_j) < deadband_cells else fj)
+        """(i, j) fractional grid position of the response maximum; see refined_position."""
+        return refined_position(self.response(sample_f), deadband_cells)
 
     def cell_factors(self, i: float, j: float) -> tuple[float, float]:
         """(width factor, height factor) of grid position (i, j) (fractional allowed) relative to the current size."""
@@ -190,6 +176,33 @@ class SizeFilter:
         scale = self.params.scale_step**ns
         aspect = self.params.aspect_step**na
         return scale * aspect, scale / aspect
+
+
+def best_cell(resp: np.ndarray) -> tuple[int, int]:
+    """(i, j) cell of the maximum of an (S, A) grid response."""
+    i, j = np.unravel_index(int(np.argmax(resp)), resp.shape)
+    return int(i), int(j)
+
+
+def refined_position(resp: np.ndarray, deadband_cells: float = 0.0) -> tuple[float, float]:
+    """(i, j) fractional grid position of the maximum of an (S, A) response: argmax + a parabola per
+    axis, each axis's offset from the grid centre set to 0 when below deadband_cells (grid cells).
+
+    The grid is periodic (the response is an inverse DFT), so the neighbours wrap around.
+    """
+    i, j = best_cell(resp)
+    n_s, n_a = resp.shape
+    di = parabola_offset(resp[(i - 1) % n_s, j], resp[i, j], resp[(i + 1) % n_s, j])
+    dj = parabola_offset(resp[i, (j - 1) % n_a], resp[i, j], resp[i, (j + 1) % n_a])
+    centre_i, centre_j = (n_s - 1) / 2.0, (n_a - 1) / 2.0
+    fi, fj = i + di, j + dj
+    return (centre_i if abs(fi - centre_i) < deadband_cells else fi,
+            centre_j if abs(fj - centre_j) < deadband_cells else fj)
+
+
+def updated_mean(mean: float | None, value: float, rate: float) -> float:
+    """Running mean: `value` itself first, then mean + rate * (value - mean)."""
+    return value if mean is None else mean + rate * (value - mean)
 
 
 def parabola_offset(left: float, centre: float, right: float) -> float:

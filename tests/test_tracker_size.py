@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from jsar.config import JsarParams
-from jsar.tracking.size_filter import SizeFilter, bound_side, clamp_size, grid_label, grid_sizes, model_size
+from jsar.tracking.size_filter import (SizeFilter, best_cell, bound_side, clamp_size, grid_label, grid_sizes, model_size,
+                                       refined_position)
 
 
 def test_grid_is_symmetric_and_its_centre_is_the_current_size():
@@ -66,7 +67,7 @@ def test_size_filter_estimates_scale_and_aspect_change_in_the_right_direction(sc
     sf = SizeFilter(params, size)
     sf.train(sf.spectrum(sf.sample(_scene(size), (160.0, 120.0), size)))
     new_size = (size[0] * scale * stretch, size[1] * scale / stretch)
-    i, j = sf.estimate(sf.spectrum(sf.sample(_scene(new_size), (160.0, 120.0), size)))
+    i, j = best_cell(sf.response(sf.spectrum(sf.sample(_scene(new_size), (160.0, 120.0), size))))
     # Scale index moves with the area change only, aspect index with the ratio change only.
     assert np.sign(i - 6) == np.sign(round(np.log(scale), 6))
     assert np.sign(j - 6) == np.sign(round(np.log(stretch), 6))
@@ -123,7 +124,7 @@ def test_parabola_offset_finds_the_vertex_and_ignores_non_maxima():
     assert parabola_offset(0.0, 1.0, 1.0) == 0.5  # clamped to half a cell
 
 
-def test_refined_peak_moves_continuously_where_the_best_cell_does_not():
+def test_refined_position_moves_continuously_where_the_best_cell_does_not():
     """A car scaled by 1.03^e (e grid steps): the refined scale position moves the right way, further
     for a larger change, already at one step, where the best cell is still the centre. (One frame's
     estimate is a fraction of the change: the label is nearly flat; frames accumulate it.)"""
@@ -135,15 +136,15 @@ def test_refined_peak_moves_continuously_where_the_best_cell_does_not():
         for steps in (1, 2, 3):
             scaled = (size[0] * 1.03 ** (sign * steps), size[1] * 1.03 ** (sign * steps))
             spectrum = sf.spectrum(sf.sample(_textured_scene(scaled), centre, size))
-            i, j = sf.refined_peak(spectrum)
+            i, j = refined_position(sf.response(spectrum))
             moves.append(sign * (i - 6))
             assert abs(j - 6) < 0.5, "a pure scale change must not move the aspect estimate far"
             if steps == 1:
-                assert sf.estimate(spectrum)[0] == 6
+                assert best_cell(sf.response(spectrum))[0] == 6
         assert 0 < moves[0] < moves[1] < moves[2], moves
 
 
-def test_refined_peak_deadband_ignores_offsets_below_it_per_axis():
+def test_refined_position_deadband_ignores_offsets_below_it_per_axis():
     """size_deadband_cells: a refined offset from the grid centre below the band counts as none (the
     centre cell); a larger one is kept, fractional; 0 (the default) keeps every offset."""
     size, centre = (90.0, 40.0), (320.0, 240.0)
@@ -151,11 +152,12 @@ def test_refined_peak_deadband_ignores_offsets_below_it_per_axis():
     sf.train(sf.spectrum(sf.sample(_textured_scene(size), centre, size)))
     scaled = (size[0] * 1.03 ** 2, size[1] * 1.03 ** 2)
     spectrum = sf.spectrum(sf.sample(_textured_scene(scaled), centre, size))
-    i, j = sf.refined_peak(spectrum)
+    response = sf.response(spectrum)
+    i, j = refined_position(response)
     assert abs(j - 6) < 0.5 < abs(i - 6)  # two scale steps: the best cell has moved; aspect has not
-    band_i, band_j = sf.refined_peak(spectrum, deadband_cells=0.5)
+    band_i, band_j = refined_position(response, deadband_cells=0.5)
     assert band_j == 6.0 and band_i == pytest.approx(i)  # the scale offset is beyond the band, kept
-    assert sf.refined_peak(spectrum, deadband_cells=abs(i - 6) + 0.01) == (6.0, 6.0)
+    assert refined_position(response, deadband_cells=abs(i - 6) + 0.01) == (6.0, 6.0)
     with pytest.raises(ValueError, match="size_deadband_cells"):
         JsarParams(size_deadband_cells=-0.1).validate()
 

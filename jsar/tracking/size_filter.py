@@ -154,20 +154,13 @@ class SizeFilter:
         self.denominator = (1 - rate) * self.denominator + rate * den
 
     def response(self, sample_f: np.ndarray) -> np.ndarray:
-        """(S, A) float32 response over the grid; the peak cell is the size estimate."""
+        """(S, A) float32 response over the grid; the peak cell is the size estimate (best_cell,
+        refined_position)."""
         if self.numerator is None or self.denominator is None:
             raise RuntimeError("SizeFilter.response called before train")
         resp_f = (self.numerator * sample_f).sum(axis=-1)
         resp_f /= self.denominator + np.float32(self.params.size_lambda)
         return sfft.irfft2(resp_f, s=self.grid_shape, workers=1).astype(np.float32)
-
-    def estimate(self, sample_f: np.ndarray) -> tuple[int, int]:
-        """(i, j) grid cell of the response maximum (centre = no change)."""
-        return best_cell(self.response(sample_f))
-
-    def refined_peak(self, sample_f: np.ndarray, deadband_cells: float = 0.0) -> tuple[float, float]:
-        """(i, j) fractional grid position of the response maximum; see refined_position."""
-        return refined_position(self.response(sample_f), deadband_cells)
 
     def cell_factors(self, i: float, j: float) -> tuple[float, float]:
         """(width factor, height factor) of grid position (i, j) (fractional allowed) relative to the current size."""

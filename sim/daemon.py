@@ -15,8 +15,19 @@ from typing import Any
 
 import yaml
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_CONFIG = REPO_ROOT / "config.yaml"
+REPO_ROOT = Path(__file__).resolve().parent.parent  # the source tree (for an installed package: site-packages' parent)
+
+
+def default_config() -> Path:
+    """The top-level config.yaml the sim starts from: the source tree's, else the current directory's (an
+    installed harness run from a folder holding the project's config, as `make check-arm64` does);
+    FileNotFoundError naming both places when neither has one."""
+    places = [REPO_ROOT / "config.yaml", Path.cwd() / "config.yaml"]
+    for place in places:
+        if place.is_file():
+            return place
+    raise FileNotFoundError(f"no config.yaml for the sim: looked in {places[0].parent} (source tree) and "
+                            f"{places[1].parent} (current directory)")
 
 
 def exit_on_sigterm() -> None:
@@ -39,9 +50,9 @@ def deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any
     return merged
 
 
-def write_config(path: Path, overrides: dict[str, Any], base_file: Path = DEFAULT_CONFIG) -> dict[str, Any]:
-    """Write base_file + overrides as YAML to `path`; returns the merged mapping."""
-    with open(base_file, encoding="utf-8") as handle:
+def write_config(path: Path, overrides: dict[str, Any], base_file: Path | None = None) -> dict[str, Any]:
+    """Write base_file (default_config() if None) + overrides as YAML to `path`; returns the merged mapping."""
+    with open(base_file if base_file is not None else default_config(), encoding="utf-8") as handle:
         base = yaml.safe_load(handle)
     merged = deep_merge(base, overrides)
     path.write_text(yaml.safe_dump(merged, sort_keys=False), encoding="utf-8")

@@ -553,3 +553,21 @@ def test_demo_summary_explains_every_figure_and_reads_polling_as_normal():
     assert "daemon out_gimbal" in text and "gimbal rate commands sent" in text
     assert "daemon brand_new_counter" in text  # an unexplained counter is shown, not dropped
     assert "daemon mavlink_rejected" not in text  # the camera commands are shown once, split by reason
+
+
+def test_the_sims_base_config_is_the_source_trees_else_the_current_directorys(tmp_path, monkeypatch):
+    from sim import daemon
+
+    assert daemon.default_config() == daemon.REPO_ROOT / "config.yaml"  # run from the source tree
+    installed = tmp_path / "site"  # an installed package: no config.yaml beside it
+    installed.mkdir()
+    monkeypatch.setattr(daemon, "REPO_ROOT", installed)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    with pytest.raises(FileNotFoundError, match="looked in .*site.* and .*work"):
+        daemon.default_config()
+    (work / "config.yaml").write_text("logging: {level: info}\n")
+    assert daemon.default_config() == work / "config.yaml"
+    merged = daemon.write_config(tmp_path / "out.yaml", {"logging": {"level": "debug"}})
+    assert merged == {"logging": {"level": "debug"}}

@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from jsar.eval.runner import cap_loaded_pools, describe_pools, limit_threads_env
-from jsar.memory_policy import retain_freed_memory
 
 limit_threads_env()  # before the trackers' modules (scipy, ...) are imported below
 
@@ -279,15 +278,13 @@ def main(argv: list[str] | None = None) -> int:
     factories[DEFAULT]()  # import the tracker's modules now, so the thread cap below covers their libraries
     threads = cap_loaded_pools()
     print(describe_pools(threads), file=sys.stderr)
-    memory = retain_freed_memory()
-    print(f"memory: {memory}", file=sys.stderr)
     total = _frames_to_run(sequences, kinds, seeds, args.max_frames)
     with tqdm(total=total, unit="frame", disable=args.no_progress, file=sys.stderr) as bar:
         try:
             result = run_ablation(sequences, names, seeds, kinds, lengths, args.max_frames, progress=bar.update)
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from exc
-    result.update({"threads": threads, "memory": memory, "data_root": str(args.data_root),
+    result.update({"threads": threads, "data_root": str(args.data_root),
                    "sequences": [s.name for s in sequences]})
     print(format_table(result))
     if args.json:

@@ -32,7 +32,6 @@ import numpy as np  # noqa: E402
 
 import jsar  # noqa: E402
 from jsar.eval.dataset import discover_sequences, load_sequence  # noqa: E402
-from jsar.memory_policy import retain_freed_memory  # noqa: E402
 from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
 
 
@@ -114,7 +113,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames < 1:
         parser.error("--frames must be >= 1")
     cv2.setNumThreads(1)
-    print(f"memory: {retain_freed_memory()}")  # as the daemon runs the tracker
     pooled: dict[str, list[float]] = {"tracking": [], "lost": [], "windows": []}
     print(f"{'sequence':28s} {'tracking ms':>11s} {'lost ms':>8s} {'ratio':>6s} {'lost frames':>12s} {'windows':>8s}")
     for folder in discover_sequences(args.data_root):

@@ -143,9 +143,6 @@ def main(argv: list[str] | None = None) -> int:
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=1)
-    from jsar.memory_policy import retain_freed_memory
-
-    print(f"memory: {retain_freed_memory()}")  # as the daemon runs the tracker
     if args.stages:
         stages(args.data_root, args.stages)
         return 0

@@ -20,7 +20,6 @@ import numpy as np
 import jsar
 from jsar.eval import dataset
 from jsar.eval.runner import cap_loaded_pools, limit_threads_env
-from jsar.memory_policy import retain_freed_memory
 from jsar.eval.synthetic import synthetic_clip
 
 DEFAULT_REAL_SEQUENCE = "UAV123_10fps_wakeboard7"  # short (67 frames), small target on water
@@ -66,7 +65,6 @@ def run_demo(tracker_name: str, out_dir: Path, sequence: Path | None, data_root:
         raise ValueError(f"{name}: the target must be visible in the first frame")
     tracker = jsar.create(tracker_name)
     cap_loaded_pools()  # after create(): the tracker's libraries are loaded; fps is for one thread
-    retain_freed_memory()  # as the daemon runs it
     out_dir.mkdir(parents=True, exist_ok=True)
     video_path = out_dir / f"{name}_{tracker_name}.avi"
     csv_path = out_dir / f"{name}_{tracker_name}.csv"

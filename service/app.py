@@ -11,7 +11,6 @@ from threadpoolctl import threadpool_limits
 
 import jsar
 from jsar.api import SideBoundedTracker
-from jsar.memory_policy import retain_freed_memory
 from service.config import ConfigError, ServiceConfig, as_plain
 from service.domain import ControlCommand, LoopState
 from service.loop import FrameReport, TrackingLoop
@@ -42,9 +41,6 @@ class Service:
         # same thread count as OpenCV, even when the environment (systemd unit, Dockerfile) did not set it.
         cv2.setNumThreads(tracker_cfg.threads)
         threadpool_limits(limits=tracker_cfg.threads)
-        # Every frame allocates and frees the same arrays (a lost frame several MiB): kept in the process
-        # instead of returned to the kernel and zero-filled again on the next frame (jsar.memory_policy).
-        log.info("event=memory_policy detail=\"%s\"", retain_freed_memory())
         try:
             probe = jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
         except (TypeError, ValueError) as exc:

@@ -4,8 +4,7 @@
 One thread: the BLAS / OpenMP env vars are set to 1 for libraries loaded later, cv2.setNumThreads(1),
 and threadpoolctl caps the pools of libraries already loaded (numpy's OpenBLAS is loaded by
 `import jsar`, before this module runs, so env vars alone would be too late); the resulting
-pool sizes are printed and stored in the JSON ("threads"). glibc's malloc keeps freed memory
-(jsar.memory_policy, as in the daemon), stored in the JSON ("memory").
+pool sizes are printed and stored in the JSON ("threads").
 """
 from __future__ import annotations
 
@@ -14,7 +13,6 @@ import sys
 from pathlib import Path
 
 from jsar.eval.runner import cap_loaded_pools, describe_pools, limit_threads_env
-from jsar.memory_policy import retain_freed_memory
 
 limit_threads_env()  # before the trackers' modules (scipy, ...) are imported below
 
@@ -64,8 +62,6 @@ def main(argv: list[str] | None = None) -> int:
         factory()  # import every tracker's modules now, so the thread cap below covers their libraries
     threads = cap_loaded_pools()
     print(describe_pools(threads), file=sys.stderr)
-    memory = retain_freed_memory()
-    print(f"memory: {memory}", file=sys.stderr)
     kinds = _csv(args.kinds)
     lengths = tuple(int(v) for v in _csv(args.lengths))
     total = sum(min(len(s), args.max_frames or len(s)) for s in sequences) * (len(kinds) if args.longterm else 1)
@@ -80,7 +76,6 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from exc
     result["threads"] = threads
-    result["memory"] = memory
     result["data_root"] = str(args.data_root)
     result["max_frames"] = args.max_frames
     if args.longterm:

@@ -323,12 +323,19 @@ class ClosedLoop:
         self.service_port, self.gcs_port = free_port(2), free_port(2)  # SOCK_DGRAM
         self.zenoh_port = free_port(1)  # SOCK_STREAM
         self.scene = Scene(cfg.scene, cfg.camera) if world is None else world
+        # The daemon's config first (it opens nothing): a failure here leaves no socket or session behind.
+        self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
+                             f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
         self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
                                                      start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
                                        self.service_port, self.gcs_port)
-        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",), prefix=cfg.zenoh_prefix))
-        self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
-                             f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
+        try:
+            self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",),
+                                                   prefix=cfg.zenoh_prefix))
+        except BaseException:
+            # An open autopilot (sockets) or Zenoh session kept the process alive after a failed test.
+            self.autopilot.close()
+            raise
         self.gcs = None
         self.frame_id = 0
         self.clock_s = SIM_CLOCK_EPOCH_S  # capture stamp of the next startup / selection frame

@@ -571,3 +571,35 @@ def test_the_sims_base_config_is_the_source_trees_else_the_current_directorys(tm
     assert daemon.default_config() == work / "config.yaml"
     merged = daemon.write_config(tmp_path / "out.yaml", {"logging": {"level": "debug"}})
     assert merged == {"logging": {"level": "debug"}}
+
+
+def test_a_closed_loop_that_cannot_start_leaves_no_socket_or_session_open(tmp_path, monkeypatch):
+    # An autopilot or Zenoh session left open by a failed constructor kept pytest from exiting.
+    from sim import closed_loop, daemon
+
+    opened: list[MockAutopilot] = []
+
+    class RecordedAutopilot(MockAutopilot):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            opened.append(self)
+
+    monkeypatch.setattr(closed_loop, "MockAutopilot", RecordedAutopilot)
+
+    def no_config() -> None:
+        raise FileNotFoundError("no config.yaml for the sim")
+
+    monkeypatch.setattr(daemon, "default_config", no_config)
+    with pytest.raises(FileNotFoundError, match="no config.yaml"):
+        closed_loop.ClosedLoop(closed_loop.ClosedLoopConfig(duration_s=1.0), workdir=tmp_path)
+    assert opened == []  # failed before anything was opened
+    monkeypatch.undo()
+    monkeypatch.setattr(closed_loop, "MockAutopilot", RecordedAutopilot)
+
+    def no_session(*_args, **_kwargs) -> None:
+        raise RuntimeError("zenoh refused the endpoint")
+
+    monkeypatch.setattr(closed_loop, "SimCamera", no_session)
+    with pytest.raises(RuntimeError, match="zenoh refused"):
+        closed_loop.ClosedLoop(closed_loop.ClosedLoopConfig(duration_s=1.0), workdir=tmp_path)
+    assert len(opened) == 1 and all(link.sock.fileno() == -1 for link in opened[0].links.values())

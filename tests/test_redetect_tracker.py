@@ -15,7 +15,8 @@ import pytest
 import jsar
 from jsar.config import JsarParams
 from jsar.redetect.jsar_re import JsarReTracker
-from jsar.redetect.memory import window_features
+from jsar.features.patches import sample_patch
+from jsar.redetect.memory import turned_patch, window_features
 from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
                                   search_cycle, track_speed)
@@ -758,3 +759,31 @@ def test_real_sequence_injected_occlusion_is_detected_and_recovered(data_root):
     # re-acquired within 15 frames of the reappearance: centre within 20 px of the ground truth
     assert min(centre_error(i) for i in range(52, 52 + 15)) <= 20
     assert centre_error(74) <= 20  # and kept
+
+
+def _bar_image(angle_deg: float, size: int = 900) -> np.ndarray:
+    """A grey frame with a dark bar through its centre, turned by angle_deg (cv2's sign), smooth edges."""
+    image = np.full((size, size, 3), 200, np.uint8)
+    bar = cv2.getRotationMatrix2D(((size - 1) / 2.0, (size - 1) / 2.0), angle_deg, 1.0)
+    corners = np.array([[size * 0.15, size * 0.45], [size * 0.85, size * 0.45], [size * 0.85, size * 0.55],
+                        [size * 0.15, size * 0.55]])
+    turned = corners @ bar[:, :2].T + bar[:, 2]
+    cv2.fillConvexPoly(image, np.round(turned * 16).astype(np.int32), (40, 40, 40), cv2.LINE_AA, 4)
+    return cv2.GaussianBlur(image, (0, 0), 3.0)
+
+
+@pytest.mark.parametrize("side_px", [120.0, 700.0])  # enlarged to the output / shrunk to it first
+def test_a_turned_window_shows_the_square_turned_about_its_centre(side_px):
+    centre = (449.5, 449.5)  # the frame's centre in continuous coordinates (pixel k covers [k, k + 1))
+    upright = sample_patch(_bar_image(0.0), centre, (side_px, side_px), (200, 200)).astype(np.float64)
+    for degrees in (45.0, -30.0):
+        # A bar turned by -degrees, seen through a window turned by degrees, looks upright.
+        seen = turned_patch(_bar_image(-degrees), centre, side_px, 200, degrees).astype(np.float64)
+        assert np.abs(seen - upright)[20:180, 20:180].mean() < 4.0  # grey levels; the bar is 160 levels deep
+        assert np.abs(seen - upright)[20:180, 20:180].mean() < 0.1 * np.abs(upright - upright.mean()).mean()
+
+
+def test_a_shrunk_window_at_zero_degrees_is_the_upright_patch():
+    image = np.random.default_rng(3).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    for centre, side in (((634.0, 360.0), 885.0), ((100.3, 50.7), 415.5)):  # inside; partly outside the frame
+        assert np.array_equal(turned_patch(image, centre, side, 200, 0.0), sample_patch(image, centre, (side, side), (200, 200)))

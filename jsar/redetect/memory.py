@@ -120,7 +120,10 @@ def turned_patch(image: np.ndarray, centre_xy: tuple[float, float], side_px: flo
                  degrees: float) -> np.ndarray:
     """uint8 (out_px, out_px[, 3]) patch: the square of side side_px centred on centre_xy px of `image`,
     turned by `degrees` about centre_xy (cv2's sign: counter-clockwise as displayed), borders
-    replicated; resampled as patches.sample_patch does. Only a canvas just covering the square is warped."""
+    replicated; resampled as patches.sample_patch does. A square larger than the output is shrunk first
+    (shrunk_turned_patch); else only a canvas just covering it is warped, then enlarged."""
+    if side_px > out_px:
+        return shrunk_turned_patch(image, centre_xy, side_px, out_px, degrees)
     half = int(math.ceil(side_px / 2.0)) + 2
     x0, y0 = int(round(centre_xy[0])) - half, int(round(centre_xy[1])) - half  # the canvas origin (image px)
     turn = cv2.getRotationMatrix2D(centre_xy, degrees, 1.0)
@@ -128,6 +131,25 @@ def turned_patch(image: np.ndarray, centre_xy: tuple[float, float], side_px: flo
     canvas = cv2.warpAffine(image, turn, (2 * half + 1, 2 * half + 1), flags=cv2.INTER_LINEAR,
                             borderMode=cv2.BORDER_REPLICATE)
     return patches.sample_patch(canvas, (centre_xy[0] - x0, centre_xy[1] - y0), (side_px, side_px), (out_px, out_px))
+
+
+def shrunk_turned_patch(image: np.ndarray, centre_xy: tuple[float, float], side_px: float, out_px: int,
+                        degrees: float) -> np.ndarray:
+    """turned_patch for side_px > out_px: the square that holds the turned window is first area-averaged to the
+    output's pixel size (patches.sample_patch), then turned there. Turning at the image's own resolution
+    first cost a warp of the whole window (7-10 ms for a target of 180 px, whose 5-side window is 900 px);
+    shrinking first reads the same pixels once and warps out_px^2. At 0 degrees it is sample_patch's patch."""
+    scale = out_px / side_px  # output px per image px (< 1)
+    radians = math.radians(degrees)
+    cover_px = side_px * (abs(math.cos(radians)) + abs(math.sin(radians))) * scale  # the turned square's bound
+    canvas_px = int(math.ceil(cover_px)) + 2  # + a pixel each side for the interpolation
+    canvas_px += (canvas_px - out_px) % 2  # same parity: the output's pixel grid is the canvas's, shifted by whole pixels
+    canvas = patches.sample_patch(image, centre_xy, (canvas_px / scale,) * 2, (canvas_px, canvas_px))
+    # About the canvas centre (cv2 puts pixel k's centre at k), then the canvas centre onto the output's.
+    centre = (canvas_px - 1) / 2.0
+    turn = cv2.getRotationMatrix2D((centre, centre), degrees, 1.0)
+    turn[:, 2] -= (canvas_px - out_px) / 2.0
+    return cv2.warpAffine(canvas, turn, (out_px, out_px), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def window_features(image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray, px_per_cell: float,

@@ -333,7 +333,7 @@ class ClosedLoop:
             self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",),
                                                    prefix=cfg.zenoh_prefix))
         except BaseException:
-            # An open autopilot (sockets) or Zenoh session kept the process alive after a failed test.
+            # Nothing else would close the autopilot's sockets: the caller never got the object.
             self.autopilot.close()
             raise
         self.gcs = None

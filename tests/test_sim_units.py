@@ -574,7 +574,7 @@ def test_the_sims_base_config_is_the_source_trees_else_the_current_directorys(tm
 
 
 def test_a_closed_loop_that_cannot_start_leaves_no_socket_or_session_open(tmp_path, monkeypatch):
-    # An autopilot or Zenoh session left open by a failed constructor kept pytest from exiting.
+    # A failed constructor hands its caller nothing to close: it must close what it opened itself.
     from sim import closed_loop, daemon
 
     opened: list[MockAutopilot] = []

@@ -26,7 +26,7 @@ rootfs="$cache/rootfs-bookworm"
 nice_="nice -n 15"
 default_tests="tests/test_features_fhog.py tests/test_features_colour.py tests/test_features_patches.py
 tests/test_tracker.py tests/test_redetect_tracker.py::test_real_sequence_injected_occlusion_is_detected_and_recovered
-tests/test_service_daemon.py"
+tests/test_service_daemon.py tests/test_sim_closed_loop.py::test_lockstep_run_is_reproducible"
 tests="${JSAR_ARM64_TESTS:-$default_tests}"
 
 say() { printf '\n== %s\n' "$*"; }

@@ -85,6 +85,34 @@ def test_cli_errors_are_clear(synthetic_root):
     assert proc.returncode != 0 and "unknown sequence(s) zzz" in proc.stderr
 
 
+def test_params_reach_the_tracker_and_are_recorded(synthetic_root, tmp_path):
+    plain, tuned = tmp_path / "plain.json", tmp_path / "tuned.json"
+    assert run_cli(str(synthetic_root), "--trackers", "jsar", "--sequences", "syn_a",
+                   "--json", str(plain)).returncode == 0
+    params = {"jsar": {"search_area_factor": 3.0}}
+    proc = run_cli(str(synthetic_root), "--trackers", "jsar", "--sequences", "syn_a", "--json", str(tuned),
+                   "--params", json.dumps(params))
+    assert proc.returncode == 0, proc.stderr
+    assert 'params: {"jsar": {"search_area_factor": 3.0}}' in proc.stderr
+    plain_result, tuned_result = json.loads(plain.read_text()), json.loads(tuned.read_text())
+    assert plain_result["params"] == {} and tuned_result["params"] == params
+    boxes = [r["sequences"]["syn_a"]["trackers"]["jsar"]["boxes"] for r in (plain_result, tuned_result)]
+    assert boxes[0][0] == boxes[1][0] and boxes[0][1:] != boxes[1][1:]  # same start, another search area
+
+
+@pytest.mark.parametrize(("params", "message"), [
+    ("{not json", "--params is not JSON"),
+    ('{"jsar-re": 4}', "--params must be a JSON object"),
+    ('{"csrt": {}}', "--params names csrt, not in --trackers (jsar-re)"),
+    ('{"jsar-re": {"redetect": {"search": {"windows_per_frame": -1}}}}',
+     "--params jsar-re: redetect.search.windows_per_frame"),
+    ('{"jsar-re": {"no_such_parameter": 1}}', "--params jsar-re:"),
+])
+def test_params_errors_are_clear(synthetic_root, params, message):
+    proc = run_cli(str(synthetic_root), "--trackers", "jsar-re", "--params", params)
+    assert proc.returncode != 0 and message in proc.stderr, proc.stderr
+
+
 def test_published_reference_scores_reproduce_the_stated_means(data_root):
     """The shared README's numbers for the authors' JSAR run (0.850 / 0.484), with our metric code."""
     published = data_root.parent / "published"

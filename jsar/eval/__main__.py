@@ -1,5 +1,9 @@
 """python -m jsar.eval DATA_ROOT --trackers jsar,strcf,csrt,kcf [--json F] [--plots D] [--published D]
-[--sequences a,b] [--longterm [--kinds ...] [--lengths 5,15,40] [--seed 0]] [--max-frames N]
+[--sequences a,b] [--longterm [--kinds ...] [--lengths 5,15,40] [--seed 0]] [--max-frames N] [--params JSON]
+
+--params sets a tracker's parameters as jsar.create takes them, e.g. JSAR-Re with four windows a lost
+frame: --params '{"jsar-re": {"redetect": {"search": {"windows_per_frame": 4}}}}' (an ablation of one
+setting without editing code); the JSON result records them ("params").
 
 One thread: the BLAS / OpenMP env vars are set to 1 for libraries loaded later, cv2.setNumThreads(1),
 and threadpoolctl caps the pools of libraries already loaded (numpy's OpenBLAS is loaded by
@@ -9,6 +13,7 @@ pool sizes are printed and stored in the JSON ("threads").
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -40,7 +45,27 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="event lengths in frames (--longterm)")
     parser.add_argument("--seed", type=int, default=0, help="event placement seed (--longterm)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--params", default="",
+                        help='JSON {tracker: {jsar.create keyword: value}}, e.g. '
+                             '\'{"jsar-re": {"redetect": {"search": {"windows_per_frame": 4}}}}\'')
     return parser.parse_args(argv)
+
+
+def parse_params(text: str, trackers: list[str]) -> dict[str, dict]:
+    """--params: a JSON object {tracker name: {jsar.create keyword: value}} naming only --trackers
+    ({} when empty); ValueError saying what is wrong."""
+    if not text.strip():
+        return {}
+    try:
+        params = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--params is not JSON: {exc}") from exc
+    if not isinstance(params, dict) or not all(isinstance(v, dict) for v in params.values()):
+        raise ValueError("--params must be a JSON object {tracker: {keyword: value}}")
+    unknown = [name for name in params if name not in trackers]
+    if unknown:
+        raise ValueError(f"--params names {', '.join(unknown)}, not in --trackers ({', '.join(trackers)})")
+    return params
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,13 +80,19 @@ def main(argv: list[str] | None = None) -> int:
         sequences = [dataset.load_sequence(f) for f in folders]
         if args.max_frames is not None and args.max_frames < 2:
             raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
-        factories = evaluate.tracker_factories(trackers)
+        params = parse_params(args.params, trackers)
+        factories = evaluate.tracker_factories(trackers, params)
     except ValueError as exc:
         raise SystemExit(f"error: {exc}") from exc
-    for factory in factories.values():
-        factory()  # import every tracker's modules now, so the thread cap below covers their libraries
+    for name, factory in factories.items():
+        try:
+            factory()  # import every tracker's modules now, so the thread cap below covers their libraries
+        except (ValueError, TypeError) as exc:  # a bad --params value or keyword, named by the tracker
+            raise SystemExit(f"error: --params {name}: {exc}") from exc
     threads = cap_loaded_pools()
     print(describe_pools(threads), file=sys.stderr)
+    if params:
+        print(f"params: {json.dumps(params, sort_keys=True)}", file=sys.stderr)
     kinds = _csv(args.kinds)
     lengths = tuple(int(v) for v in _csv(args.lengths))
     total = sum(min(len(s), args.max_frames or len(s)) for s in sequences) * (len(kinds) if args.longterm else 1)
@@ -69,15 +100,17 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if args.longterm:
                 result = evaluate.evaluate_longterm(sequences, trackers, kinds, lengths, args.seed,
-                                                    progress=bar.update, max_frames=args.max_frames)
+                                                    progress=bar.update, max_frames=args.max_frames,
+                                                    factories=factories)
             else:
                 result = evaluate.evaluate(sequences, trackers, args.published, progress=bar.update,
-                                           max_frames=args.max_frames)
+                                           max_frames=args.max_frames, factories=factories)
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from exc
     result["threads"] = threads
     result["data_root"] = str(args.data_root)
     result["max_frames"] = args.max_frames
+    result["params"] = params
     if args.longterm:
         print(report.format_longterm_table(result))
     else:

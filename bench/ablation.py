@@ -61,6 +61,8 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     "no-colour": {"colour": {"min_match": 0.0, "core_min_match": 0.0}},
     # A take lets the core's size filter (of the target's look before the loss) estimate the size at once.
     "no-size-hold": {"accept": {"size_hold_fraction": 0.0}},
+    # A re-acquisition lost again within a few frames stands: no refutation, no return to the search it ended.
+    "no-probation": {"accept": {"probation_frames": 0}},
     # The paper's re-initialisation: the core's filters retrained from the re-acquired frame.
     "retrain": {"accept": {"reacquire": "retrain"}},
     # The paper's omega grows without bound; 1000 sides is beyond any frame of up to 2000 px for a lost

@@ -265,6 +265,17 @@ def test_decide_ignores_candidates_beyond_the_motion_gate():
         == Candidate(179.0, 120.0, 0.04)
 
 
+def test_decide_needs_refute_margin_times_a_refuted_score_near_a_refuted_place():
+    search = _search(confirm_frames=0, refute_margin=1.2)
+    search.refuted.append(Candidate(190.0, 120.0, 0.05))  # a re-acquisition of this search that did not hold
+    assert search.decide([Candidate(192.0, 120.0, 0.059)], 0.03) is None  # near it: needs 1.2 x 0.05
+    assert search.decide([Candidate(192.0, 120.0, 0.061)], 0.03) == Candidate(192.0, 120.0, 0.061)
+    elsewhere = Candidate(130.0, 120.0, 0.04)  # 6 sides away: the plain bar
+    assert _search(confirm_frames=0).decide([elsewhere], 0.03) == elsewhere
+    search.pending = None
+    assert search.decide([elsewhere], 0.03) == elsewhere
+
+
 def test_decide_asks_the_check_only_of_candidates_that_passed_the_rest_and_skips_those_it_refuses():
     search = _search(confirm_frames=0)
     asked = []
@@ -602,6 +613,52 @@ def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_targe
     assert all(math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(35, 60))
     assert gated[60][0] == "recovered"  # the target is back where it was: the core is confident on it
     assert all(gated[i][0] == "tracking" and math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(61, 70))
+
+
+def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[JsarReTracker, dict[int, tuple[str, Box]],
+                                                                     dict[int, list]]:
+    """The target stands at (100, 100), hidden on frames 35..59; a look-alike in its colours stands 50 px
+    (2.1 sides) to its right on frames 38..49 only. Returns the tracker, frame -> (state, box) and
+    frame -> the refuted places of the search on that frame."""
+    background = _background()
+
+    def frame(index: int) -> np.ndarray:
+        image = _frame(background, None if 35 <= index < 60 else (100, 100))
+        if 38 <= index < 50:
+            _paste(image, _same_colour_look_alike(), (150, 100))
+        return image
+
+    tracker = JsarReTracker(JsarParams.jsar_re(), redetect)
+    tracker.init(frame(0), _target_box((100, 100)))
+    results: dict[int, tuple[str, Box]] = {}
+    refuted: dict[int, list] = {}
+    for index in range(1, 75):
+        result = tracker.update(frame(index))
+        results[index] = (result.state, result.box)
+        refuted[index] = list(tracker.search.refuted) if tracker.search is not None else []
+    return tracker, results, refuted
+
+
+def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
+    target_centre, look_alike_centre = (112.0, 112.0), (162.0, 112.0)
+    tracker, results, refuted = _run_with_a_passing_look_alike(RedetectParams())
+    taken = [i for i in range(35, 50) if results[i][0] == "recovered"]
+    assert taken, "the look-alike must be taken while the target is hidden: the scenario tests nothing"
+    assert math.dist(_centre(results[taken[0]][1]), look_alike_centre) < 6
+    # It leaves at 50: the track on the background is lost within probation_frames (10) of the take.
+    relost = min(i for i in range(50, 60) if results[i][0] == "lost")
+    assert relost - taken[0] <= AcceptParams().probation_frames
+    # Refuted: the search the take ended resumes, the core back where it waited for the target, and the
+    # look-alike's place joins the refuted ones.
+    assert len(refuted[relost]) == 1 and math.dist((refuted[relost][0].x, refuted[relost][0].y), look_alike_centre) < 6
+    assert math.dist(_centre(results[relost][1]), target_centre) < 3
+    assert results[60][0] == "recovered" and math.dist(_centre(results[60][1]), target_centre) < 3
+    assert all(results[i][0] == "tracking" for i in range(61, 75))
+    # probation_frames 0: the take stands; the next loss is searched from the look-alike's place.
+    _, standing, never = _run_with_a_passing_look_alike(_redetect(accept={"probation_frames": 0}))
+    relost_standing = min(i for i in range(50, 60) if standing[i][0] == "lost")
+    assert math.dist(_centre(standing[relost_standing][1]), target_centre) > 30
+    assert all(not never[i] for i in range(1, 75))
 
 
 def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_target_is_hidden():

@@ -615,11 +615,10 @@ def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_targe
     assert all(gated[i][0] == "tracking" and math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(61, 70))
 
 
-def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[JsarReTracker, dict[int, tuple[str, Box]],
-                                                                     dict[int, list]]:
+def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[dict[int, tuple[str, Box]], dict[int, list]]:
     """The target stands at (100, 100), hidden on frames 35..59; a look-alike in its colours stands 50 px
-    (2.1 sides) to its right on frames 38..49 only. Returns the tracker, frame -> (state, box) and
-    frame -> the refuted places of the search on that frame."""
+    (2.1 sides) to its right on frames 38..49 only. Returns frame -> (state, box) and frame -> the refuted
+    places of the search on that frame."""
     background = _background()
 
     def frame(index: int) -> np.ndarray:
@@ -636,12 +635,12 @@ def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[JsarReTrac
         result = tracker.update(frame(index))
         results[index] = (result.state, result.box)
         refuted[index] = list(tracker.search.refuted) if tracker.search is not None else []
-    return tracker, results, refuted
+    return results, refuted
 
 
 def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
     target_centre, look_alike_centre = (112.0, 112.0), (162.0, 112.0)
-    tracker, results, refuted = _run_with_a_passing_look_alike(RedetectParams())
+    results, refuted = _run_with_a_passing_look_alike(RedetectParams())
     taken = [i for i in range(35, 50) if results[i][0] == "recovered"]
     assert taken, "the look-alike must be taken while the target is hidden: the scenario tests nothing"
     assert math.dist(_centre(results[taken[0]][1]), look_alike_centre) < 6
@@ -655,7 +654,7 @@ def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
     assert results[60][0] == "recovered" and math.dist(_centre(results[60][1]), target_centre) < 3
     assert all(results[i][0] == "tracking" for i in range(61, 75))
     # probation_frames 0: the take stands; the next loss is searched from the look-alike's place.
-    _, standing, never = _run_with_a_passing_look_alike(_redetect(accept={"probation_frames": 0}))
+    standing, never = _run_with_a_passing_look_alike(_redetect(accept={"probation_frames": 0}))
     relost_standing = min(i for i in range(50, 60) if standing[i][0] == "lost")
     assert math.dist(_centre(standing[relost_standing][1]), target_centre) > 30
     assert all(not never[i] for i in range(1, 75))

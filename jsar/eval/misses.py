@@ -1,0 +1,149 @@
+"""python -m jsar.eval.misses LONGTERM.json [--tracker jsar-re] [--events]
+
+What became of each long-term event in a `python -m jsar.eval --longterm --json` result, for one tracker:
+re-acquired, or why not. Distances are in target sides sqrt(w*h) of the box on the frame before the event.
+
+Outcomes (the first that applies):
+- "re-acquired": on target within the scoring window after the target came back;
+- "began off target": the box was not on the target on the frame before the event (a cascade from an
+  earlier miss, or a one-pass failure): nothing of the target to re-acquire;
+- "took during absence": the tracker reported "recovered" while the target was absent;
+- "took wrong after": it reported "recovered" in the window after the return, not onto the target;
+- "stayed lost": it reported "lost" on every frame of that window;
+- "never lost": it reported "tracking" throughout the event and the window (it followed something else);
+- "other": a mix (e.g. a loss that ended on the window's last frames through the core, off the target).
+
+For each event also: how far the target came back from where the loss began (the box before the event) and
+from where the box was on the event's last frame; a search that stays where the target vanished and one that
+follows the track differ there.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+OUTCOMES = ("re-acquired", "began off target", "took during absence", "took wrong after", "stayed lost",
+            "never lost", "other")
+
+
+@dataclass(frozen=True)
+class EventOutcome:
+    """One event of one run: frames [start, stop) absent, what the tracker did, and where the target came back
+    (distances in target sides from the box before the event, and from the box on the event's last frame)."""
+
+    run: str
+    kind: str
+    start: int
+    stop: int
+    outcome: str
+    from_loss_sides: float
+    from_box_sides: float
+
+
+def _centre(box: np.ndarray) -> np.ndarray:
+    return box[:2] + box[2:] / 2.0
+
+
+def classify_event(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray, start: int, stop: int,
+                   on_target_before: bool, reacquired: bool, window: int) -> tuple[str, float, float]:
+    """(outcome, from_loss_sides, from_box_sides) of the event [start, stop) absent; boxes and groundtruth
+    (N, 4) x, y, w, h px, states per frame ("tracking" / "lost" / "recovered"), window = the frames after the
+    return in which a re-acquisition counts. Distances NaN when a box or the returning target is missing."""
+    if start < 1 or stop >= len(boxes):
+        raise ValueError(f"event [{start}, {stop}) needs a frame before it and one after it in {len(boxes)} frames")
+    after = states[stop:min(stop + window, len(states))]
+    during = states[start:stop]
+    if reacquired:
+        outcome = "re-acquired"
+    elif not on_target_before:
+        outcome = "began off target"
+    elif "recovered" in during:
+        outcome = "took during absence"
+    elif "recovered" in after:
+        outcome = "took wrong after"
+    elif after and all(s == "lost" for s in after):
+        outcome = "stayed lost"
+    elif all(s == "tracking" for s in during + after):
+        outcome = "never lost"
+    else:
+        outcome = "other"
+    before, last = boxes[start - 1], boxes[stop - 1]
+    side = math.sqrt(before[2] * before[3]) if before[2] > 0 and before[3] > 0 else math.nan
+    back = _centre(groundtruth[stop])
+    from_loss = float(np.hypot(*(back - _centre(before)))) / side
+    from_box = float(np.hypot(*(back - _centre(last)))) / side
+    return outcome, from_loss, from_box
+
+
+def event_outcomes(result: dict, tracker: str) -> list[EventOutcome]:
+    """Every scored event of `tracker` in a long-term result (`python -m jsar.eval --longterm --json`)."""
+    window = int(result["criteria"]["window"])
+    outcomes = []
+    for run, entry in result["sequences"].items():
+        if tracker not in entry["trackers"]:
+            raise ValueError(f"tracker {tracker!r} not in {run}: {', '.join(entry['trackers'])}")
+        scores = entry["trackers"][tracker]
+        if "longterm" not in scores or "states" not in scores:
+            raise ValueError(f"{run}: not a long-term result with per-frame states (rerun with --longterm --json)")
+        boxes = np.array([[np.nan] * 4 if b is None else b for b in scores["boxes"]], dtype=np.float64)
+        groundtruth = np.array(entry["groundtruth"], dtype=np.float64)
+        kind = entry.get("kind", "")
+        for event in scores["longterm"]["events"]:
+            start, stop = event["start"], event["start"] + event["length"]
+            outcome, from_loss, from_box = classify_event(boxes, scores["states"], groundtruth, start, stop,
+                                                          event["on_target_before"], event["reacquired"], window)
+            outcomes.append(EventOutcome(run, event.get("kind", kind), start, stop, outcome, from_loss, from_box))
+    return outcomes
+
+
+def summary_lines(outcomes: list[EventOutcome], near_sides: float = 1.5) -> list[str]:
+    """A count per outcome and, for re-acquired and missed events that began on target, where the target came
+    back: the median distances and how many came back within near_sides of the loss place / of the box."""
+    counts = Counter(o.outcome for o in outcomes)
+    lines = [f"{len(outcomes)} events: " + ", ".join(f"{name} {counts[name]}" for name in OUTCOMES if counts[name])]
+    groups = {"re-acquired": [o for o in outcomes if o.outcome == "re-acquired"],
+              "missed (began on target)": [o for o in outcomes if o.outcome not in ("re-acquired", "began off target")]}
+    for name, group in groups.items():
+        if not group:
+            continue
+        loss = np.array([o.from_loss_sides for o in group])
+        box = np.array([o.from_box_sides for o in group])
+        lines.append(f"{name} {len(group)}: target came back at median {np.nanmedian(loss):.2f} sides from where "
+                     f"the loss began, {np.nanmedian(box):.2f} from the box; within {near_sides:g} sides of the "
+                     f"loss place {int(np.sum(loss < near_sides))}, of the box {int(np.sum(box < near_sides))}; "
+                     f"nearer the loss place {int(np.sum(loss < box))}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m jsar.eval.misses", description=__doc__.split("\n\n")[0])
+    parser.add_argument("result", type=Path, help="JSON written by python -m jsar.eval --longterm --json")
+    parser.add_argument("--tracker", default="jsar-re")
+    parser.add_argument("--events", action="store_true", help="also one line per event not re-acquired")
+    args = parser.parse_args(argv)
+    try:
+        result = json.loads(args.result.read_text())
+        if "criteria" not in result:
+            raise ValueError("not a long-term result (no 'criteria'): rerun python -m jsar.eval --longterm --json")
+        outcomes = event_outcomes(result, args.tracker)
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f"error: {exc}") from exc
+    if args.events:
+        for o in outcomes:
+            if o.outcome != "re-acquired":
+                print(f"{o.run:40s} [{o.start}, {o.stop}) {o.outcome:20s} came back {o.from_loss_sides:5.2f} sides "
+                      f"from the loss place, {o.from_box_sides:5.2f} from the box")
+    for line in summary_lines(outcomes):
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

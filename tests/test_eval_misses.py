@@ -1,0 +1,104 @@
+"""`python -m jsar.eval.misses`: what became of each long-term event, on hand-made runs and a real result file."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from jsar.eval import dataset, evaluate, longterm, misses, report
+from jsar.eval.synthetic import synthetic_clip, write_otb_sequence
+
+N = 30
+START, STOP = 10, 15  # the event: frames 10..14 absent, the target back at 15
+
+
+def _groundtruth() -> np.ndarray:
+    """A 10x10 px target moving right 2 px a frame; absent on the event's frames."""
+    gt = np.array([[100.0 + 2 * i, 50.0, 10.0, 10.0] for i in range(N)])
+    gt[START:STOP] = np.nan
+    return gt
+
+
+def _run(states_during: list[str], states_after: list[str], boxes: np.ndarray | None = None) -> tuple:
+    states = ["tracking"] * START + states_during + states_after + ["tracking"] * (N - STOP - len(states_after))
+    if boxes is None:
+        boxes = np.nan_to_num(_groundtruth(), nan=0.0)
+        boxes[START:STOP] = boxes[START - 1]
+    return boxes, states
+
+
+@pytest.mark.parametrize(("during", "after", "on_target_before", "reacquired", "expected"), [
+    (["lost"] * 5, ["recovered"] + ["tracking"] * 14, True, True, "re-acquired"),
+    (["lost"] * 5, ["lost"] * 15, False, False, "began off target"),  # before "stayed lost"
+    (["lost", "lost", "recovered", "tracking", "tracking"], ["tracking"] * 15, True, False, "took during absence"),
+    (["lost"] * 5, ["lost", "lost", "recovered"] + ["tracking"] * 12, True, False, "took wrong after"),
+    (["lost"] * 5, ["lost"] * 15, True, False, "stayed lost"),
+    (["tracking"] * 5, ["tracking"] * 15, True, False, "never lost"),
+    (["lost"] * 5, ["lost"] * 3 + ["tracking"] * 12, True, False, "other"),
+])
+def test_each_event_gets_the_first_outcome_that_applies(during, after, on_target_before, reacquired, expected):
+    boxes, states = _run(during, after)
+    outcome, _, _ = misses.classify_event(boxes, states, _groundtruth(), START, STOP, on_target_before,
+                                          reacquired, window=15)
+    assert outcome == expected
+
+
+def test_distances_are_in_sides_of_the_box_before_the_event():
+    gt = _groundtruth()
+    boxes = np.nan_to_num(gt, nan=0.0)
+    boxes[START - 1] = [118.0, 50.0, 10.0, 10.0]  # centre (123, 55)
+    boxes[START:STOP] = [178.0, 50.0, 10.0, 10.0]  # the box moved off to the right while the target was away
+    # The target comes back at x 130 (centre 135, 55): 12 px = 1.2 sides from the loss place, 4.8 from the box.
+    _, from_loss, from_box = misses.classify_event(boxes, ["lost"] * N, gt, START, STOP, True, False, window=15)
+    assert from_loss == pytest.approx(1.2) and from_box == pytest.approx(4.8)
+    with pytest.raises(ValueError, match="needs a frame before it"):
+        misses.classify_event(boxes, ["lost"] * N, gt, 0, 5, True, False, window=15)
+
+
+def test_summary_counts_outcomes_and_where_the_missed_targets_came_back():
+    outcomes = [misses.EventOutcome("a", "occlusion", 1, 5, "re-acquired", 0.2, 0.3),
+                misses.EventOutcome("a", "occlusion", 9, 14, "stayed lost", 0.5, 6.0),
+                misses.EventOutcome("b", "real", 9, 14, "stayed lost", 4.0, 2.0),
+                misses.EventOutcome("b", "real", 20, 24, "began off target", 9.0, 9.0)]
+    lines = misses.summary_lines(outcomes)
+    assert lines[0] == "4 events: re-acquired 1, began off target 1, stayed lost 2"
+    assert lines[2].startswith("missed (began on target) 2:")  # the event begun off target is not in it
+    assert "within 1.5 sides of the loss place 1, of the box 0; nearer the loss place 1" in lines[2]
+
+
+@pytest.fixture(scope="module")
+def longterm_result(tmp_path_factory):
+    root = tmp_path_factory.mktemp("otb")
+    frames, boxes = synthetic_clip(n_frames=40, size=(120, 160), object_size=(20, 16), seed=4)
+    write_otb_sequence(root / "syn", frames, boxes)
+    seq = dataset.load_sequence(root / "syn")
+    config = longterm.InjectionConfig(first_start=5, gap_after=15)
+    result = evaluate.evaluate_longterm([seq], ["kcf"], ["occlusion", "out-of-view"], (4,), seed=1, config=config)
+    path = root / "lt.json"
+    report.write_json(result, path)
+    return path, result
+
+
+def test_a_real_result_file_classifies_every_event_and_the_cli_prints_it(longterm_result, capsys):
+    path, result = longterm_result
+    outcomes = misses.event_outcomes(json.loads(path.read_text()), "kcf")
+    assert len(outcomes) == result["summary"]["kcf"]["longterm"]["n_events"] == 2
+    reacquired = sum(e["reacquired"] for run in result["sequences"].values()
+                     for e in run["trackers"]["kcf"]["longterm"]["events"])
+    assert sum(o.outcome == "re-acquired" for o in outcomes) == reacquired
+    assert all(o.outcome in misses.OUTCOMES and math.isfinite(o.from_loss_sides) for o in outcomes)
+    assert {o.kind for o in outcomes} == {"occlusion", "out-of-view"}
+    assert misses.main([str(path), "--tracker", "kcf", "--events"]) == 0
+    assert capsys.readouterr().out.splitlines()[-len(misses.summary_lines(outcomes)):] == misses.summary_lines(outcomes)
+
+
+def test_cli_errors_name_the_problem(longterm_result, tmp_path):
+    path, _ = longterm_result
+    with pytest.raises(SystemExit, match="tracker 'jsar-re' not in syn"):
+        misses.main([str(path)])
+    one_pass = tmp_path / "one-pass.json"
+    one_pass.write_text('{"sequences": {}}')
+    with pytest.raises(SystemExit, match="not a long-term result"):
+        misses.main([str(one_pass)])
+    with pytest.raises(SystemExit, match="error: "):
+        misses.main([str(tmp_path / "missing.json")])

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jsar.eval import metrics
+
 OUTCOMES = ("re-acquired", "began off target", "took during absence", "took wrong after", "stayed lost",
             "never lost", "other")
 
@@ -45,10 +47,6 @@ class EventOutcome:
     outcome: str
     from_loss_sides: float
     from_box_sides: float
-
-
-def _centre(box: np.ndarray) -> np.ndarray:
-    return box[:2] + box[2:] / 2.0
 
 
 def classify_event(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray, start: int, stop: int,
@@ -74,11 +72,11 @@ def classify_event(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray
         outcome = "never lost"
     else:
         outcome = "other"
-    before, last = boxes[start - 1], boxes[stop - 1]
+    before = boxes[start - 1]
     side = math.sqrt(before[2] * before[3]) if before[2] > 0 and before[3] > 0 else math.nan
-    back = _centre(groundtruth[stop])
-    from_loss = float(np.hypot(*(back - _centre(before)))) / side
-    from_box = float(np.hypot(*(back - _centre(last)))) / side
+    loss_place, last_place, back = metrics.centres(np.array([before, boxes[stop - 1], groundtruth[stop]]))
+    from_loss = float(np.hypot(*(back - loss_place))) / side
+    from_box = float(np.hypot(*(back - last_place))) / side
     return outcome, from_loss, from_box
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -585,16 +586,24 @@ def test_gradual_occlusion_is_caught_before_the_target_is_gone_and_not_followed(
     assert on_target and on_target[0] <= 70 and on_target[-1] == 79, states
 
 
-def _run_with_static_look_alike(redetect: RedetectParams, look_alike: np.ndarray) -> dict[int, tuple[str, Box]]:
-    """The target stands at (100, 100) and is hidden on frames 35..59; `look_alike` stands 150 px
-    (6.25 sides) to its right the whole time. Returns frame -> (state, box)."""
+def _hidden_target_scene(patch: np.ndarray, top_left: tuple[int, int], shown: range) -> Callable[[int], np.ndarray]:
+    """Frame index -> frame: the target stands at (100, 100), hidden on frames 35..59, and `patch` stands at
+    top_left (px) on the frames in `shown`."""
     background = _background()
 
     def frame(index: int) -> np.ndarray:
         image = _frame(background, None if 35 <= index < 60 else (100, 100))
-        _paste(image, look_alike, (250, 100))
+        if index in shown:
+            _paste(image, patch, top_left)
         return image
 
+    return frame
+
+
+def _run_with_static_look_alike(redetect: RedetectParams, look_alike: np.ndarray) -> dict[int, tuple[str, Box]]:
+    """The target stands at (100, 100) and is hidden on frames 35..59; `look_alike` stands 150 px
+    (6.25 sides) to its right the whole time. Returns frame -> (state, box)."""
+    frame = _hidden_target_scene(look_alike, (250, 100), range(0, 70))
     tracker = JsarReTracker(JsarParams.jsar_re(), redetect)
     tracker.init(frame(0), _target_box((100, 100)))
     return _run(tracker, [frame(i) for i in range(1, 70)])
@@ -619,14 +628,7 @@ def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[dict[int, 
     """The target stands at (100, 100), hidden on frames 35..59; a look-alike in its colours stands 50 px
     (2.1 sides) to its right on frames 38..49 only. Returns frame -> (state, box) and frame -> the refuted
     places of the search on that frame."""
-    background = _background()
-
-    def frame(index: int) -> np.ndarray:
-        image = _frame(background, None if 35 <= index < 60 else (100, 100))
-        if 38 <= index < 50:
-            _paste(image, _same_colour_look_alike(), (150, 100))
-        return image
-
+    frame = _hidden_target_scene(_same_colour_look_alike(), (150, 100), range(38, 50))
     tracker = JsarReTracker(JsarParams.jsar_re(), redetect)
     tracker.init(frame(0), _target_box((100, 100)))
     results: dict[int, tuple[str, Box]] = {}
@@ -675,13 +677,7 @@ def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_
 def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target_was_does_not_end_the_loss():
     """The target is hidden on frames 35..59; from frame 45 an object of its layout in other colours stands
     where it was (the core and the decision filter both respond to it), and on frame 60 the target is back."""
-    background = _background()
-
-    def frame(index: int) -> np.ndarray:
-        image = _frame(background, None if 35 <= index < 60 else (100, 100))
-        if 45 <= index < 60:
-            _paste(image, _distractor(), (100, 100))
-        return image
+    frame = _hidden_target_scene(_distractor(), (100, 100), range(45, 60))
 
     def run(core_min_match: float) -> dict[int, tuple[str, Box]]:
         tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(colour={"core_min_match": core_min_match}))

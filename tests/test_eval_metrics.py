@@ -92,3 +92,17 @@ def test_timeline_codes_say_what_the_tracker_reported_and_where_the_box_was():
     on_target = np.array([True, False, False, True, False])
     visible = np.array([True, True, False, True, False])
     assert timeline_codes(states, on_target, visible) == ["on", "off", "lost", "recovered", "absent"]
+
+
+def test_boxes_written_as_json_read_back_with_nan_where_null(tmp_path):
+    import json
+
+    from jsar.eval import report
+    boxes = np.array([[1.0, 2.0, 3.0, 4.0], [np.nan] * 4, [5.0, 6.0, np.inf, 8.0]])
+    report.write_json({"boxes": boxes}, tmp_path / "r.json")
+    rows = json.loads((tmp_path / "r.json").read_text())["boxes"]
+    assert rows[1] == [None] * 4  # strict JSON: NaN and inf written as null
+    back = report.boxes_from_json(rows + [None])
+    assert back.shape == (4, 4) and back[0].tolist() == [1.0, 2.0, 3.0, 4.0]
+    assert np.isnan(back[1]).all() and np.isnan(back[2, 2]) and back[2, 3] == 8.0 and np.isnan(back[3]).all()
+    assert report.boxes_from_json([]).shape == (0, 4)

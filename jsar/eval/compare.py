@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jsar.eval import metrics
+from jsar.eval import metrics, report
 
 
 def divergence(boxes_a: np.ndarray, boxes_b: np.ndarray, groundtruth: np.ndarray,
@@ -57,10 +57,9 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"error: tracker {name!r} not in {args.sequence}: {', '.join(trackers)}")
     if "groundtruth" not in sequences[args.sequence]:
         raise SystemExit("error: this JSON has no ground truth per sequence; rerun python -m jsar.eval --json")
-    as_array = lambda rows: np.array([[np.nan] * 4 if r is None or None in r else r for r in rows], float)  # noqa: E731
-    gt = as_array(sequences[args.sequence]["groundtruth"])
-    boxes_a = as_array(trackers[args.a]["boxes"])
-    boxes_b = as_array(trackers[args.b]["boxes"])
+    gt = report.boxes_from_json(sequences[args.sequence]["groundtruth"])
+    boxes_a = report.boxes_from_json(trackers[args.a]["boxes"])
+    boxes_b = report.boxes_from_json(trackers[args.b]["boxes"])
     d = divergence(boxes_a, boxes_b, gt, args.min_iou)
     print(f"{args.sequence}: {args.a} vs {args.b}; AUC {trackers[args.a]['auc']:.3f} vs {trackers[args.b]['auc']:.3f}")
     print(f"first frame with IoU({args.a}, {args.b}) < {args.min_iou}: {d['first_apart']}; "

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jsar.eval import metrics
+from jsar.eval import metrics, report
 
 OUTCOMES = ("re-acquired", "began off target", "took during absence", "took wrong after", "stayed lost",
             "never lost", "other")
@@ -90,8 +90,8 @@ def event_outcomes(result: dict, tracker: str) -> list[EventOutcome]:
         scores = entry["trackers"][tracker]
         if "longterm" not in scores or "states" not in scores:
             raise ValueError(f"{run}: not a long-term result with per-frame states (rerun with --longterm --json)")
-        boxes = np.array([[np.nan] * 4 if b is None else b for b in scores["boxes"]], dtype=np.float64)
-        groundtruth = np.array(entry["groundtruth"], dtype=np.float64)
+        boxes = report.boxes_from_json(scores["boxes"])
+        groundtruth = report.boxes_from_json(entry["groundtruth"])
         kind = entry.get("kind", "")
         for event in scores["longterm"]["events"]:
             start, stop = event["start"], event["start"] + event["length"]

@@ -219,6 +219,12 @@ def save_longterm_timeline(result: dict[str, object], path: Path | str) -> Path:
     return path
 
 
+def boxes_from_json(rows: list) -> np.ndarray:
+    """(N, 4) float64 boxes from write_json's lists: a null value (NaN or inf written) or a null row -> NaN."""
+    return np.array([[np.nan] * 4 if row is None else [np.nan if v is None else v for v in row] for row in rows],
+                    dtype=np.float64).reshape(-1, 4)
+
+
 def _jsonable(value: object) -> object:
     """numpy arrays / scalars -> lists / floats, NaN and inf -> None (strict JSON)."""
     if isinstance(value, dict):

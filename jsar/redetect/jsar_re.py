@@ -40,7 +40,6 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-import cv2
 import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
@@ -49,7 +48,6 @@ from jsar.redetect.colour_check import ColourModel
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
-from jsar.redetect.scene import Thumbnail, scene_shift, thumbnail
 from jsar.redetect.search import Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
 from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.size_filter import bound_side
@@ -103,8 +101,6 @@ class JsarReTracker:
         # (frame index, centre x px, centre y px) of the last committed frames: the motion model.
         self._track: collections.deque[tuple[int, float, float]] = collections.deque(
             maxlen=self.redetect.search.motion_frames)
-        self._scene: Thumbnail | None = None  # the last frame's thumbnail: the camera's motion (scene.py)
-        self._scene_window: np.ndarray | None = None  # its Hann window
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
@@ -123,8 +119,6 @@ class JsarReTracker:
         self.before_loss = None
         self._track.clear()
         self._remember_position()
-        self._scene, self._scene_window = None, None
-        self._follow_scene(frame)
 
     def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None:
         """Bound the box side sqrt(w*h) to (lo, hi) px (None: unbounded), for the core's size estimate
@@ -143,7 +137,6 @@ class JsarReTracker:
         frame = validate_frame(frame)
         self.frame_index += 1
         self.last_step = None
-        self._follow_scene(frame)
         if self.lost:
             return self._lost_frame(frame)
         loc = self.core.locate(frame)
@@ -171,36 +164,6 @@ class JsarReTracker:
         loc = self.core.locate(frame)
         verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
         return self._search_lost(frame, loc, verdict, self._own(loc))
-
-    def _follow_scene(self, frame: np.ndarray) -> None:
-        """Move what the search remembers with the camera's motion since the last frame (scene.py): the
-        motion track always; while lost the search's places and the core (it waits or coasts where the
-        ground it was on went); in probation the state a refutation would restore. Tracking itself is
-        plain JSAR's, in image coordinates."""
-        side = self.redetect.search.scene_motion_px
-        if side == 0:
-            return
-        thumb = thumbnail(frame, side)
-        earlier, self._scene = self._scene, thumb
-        if earlier is None or earlier.grey.shape != thumb.grey.shape:
-            return
-        if self._scene_window is None or self._scene_window.shape != thumb.grey.shape:
-            self._scene_window = cv2.createHanningWindow(thumb.grey.shape[::-1], cv2.CV_32F)
-        search = self.redetect.search
-        dx, dy = scene_shift(earlier, thumb, search.scene_min_response, search.scene_max_fraction, self._scene_window)
-        if dx == 0.0 and dy == 0.0:
-            return
-        moved = [(index, x + dx, y + dy) for index, x, y in self._track]
-        self._track.clear()
-        self._track.extend(moved)
-        if self.lost and self.search is not None:
-            self.search.follow_scene(dx, dy)
-            self.core.relocate((self.core.center_xy[0] + dx, self.core.center_xy[1] + dy))
-        if self.probation is not None:
-            kept = self.probation
-            kept.track = [(index, x + dx, y + dy) for index, x, y in kept.track]
-            kept.search.follow_scene(dx, dy)
-            kept.core.relocate((kept.core.center_xy[0] + dx, kept.core.center_xy[1] + dy))
 
     def _own(self, loc: Localisation) -> Candidate:
         """The decision filter on the core's detection sample (before the core moves): peak px and score."""

@@ -86,9 +86,6 @@ class SearchParams:
     coast_radius_sides: float = 0.5  # while lost the core follows its detection (as plain JSAR) within this of the prediction (0: never)
     motion_frames: int = 5  # the search follows the target's velocity over its last this-many committed frames ...
     predict_max_frames: int = 3  # ... for at most this many lost frames, then holds (0: the last centre)
-    scene_motion_px: int = 192  # the camera's motion (scene.py) on thumbnails of about this side moves the search (0: off)
-    scene_min_response: float = 0.2  # ... an estimate whose phase-correlation peak is under this is taken as no motion ...
-    scene_max_fraction: float = 0.4  # ... as is one over this fraction of the frame's width / height (aliasing)
 
     def validate(self, prefix: str = "search") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
@@ -106,12 +103,6 @@ class SearchParams:
         _require(prefix, "coast_radius_sides", self.coast_radius_sides >= 0, f">= 0, got {self.coast_radius_sides}")
         _require(prefix, "motion_frames", self.motion_frames >= 2, f">= 2, got {self.motion_frames}")
         _require(prefix, "predict_max_frames", self.predict_max_frames >= 0, f">= 0, got {self.predict_max_frames}")
-        _require(prefix, "scene_motion_px", self.scene_motion_px == 0 or self.scene_motion_px >= 16,
-                 f"0 or >= 16, got {self.scene_motion_px}")
-        _require(prefix, "scene_min_response", 0 <= self.scene_min_response <= 1,
-                 f"0 <= value <= 1, got {self.scene_min_response}")
-        _require(prefix, "scene_max_fraction", 0 < self.scene_max_fraction < 0.5,
-                 f"0 < value < 0.5, got {self.scene_max_fraction}")
 
 
 @dataclass(frozen=True)

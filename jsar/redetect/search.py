@@ -40,11 +40,6 @@ class Candidate:
         """Distance to other_xy (px) in target sides."""
         return math.hypot(self.x - other_xy[0], self.y - other_xy[1]) / side_px
 
-    def moved(self, dx: float, dy: float) -> "Candidate":
-        """The same candidate (and its window) moved by (dx, dy) px."""
-        window = None if self.window_xy is None else (self.window_xy[0] + dx, self.window_xy[1] + dy)
-        return Candidate(self.x + dx, self.y + dy, self.score, self.angle_deg, window)
-
     def off_centre_sides(self, side_px: float) -> float:
         """How far the peak lies from the centre of its window, in target sides (inf: window unknown)."""
         return math.inf if self.window_xy is None else self.distance_sides(self.window_xy, side_px)
@@ -138,13 +133,6 @@ class LossSearch:
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
     refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold
     coasting: bool = False  # the core followed its own detection on the last lost frame
-
-    def follow_scene(self, dx: float, dy: float) -> None:
-        """Move every remembered place (anchor, pending, lead, refuted) by the scene's shift (dx, dy) px."""
-        self.anchor_xy = (self.anchor_xy[0] + dx, self.anchor_xy[1] + dy)
-        self.pending = None if self.pending is None else self.pending.moved(dx, dy)
-        self.lead = None if self.lead is None else self.lead.moved(dx, dy)
-        self.refuted = [r.moved(dx, dy) for r in self.refuted]
 
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""

@@ -64,6 +64,16 @@ def test_response_is_the_circular_correlation_in_matlab_scaling():
     assert fourier.rfft2(np.ones((6, 8), np.float32))[0, 0] == pytest.approx(48.0)
 
 
+def test_channels_last_rfft2_gives_the_channels_first_spectra_exactly():
+    """rfft2_channels_last (M, H, W, C) is rfft2 of the channels-first copy (M, C, H, W), bit for bit: the
+    decision filter's windows use it, and the tracker's results must not depend on the layout."""
+    rng = np.random.default_rng(2)
+    stack = rng.standard_normal((3, 10, 12, 5)).astype(np.float32)
+    last = fourier.rfft2_channels_last(stack)
+    assert last.shape == (3, 10, 7, 5) and last.dtype == np.complex64
+    np.testing.assert_array_equal(np.moveaxis(last, -1, 1), fourier.rfft2(np.ascontiguousarray(np.moveaxis(stack, -1, 1))))
+
+
 def test_peak_threshold_convention_impulse_filter_reproduces_sample_values():
     """A unit impulse filter returns the sample itself: peak thresholds are in feature units."""
     rng = np.random.default_rng(1)

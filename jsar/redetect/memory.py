@@ -80,11 +80,13 @@ class DecisionMemory:
             stacks.append(translation_features.extract_features(patch, cell_size, colour_table)[None])
             window_centres.append(centre)
             turns.append(float(degrees))
-        windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]
-        stack = np.ascontiguousarray(np.moveaxis(windows, -1, 1)) * self.filter.cos_window  # (M, C, H, W) float32
-        spectra = fourier.rfft2(stack)  # (M, C, H, W//2+1)
+        windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
+        # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
+        # (docs/results-tracker.md, the cost of a lost frame); the spectra and responses are the same numbers.
+        spectra = fourier.rfft2_channels_last(windows * self.filter.cos_window[None, :, :, None])  # (M, H, W//2+1, C)
         assert self.filter.filter_f is not None
-        response_f = np.einsum("chw,mchw->mhw", self.filter.filter_f.conj(), spectra)
+        filter_hwc = np.ascontiguousarray(np.moveaxis(self.filter.filter_f.conj(), 0, -1))  # (H, W//2+1, C)
+        response_f = np.einsum("hwc,mhwc->mhw", filter_hwc, spectra)
         responses = fourier.irfft2(response_f, self.filter.shape_hw)
         found = []
         for k, (centre, degrees) in enumerate(zip(window_centres, turns)):

@@ -66,6 +66,33 @@ def test_summary_counts_outcomes_and_where_the_missed_targets_came_back():
     assert "within 1.5 sides of the loss place 1, of the box 0; nearer the loss place 1" in lines[2]
 
 
+def test_false_frames_are_the_protocols_false_reinitialisations_by_kind():
+    gt = _groundtruth()
+    boxes = np.nan_to_num(gt, nan=0.0)
+    boxes[START:STOP] = boxes[START - 1]
+    states = ["tracking"] * N
+    states[10:12] = ["lost", "lost"]
+    states[12] = "recovered"  # taken while absent, after 2 lost frames
+    states[13] = "lost"
+    boxes[13] = boxes[12] + [30.0, 0.0, 0.0, 0.0]  # moved 3 sides while lost
+    boxes[14] = boxes[13] + [30.0, 0.0, 0.0, 0.0]  # and again, tracking
+    states[16:21] = ["lost"] * 5
+    states[21] = "recovered"
+    boxes[21:] = [10.0, 10.0, 10.0, 10.0]  # taken wrong (far from the target) after a loss of 5 frames
+    states[24] = "recovered"  # and again at once: loss 0 frames
+    criteria = longterm.LongTermCriteria()
+    found = misses.false_frames(boxes, states, gt, [(START, STOP)], criteria)
+    assert found == [(12, "taken while absent", 2), (13, "moved while lost", 0), (14, "jumped while tracking", 0),
+                     (21, "taken wrong", 5), (24, "taken wrong", 0)]
+    scores = longterm.longterm_scores(boxes, states, gt, criteria, spans=[(START, STOP)])
+    assert len(found) == scores["false_reinit_absent"] + scores["false_reinit_wrong_object"]
+    frames = [misses.FalseFrame("a", index, kind, loss) for index, kind, loss in found]
+    lines = misses.false_lines(frames, absent_frames=scores["absent_frames"], short_loss=3)
+    assert lines[0] == ("5 false re-initialisations (100.00 % of 5 absent frames): taken while absent 1, "
+                        "moved while lost 1, jumped while tracking 1, taken wrong 2")
+    assert lines[1] == "taken (3): 2 ended a loss of at most 3 frames"
+
+
 @pytest.fixture(scope="module")
 def longterm_result(tmp_path_factory):
     root = tmp_path_factory.mktemp("otb")
@@ -90,6 +117,13 @@ def test_a_real_result_file_classifies_every_event_and_the_cli_prints_it(longter
     assert {o.kind for o in outcomes} == {"occlusion", "out-of-view"}
     assert misses.main([str(path), "--tracker", "kcf", "--events"]) == 0
     assert capsys.readouterr().out.splitlines()[-len(misses.summary_lines(outcomes)):] == misses.summary_lines(outcomes)
+    # --false: every false re-initialisation the protocol counted, by kind.
+    frames = misses.run_false_frames(json.loads(path.read_text()), "kcf")
+    counted = sum(run["trackers"]["kcf"]["longterm"]["false_reinit_absent"]
+                  + run["trackers"]["kcf"]["longterm"]["false_reinit_wrong_object"] for run in result["sequences"].values())
+    assert len(frames) == counted and all(f.kind in misses.FALSE_KINDS for f in frames)
+    assert misses.main([str(path), "--tracker", "kcf", "--false"]) == 0
+    assert f"{counted} false re-initialisations" in capsys.readouterr().out
 
 
 def test_cli_errors_name_the_problem(longterm_result, tmp_path):

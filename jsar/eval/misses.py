@@ -1,4 +1,4 @@
-"""python -m jsar.eval.misses LONGTERM.json [--tracker jsar-re] [--events]
+"""python -m jsar.eval.misses LONGTERM.json [--tracker jsar-re] [--events] [--false]
 
 What became of each long-term event in a `python -m jsar.eval --longterm --json` result, for one tracker:
 re-acquired, or why not. Distances are in target sides sqrt(w*h) of the box on the frame before the event.
@@ -16,6 +16,16 @@ Outcomes (the first that applies):
 For each event also: how far the target came back from where the loss began (the box before the event) and
 from where the box was on the event's last frame; a search that stays where the target vanished and one that
 follows the track differ there.
+
+`--false`: the frames the protocol counts as false re-initialisations (jsar.eval.longterm.longterm_scores), by
+kind (the first that applies):
+- "taken while absent": the tracker reported "recovered" on an absent frame;
+- "moved while lost": the box jumped on an absent frame while the tracker reported "lost" (a search moving
+  its waiting place, a refuted take restored);
+- "jumped while tracking": the box jumped on an absent frame while the tracker reported "tracking";
+- "taken wrong": it reported "recovered" on a visible frame with no overlap with the target.
+For the two "taken" kinds, how many ended a loss of at most `short_loss` frames (the core confident again
+after a brief drop, rather than a search's take).
 """
 from __future__ import annotations
 
@@ -29,8 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jsar.eval import metrics, report
+from jsar.eval import longterm, metrics, report
 
+FALSE_KINDS = ("taken while absent", "moved while lost", "jumped while tracking", "taken wrong")
 OUTCOMES = ("re-acquired", "began off target", "took during absence", "took wrong after", "stayed lost",
             "never lost", "other")
 
@@ -101,6 +112,71 @@ def event_outcomes(result: dict, tracker: str) -> list[EventOutcome]:
     return outcomes
 
 
+@dataclass(frozen=True)
+class FalseFrame:
+    """One frame a run's long-term score counts as a false re-initialisation: its kind (FALSE_KINDS) and, for
+    the "taken" kinds, how many "lost" frames came just before it (0 otherwise)."""
+
+    run: str
+    frame: int
+    kind: str
+    loss_frames: int
+
+
+def false_frames(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray, spans: list[tuple[int, int]],
+                 criteria: longterm.LongTermCriteria) -> list[tuple[int, str, int]]:
+    """(frame, kind, loss_frames) of every frame longterm_scores counts as a false re-initialisation for these
+    boxes (N, 4) x, y, w, h px, states and ground truth, its absent frames the [start, stop) spans."""
+    absent = np.zeros(len(boxes), dtype=bool)
+    for start, stop in spans:
+        absent[start:stop] = True
+    visible = metrics.visible_mask(groundtruth)
+    jumps = longterm.box_jumps(boxes, criteria)
+    overlaps = np.nan_to_num(metrics.ious(boxes, groundtruth), nan=1.0)
+    found, lost_run = [], 0
+    for index, state in enumerate(states):
+        kind = None
+        if absent[index] and state == "recovered":
+            kind = "taken while absent"
+        elif absent[index] and jumps[index]:
+            kind = "moved while lost" if state == "lost" else "jumped while tracking"
+        elif visible[index] and state == "recovered" and overlaps[index] == 0.0:
+            kind = "taken wrong"
+        if kind is not None:
+            found.append((index, kind, lost_run if kind.startswith("taken") else 0))
+        lost_run = lost_run + 1 if state == "lost" else 0
+    return found
+
+
+def run_false_frames(result: dict, tracker: str) -> list[FalseFrame]:
+    """false_frames of every run of `tracker` in a long-term result (`python -m jsar.eval --longterm --json`)."""
+    criteria = longterm.LongTermCriteria(**result["criteria"])
+    frames = []
+    for run, entry in result["sequences"].items():
+        scores = entry["trackers"][tracker]
+        spans = [(e["start"], e["start"] + e["length"]) for e in scores["longterm"]["events"]]
+        found = false_frames(report.boxes_from_json(scores["boxes"]), scores["states"],
+                             report.boxes_from_json(entry["groundtruth"]), spans, criteria)
+        frames.extend(FalseFrame(run, index, kind, loss) for index, kind, loss in found)
+    return frames
+
+
+def false_lines(frames: list[FalseFrame], absent_frames: int, short_loss: int = 3) -> list[str]:
+    """A count per kind of false re-initialisation (of absent_frames), and how many "taken" ones ended a loss of
+    at most short_loss frames; then the runs with the most."""
+    counts = Counter(f.kind for f in frames)
+    share = f" ({100.0 * len(frames) / absent_frames:.2f} % of {absent_frames} absent frames)" if absent_frames else ""
+    lines = [f"{len(frames)} false re-initialisations{share}: "
+             + ", ".join(f"{kind} {counts[kind]}" for kind in FALSE_KINDS if counts[kind])]
+    taken = [f for f in frames if f.kind.startswith("taken")]
+    if taken:
+        short = sum(f.loss_frames <= short_loss for f in taken)
+        lines.append(f"taken ({len(taken)}): {short} ended a loss of at most {short_loss} frames")
+    per_run = Counter(f.run for f in frames)
+    lines.extend(f"  {run:40s} {count}" for run, count in per_run.most_common(5))
+    return lines
+
+
 def summary_lines(outcomes: list[EventOutcome], near_sides: float = 1.5) -> list[str]:
     """A count per outcome and, for re-acquired and missed events that began on target, where the target came
     back: the median distances and how many came back within near_sides of the loss place / of the box."""
@@ -125,12 +201,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("result", type=Path, help="JSON written by python -m jsar.eval --longterm --json")
     parser.add_argument("--tracker", default="jsar-re")
     parser.add_argument("--events", action="store_true", help="also one line per event not re-acquired")
+    parser.add_argument("--false", action="store_true", dest="false_reinit",
+                        help="also the false re-initialisations by kind")
     args = parser.parse_args(argv)
     try:
         result = json.loads(args.result.read_text())
         if "criteria" not in result:
             raise ValueError("not a long-term result (no 'criteria'): rerun python -m jsar.eval --longterm --json")
         outcomes = event_outcomes(result, args.tracker)
+        frames = run_false_frames(result, args.tracker) if args.false_reinit else []
     except (OSError, ValueError) as exc:
         raise SystemExit(f"error: {exc}") from exc
     if args.events:
@@ -140,6 +219,11 @@ def main(argv: list[str] | None = None) -> int:
                       f"from the loss place, {o.from_box_sides:5.2f} from the box")
     for line in summary_lines(outcomes):
         print(line)
+    if args.false_reinit:
+        absent = sum(entry["trackers"][args.tracker]["longterm"]["absent_frames"]
+                     for entry in result["sequences"].values())
+        for line in false_lines(frames, absent):
+            print(line)
     return 0
 
 

@@ -63,6 +63,8 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     "no-size-hold": {"accept": {"size_hold_fraction": 0.0}},
     # A re-acquisition lost again within a few frames stands: no refutation, no return to the search it ended.
     "no-probation": {"accept": {"probation_frames": 0}},
+    # The core confident again on a single lost frame ends the loss (no second frame asked).
+    "core-confirm-1": {"accept": {"core_confirm_frames": 1}},
     # The paper's re-initialisation: the core's filters retrained from the re-acquired frame.
     "retrain": {"accept": {"reacquire": "retrain"}},
     # The paper's omega grows without bound; 1000 sides is beyond any frame of up to 2000 px for a lost

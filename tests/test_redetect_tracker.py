@@ -620,8 +620,10 @@ def test_a_static_look_alike_beyond_the_motion_gate_is_not_taken_while_the_targe
     gated = _run_with_static_look_alike(RedetectParams(), _same_colour_look_alike())
     assert all(gated[i][0] == "lost" for i in range(35, 60)), [gated[i][0] for i in range(35, 60)]
     assert all(math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(35, 60))
-    assert gated[60][0] == "recovered"  # the target is back where it was: the core is confident on it
-    assert all(gated[i][0] == "tracking" and math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(61, 70))
+    # The target is back where it was at 60: the core is confident on it there, and on the next frame too
+    # (accept.core_confirm_frames 2), which ends the loss.
+    assert gated[60][0] == "lost" and gated[61][0] == "recovered"
+    assert all(gated[i][0] == "tracking" and math.dist(_centre(gated[i][1]), target_centre) < 3 for i in range(62, 70))
 
 
 def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[dict[int, tuple[str, Box]], dict[int, list]]:
@@ -653,13 +655,31 @@ def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
     # look-alike's place joins the refuted ones.
     assert len(refuted[relost]) == 1 and math.dist((refuted[relost][0].x, refuted[relost][0].y), look_alike_centre) < 6
     assert math.dist(_centre(results[relost][1]), target_centre) < 3
-    assert results[60][0] == "recovered" and math.dist(_centre(results[60][1]), target_centre) < 3
-    assert all(results[i][0] == "tracking" for i in range(61, 75))
+    assert results[61][0] == "recovered" and math.dist(_centre(results[61][1]), target_centre) < 3  # core, 2 frames
+    assert all(results[i][0] == "tracking" for i in range(62, 75))
     # probation_frames 0: the take stands; the next loss is searched from the look-alike's place.
     standing, never = _run_with_a_passing_look_alike(_redetect(accept={"probation_frames": 0}))
     relost_standing = min(i for i in range(50, 60) if standing[i][0] == "lost")
     assert math.dist(_centre(standing[relost_standing][1]), target_centre) > 30
     assert all(not never[i] for i in range(1, 75))
+
+
+def test_the_core_confident_again_on_a_single_lost_frame_does_not_end_the_loss():
+    """The target, hidden on frames 35..59, shows where it was on frame 50 alone: with core_confirm_frames 1 the
+    core's own way out claims it there (and the track is lost again at once); with the default (2) the loss goes
+    on, and the target back for good at 60 is claimed on the second frame it is seen, 61."""
+    frame = _hidden_target_scene(_target(), (100, 100), range(50, 51))
+
+    def run(core_confirm_frames: int) -> dict[int, tuple[str, Box]]:
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept={"core_confirm_frames": core_confirm_frames}))
+        tracker.init(frame(0), _target_box((100, 100)))
+        return _run(tracker, [frame(i) for i in range(1, 70)])
+
+    once = run(1)
+    assert once[50][0] == "recovered" and once[51][0] == "lost", [once[i][0] for i in range(48, 53)]
+    twice = run(RedetectParams().accept.core_confirm_frames)
+    assert all(twice[i][0] == "lost" for i in range(36, 61)), [twice[i][0] for i in range(35, 62)]
+    assert twice[61][0] == "recovered" and math.dist(_centre(twice[61][1]), (112.0, 112.0)) < 3
 
 
 def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_target_is_hidden():
@@ -671,7 +691,7 @@ def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_
     # With it the look-alike's colours refuse it; the target, back where it was, is taken up again.
     checked = _run_with_static_look_alike(_redetect(accept=ungated), _distractor())
     assert all(checked[i][0] == "lost" for i in range(35, 60)), [checked[i][0] for i in range(35, 60)]
-    assert checked[60][0] == "recovered" and math.dist(_centre(checked[60][1]), (112.0, 112.0)) < 3
+    assert checked[61][0] == "recovered" and math.dist(_centre(checked[61][1]), (112.0, 112.0)) < 3  # core, 2 frames
 
 
 def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target_was_does_not_end_the_loss():
@@ -688,7 +708,7 @@ def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target
     assert any(unchecked[i][0] == "recovered" for i in range(45, 60)), [unchecked[i][0] for i in range(35, 60)]
     checked = run(RedetectParams().colour.core_min_match)
     assert all(checked[i][0] == "lost" for i in range(36, 60)), [checked[i][0] for i in range(35, 60)]
-    assert checked[60][0] == "recovered" and all(checked[i][0] == "tracking" for i in range(61, 70))
+    assert checked[61][0] == "recovered" and all(checked[i][0] == "tracking" for i in range(62, 70))
 
 
 def _fading_target(count: int, start_x: int, half_px_per_frame: int,

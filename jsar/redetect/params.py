@@ -120,7 +120,9 @@ class AcceptParams:
     loss (the closed loop's car out of the bridge, turned, ~0.5x) needs the low floor. The core's own
     detection, confident again where the decision filter peaks, passes two tests: its bar starts from
     core_fraction instead (0.5x; with 0.625x a wakeboarder's false loss on Surfing06 lasted until a
-    candidate beside him was taken). A candidate is taken after it passes the bar on
+    candidate beside him was taken). It ends the loss once it passed them on `core_confirm_frames`
+    consecutive lost frames (a core confident for a single frame at a wrong place, e.g. a tiny box
+    flickering at the frame's edge, claimed the target again and again). A candidate is taken after it passes the bar on
     `confirm_frames` consecutive frames within `confirm_radius_sides` of where it was. Taking it
     either moves the core tracker there with its filters as they were before the loss ("relocate":
     nothing was learnt while lost) or retrains them from that one frame ("retrain", the paper).
@@ -145,6 +147,7 @@ class AcceptParams:
     accept_floor: float = 0.45  # ... down to this
     core_fraction: float = 0.5  # ... from this instead for the core's own detection, confident again there
     confirm_frames: int = 1
+    core_confirm_frames: int = 2  # the core's own way out needs its tests passed on this many consecutive lost frames
     confirm_radius_sides: float = 1.5
     holdoff_frames: int = 5
     reacquire: Reacquire = "relocate"
@@ -168,6 +171,7 @@ class AcceptParams:
         _require(prefix, "core_fraction", self.accept_floor <= self.core_fraction <= 1,
                  f"accept_floor <= core_fraction <= 1, got {self.core_fraction}, {self.accept_floor}")
         _require(prefix, "confirm_frames", self.confirm_frames >= 0, f">= 0, got {self.confirm_frames}")
+        _require(prefix, "core_confirm_frames", self.core_confirm_frames >= 1, f">= 1, got {self.core_confirm_frames}")
         _require(prefix, "confirm_radius_sides", self.confirm_radius_sides > 0, f"> 0, got {self.confirm_radius_sides}")
         _require(prefix, "holdoff_frames", self.holdoff_frames >= 0, f">= 0, got {self.holdoff_frames}")
         _require(prefix, "reacquire", self.reacquire in ("relocate", "retrain"),

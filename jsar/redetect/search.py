@@ -129,6 +129,7 @@ class LossSearch:
     pending: Candidate | None = None
     lead: Candidate | None = None  # this frame's best candidate off its window's centre: next frame centres a window on it
     confirmations: int = 0
+    core_agreements: int = 0  # consecutive lost frames on which the core's own way out passed its tests
     scored_windows: int = field(default=0)
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
     refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold

@@ -349,6 +349,17 @@ def box_jumps(predicted: np.ndarray, criteria: LongTermCriteria) -> np.ndarray:
     return jumps
 
 
+def false_reinit_masks(predicted: np.ndarray, states: list[str], groundtruth: np.ndarray, absent: np.ndarray,
+                       criteria: LongTermCriteria) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) bool masks of the false re-initialisations (see longterm_scores): absent frames where the tracker
+    reports "recovered" or its box jumps, and visible frames where it reports "recovered" with IoU 0."""
+    recovered_state = np.array([s == "recovered" for s in states], dtype=bool)
+    false_absent = absent & (recovered_state | box_jumps(predicted, criteria))
+    overlaps = metrics.ious(predicted, groundtruth)
+    wrong_object = metrics.visible_mask(groundtruth) & recovered_state & (np.nan_to_num(overlaps, nan=1.0) == 0.0)
+    return false_absent, wrong_object
+
+
 def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.ndarray,
                     criteria: LongTermCriteria | None = None,
                     spans: list[tuple[int, int]] | None = None) -> dict[str, object]:
@@ -395,11 +406,7 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
             "reacquired": bool(hits.size),
             "frames_to_recover": int(hits[0]) if hits.size else None,
         })
-    recovered_state = np.array([s == "recovered" for s in states], dtype=bool)
-    jumps = box_jumps(pred, criteria)
-    false_absent = absent & (recovered_state | jumps)
-    overlaps = metrics.ious(pred, groundtruth)
-    wrong_object = visible & recovered_state & (np.nan_to_num(overlaps, nan=1.0) == 0.0)
+    false_absent, wrong_object = false_reinit_masks(pred, states, groundtruth, absent, criteria)
     recover_frames = [e["frames_to_recover"] for e in events if e["reacquired"]]
     return {
         "events": events,

@@ -130,20 +130,15 @@ def false_frames(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray, 
     absent = np.zeros(len(boxes), dtype=bool)
     for start, stop in spans:
         absent[start:stop] = True
-    visible = metrics.visible_mask(groundtruth)
-    jumps = longterm.box_jumps(boxes, criteria)
-    overlaps = np.nan_to_num(metrics.ious(boxes, groundtruth), nan=1.0)
+    false_absent, wrong_object = longterm.false_reinit_masks(boxes, states, groundtruth, absent, criteria)
     found, lost_run = [], 0
     for index, state in enumerate(states):
-        kind = None
-        if absent[index] and state == "recovered":
-            kind = "taken while absent"
-        elif absent[index] and jumps[index]:
-            kind = "moved while lost" if state == "lost" else "jumped while tracking"
-        elif visible[index] and state == "recovered" and overlaps[index] == 0.0:
-            kind = "taken wrong"
-        if kind is not None:
-            found.append((index, kind, lost_run if kind.startswith("taken") else 0))
+        if false_absent[index]:
+            kind = ("taken while absent" if state == "recovered" else
+                    "moved while lost" if state == "lost" else "jumped while tracking")
+            found.append((index, kind, lost_run if state == "recovered" else 0))
+        elif wrong_object[index]:
+            found.append((index, "taken wrong", lost_run))
         lost_run = lost_run + 1 if state == "lost" else 0
     return found
 

@@ -59,8 +59,6 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     "no-holdoff": {"accept": {"holdoff_frames": 0}},
     # No colour check: a candidate above the bar (the core confident again included) is taken on its score.
     "no-colour": {"colour": {"min_match": 0.0, "core_min_match": 0.0}},
-    # No look-alikes surveyed while tracking: a candidate near one meets the plain bar.
-    "no-distractors": {"distractors": {"survey_every_frames": 0}},
     # A take lets the core's size filter (of the target's look before the loss) estimate the size at once.
     "no-size-hold": {"accept": {"size_hold_fraction": 0.0}},
     # A re-acquisition lost again within a few frames stands: no refutation, no return to the search it ended.

@@ -17,7 +17,6 @@ import jsar
 from jsar.config import JsarParams
 from jsar.redetect.jsar_re import JsarReTracker
 from jsar.features.patches import sample_patch
-from jsar.redetect import distractors
 from jsar.redetect.memory import turned_patch, window_features
 from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
@@ -464,8 +463,6 @@ def test_registry_passes_nested_overrides_and_core_overrides():
     ({"accept": {"coast_confirm_frames": 30}}, "redetect.accept.coast_confirm_frames"),  # removed: unknown now
     ({"accept": {"size_hold_fraction": 1.0}}, "redetect.accept.size_hold_fraction"),
     ({"monitor": {"reliable_fraction": 0.7}}, "redetect.monitor.reliable_fraction"),  # removed: unknown now
-    ({"distractors": {"survey_every_frames": -1}}, "redetect.distractors.survey_every_frames"),
-    ({"distractors": {"margin": 0.9}}, "redetect.distractors.margin"),  # a look-alike would be easier to take
 ])
 def test_redetect_mapping_errors_name_the_key(mapping, key):
     pattern = re.escape(key) + r"\b"
@@ -489,55 +486,6 @@ def test_redetect_mapping_coerces_and_overrides():
     assert params.search.windows_per_frame == 3  # the original is unchanged
     with pytest.raises(ValueError, match=r"redetect\.accept\.confirm_frames"):
         params.with_overrides(accept={"confirm_frames": -2})
-
-
-
-# ---------------------------------------------------------------- distractors.py: the pure parts
-
-def test_survey_centres_are_the_lattice_first_ring_around_the_target():
-    centres = distractors.survey_centres((100.0, 50.0), 10.0, 2.5)  # 25 px stride
-    assert centres.shape == (8, 2)
-    assert sorted(map(tuple, np.rint(centres - (100.0, 50.0)).astype(int).tolist())) == sorted(
-        (dx, dy) for dx in (-25, 0, 25) for dy in (-25, 0, 25) if (dx, dy) != (0, 0))
-
-
-def test_surveyed_keeps_look_alikes_away_from_the_target_above_the_fraction_once_each():
-    target, side, reference = (100.0, 100.0), 10.0, 0.04
-    the_target = Candidate(108.0, 100.0, 0.05)  # 0.8 sides away: the target itself, seen off a window's centre
-    weak = Candidate(140.0, 100.0, 0.017)  # under 0.45 x 0.04 = 0.018
-    look_alike = Candidate(130.0, 100.0, 0.03)
-    same_one_again = Candidate(133.0, 104.0, 0.025)  # within 1.5 sides of the better one: the same look-alike
-    other = Candidate(100.0, 60.0, 0.02)
-    found = distractors.surveyed([the_target, weak, same_one_again, other, look_alike], target, side, reference,
-                                 0.45, 1.5)
-    assert found == [look_alike, other]
-
-
-def test_a_candidate_near_a_distractor_needs_margin_times_its_score():
-    look_alike = Candidate(130.0, 100.0, 0.03)
-    assert distractors.distractor_bar(Candidate(135.0, 100.0, 0.05), [look_alike], 10.0, 1.0, 1.2) == pytest.approx(0.036)
-    assert distractors.distractor_bar(Candidate(145.0, 100.0, 0.05), [look_alike], 10.0, 1.0, 1.2) == 0.0  # 1.5 sides
-
-    def decide(candidate: Candidate) -> Candidate | None:
-        search = _search(confirm_frames=0)
-        search.distractors = [look_alike]
-        return search.decide([candidate], 0.03, floor=lambda c: distractors.distractor_bar(
-            c, search.distractors, search.side_px, 1.0, 1.2))
-
-    assert decide(Candidate(135.0, 120.0, 0.035)) == Candidate(135.0, 120.0, 0.035)  # 2 sides away: the plain bar
-    assert decide(Candidate(135.0, 100.0, 0.035)) is None  # near it: needs 1.2 x 0.03
-    assert decide(Candidate(135.0, 100.0, 0.037)) == Candidate(135.0, 100.0, 0.037)
-
-
-def test_a_distractor_follows_candidates_under_its_bar_keeping_the_higher_score():
-    look_alike = Candidate(130.0, 100.0, 0.03)
-    moved = distractors.followed([look_alike], [Candidate(136.0, 101.0, 0.033), Candidate(200.0, 100.0, 0.02)],
-                                 10.0, 1.0, 1.2)
-    assert moved == [Candidate(136.0, 101.0, 0.033)]  # moved to it, its score raised
-    kept = distractors.followed(moved, [Candidate(138.0, 100.0, 0.02)], 10.0, 1.0, 1.2)
-    assert kept == [Candidate(138.0, 100.0, 0.033)]  # moved, the higher score kept
-    beaten = distractors.followed(kept, [Candidate(140.0, 100.0, 0.05)], 10.0, 1.0, 1.2)
-    assert beaten == kept  # 0.05 >= 1.2 x 0.033: maybe the target, not the look-alike
 
 
 # ---------------------------------------------------------------- scenes
@@ -732,32 +680,6 @@ def test_the_core_confident_again_on_a_single_lost_frame_does_not_end_the_loss()
     twice = run(RedetectParams().accept.core_confirm_frames)
     assert all(twice[i][0] == "lost" for i in range(36, 61)), [twice[i][0] for i in range(35, 62)]
     assert twice[61][0] == "recovered" and math.dist(_centre(twice[61][1]), (112.0, 112.0)) < 3
-
-
-def test_a_look_alike_surveyed_while_the_target_was_tracked_is_not_taken_while_it_is_hidden():
-    """A look-alike in the target's colours stands 72 px (3 sides) to the right of the target the whole time,
-    within the motion gate once the loss is long enough; the target is hidden on frames 35..59."""
-    look_alike_centre = (184.0, 112.0)
-
-    def run(survey_every_frames: int) -> tuple[dict[int, tuple[str, Box]], list[Candidate]]:
-        frame = _hidden_target_scene(_same_colour_look_alike(), (172, 100), range(0, 70))
-        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(distractors={"survey_every_frames": survey_every_frames}))
-        tracker.init(frame(0), _target_box((100, 100)))
-        results = _run(tracker, [frame(i) for i in range(1, 35)])
-        surveyed = list(tracker.distractors)
-        results.update({i: (r.state, r.box) for i, r in ((i, tracker.update(frame(i))) for i in range(35, 70))})
-        return results, surveyed
-
-    # Without the survey the look-alike is taken while the target is hidden: the scenario tests something.
-    unsurveyed, _ = run(0)
-    taken = [i for i in range(35, 60) if unsurveyed[i][0] == "recovered"]
-    assert taken and math.dist(_centre(unsurveyed[taken[0]][1]), look_alike_centre) < 6, taken
-    # Surveyed while the target was tracked, it is a distractor: the loss goes on until the target is back.
-    results, surveyed = run(RedetectParams().distractors.survey_every_frames)
-    assert len(surveyed) == 1 and math.dist((surveyed[0].x, surveyed[0].y), look_alike_centre) < 6, surveyed
-    assert all(results[i][0] == "lost" for i in range(36, 61)), [results[i][0] for i in range(35, 62)]
-    assert results[61][0] == "recovered" and math.dist(_centre(results[61][1]), (112.0, 112.0)) < 3  # core, 2 frames
-    assert all(results[i][0] == "tracking" for i in range(62, 70))
 
 
 def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_target_is_hidden():

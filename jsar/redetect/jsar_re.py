@@ -27,10 +27,6 @@ frames it learns and while lost.
 - Every way out of a loss through the decision filter (the core confident again, a candidate taken)
   also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
   score alone took occluders and look-alikes of other colours.
-- Look-alikes in the target's colours are surveyed while tracking (distractors.py,
-  params.DistractorParams): every few reliable frames the decision filter scores the lattice's first
-  ring around the target; a place that scores high there is not the target, and while lost a candidate
-  near one must clearly beat it.
 
 Additions beyond the paper and their measured effect: docs/method.md and the ablation
 (`python -m bench.ablation`).
@@ -48,12 +44,11 @@ import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
-from jsar.redetect import distractors
 from jsar.redetect.colour_check import ColourModel
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
-from jsar.redetect.search import RECENTRE_SIDES, Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
+from jsar.redetect.search import Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
 from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.size_filter import bound_side
 
@@ -103,8 +98,6 @@ class JsarReTracker:
         self.last_step: SearchStep | None = None
         self.probation: Probation | None = None
         self.before_loss: JsarTracker | None = None  # the core as it was when the loss began
-        self.distractors: list[Candidate] = []  # the last survey's look-alikes (distractors.py)
-        self.last_survey = 0  # frame index of the last survey
         # (frame index, centre x px, centre y px) of the last committed frames: the motion model.
         self._track: collections.deque[tuple[int, float, float]] = collections.deque(
             maxlen=self.redetect.search.motion_frames)
@@ -124,8 +117,6 @@ class JsarReTracker:
         self.last_step = None
         self.probation = None
         self.before_loss = None
-        self.distractors = []
-        self.last_survey = 0
         self._track.clear()
         self._remember_position()
 
@@ -160,10 +151,6 @@ class JsarReTracker:
             return self._search_lost(frame, loc, verdict, self._own(loc))
         # The decision filter's score on the core's sample is needed only where the filter learns the frame.
         self._commit(frame, loc, verdict.reliable, self._own(loc) if verdict.reliable else None)
-        every = self.redetect.distractors.survey_every_frames
-        if (verdict.reliable and every > 0 and self.frame_index - self.last_survey >= every
-                and self.probation is None):  # a take on probation may be a look-alike itself
-            self._survey(frame)
         if self.probation is not None:
             self.probation.frames_left -= 1
             if self.probation.frames_left <= 0:
@@ -220,32 +207,7 @@ class JsarReTracker:
 
     def _new_search(self) -> LossSearch:
         x, y, w, h = self.core.box
-        search = LossSearch((x + w / 2.0, y + h / 2.0), math.sqrt(w * h), self.redetect.search, self.redetect.accept)
-        search.distractors = list(self.distractors)
-        return search
-
-    def _survey(self, frame: np.ndarray) -> None:
-        """Score the lattice's first ring around the committed target; its look-alikes become the distractors."""
-        assert self.memory is not None and self.memory.reference is not None
-        self.last_survey = self.frame_index
-        x, y, w, h = self.core.box
-        side, centre = math.sqrt(w * h), (x + w / 2.0, y + h / 2.0)
-        centres = distractors.survey_centres(centre, side, self.redetect.search.stride_sides)
-        inside = ((centres[:, 0] >= 0) & (centres[:, 0] < frame.shape[1])
-                  & (centres[:, 1] >= 0) & (centres[:, 1] < frame.shape[0]))
-        if not inside.any():
-            self.distractors = []
-            return
-        image, table, params = self.core.prepare(frame), self.core.feature_colour_table, self.redetect.distractors
-        found = self.memory.score_windows(image, table, centres[inside], side)
-        # A window scores a look-alike off its centre low (the cosine window): score the places found again
-        # centred (as the search's lead), so a distractor's score is its own.
-        again = [c for c in found if c.off_centre_sides(side) >= RECENTRE_SIDES
-                 and c.distance_sides(centre, side) >= params.min_distance_sides]
-        if again:
-            found += self.memory.score_windows(image, table, np.array([[c.x, c.y] for c in again]), side)
-        self.distractors = distractors.surveyed(found, centre, side, self.memory.reference, params.min_fraction,
-                                                params.min_distance_sides)
+        return LossSearch((x + w / 2.0, y + h / 2.0), math.sqrt(w * h), self.redetect.search, self.redetect.accept)
 
     def _coast(self, frame: np.ndarray, loc: Localisation, search: LossSearch) -> None:
         """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
@@ -308,12 +270,8 @@ class JsarReTracker:
             margin = self.redetect.accept.switch_margin * own.score
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
-        minimum, avoid = self.redetect.colour.min_match, self.redetect.distractors
-        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum),
-                              lambda c: distractors.distractor_bar(c, search.distractors, search.side_px,
-                                                                   avoid.radius_sides, avoid.margin))
-        search.distractors = distractors.followed(search.distractors, candidates, search.side_px, avoid.radius_sides,
-                                                  avoid.margin)
+        minimum = self.redetect.colour.min_match
+        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum))
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:

@@ -6,8 +6,7 @@ everything JSAR-Re adds lives here, grouped by the part that uses it:
 - `monitor`: when a frame is confident (commit), reliable (train the decision filter), or a loss;
 - `search`: where the decision filter looks while the target is lost, and how much per frame;
 - `accept`: when a candidate is taken, and what taking it does;
-- `colour`: the colour check a candidate must also pass to be taken;
-- `distractors`: look-alikes surveyed while tracking, which a candidate near one must clearly beat.
+- `colour`: the colour check a candidate must also pass to be taken.
 
 Thresholds on response peaks are raw values in the MATLAB FFT convention (see jsar.config), the
 unit of the paper's zeta_e, zeta_s and eta_d; distances and areas are in target sides sqrt(w*h)
@@ -218,37 +217,13 @@ class ColourParams:
 
 
 @dataclass(frozen=True)
-class DistractorParams:
-    """Look-alikes surveyed while the target is tracked (distractors.py): every `survey_every_frames` reliable
-    frames the decision filter scores the search lattice's first ring around the target (SearchParams.stride_sides);
-    a peak at least `min_distance_sides` from the target scoring `min_fraction` x the filter's reference is a
-    distractor. While lost, a candidate within `radius_sides` of one counts only if it scores `margin` x the
-    distractor's surveyed score; one that does not moves the distractor to it. 0 survey_every_frames: no survey."""
-
-    survey_every_frames: int = 10
-    min_fraction: float = 0.45  # the lowest bar a candidate ever meets (AcceptParams.accept_floor)
-    min_distance_sides: float = 1.5  # nearer the target: the target itself (AcceptParams.confirm_radius_sides)
-    radius_sides: float = 1.0  # a candidate this near is the distractor (their boxes overlap)
-    margin: float = 1.2  # ... unless it scores this x the distractor's surveyed score (AcceptParams.refute_margin)
-
-    def validate(self, prefix: str = "distractors") -> None:
-        """Raise ValueError naming `prefix.key` of the first invalid value."""
-        _require(prefix, "survey_every_frames", self.survey_every_frames >= 0, f">= 0, got {self.survey_every_frames}")
-        _require(prefix, "min_fraction", self.min_fraction > 0, f"> 0, got {self.min_fraction}")
-        _require(prefix, "min_distance_sides", self.min_distance_sides > 0, f"> 0, got {self.min_distance_sides}")
-        _require(prefix, "radius_sides", self.radius_sides > 0, f"> 0, got {self.radius_sides}")
-        _require(prefix, "margin", self.margin >= 1, f">= 1, got {self.margin}")
-
-
-@dataclass(frozen=True)
 class RedetectParams:
-    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check, distractors (see their classes)."""
+    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check (see their classes)."""
 
     monitor: MonitorParams = field(default_factory=MonitorParams)
     search: SearchParams = field(default_factory=SearchParams)
     accept: AcceptParams = field(default_factory=AcceptParams)
     colour: ColourParams = field(default_factory=ColourParams)
-    distractors: DistractorParams = field(default_factory=DistractorParams)
 
     def validate(self, prefix: str = "redetect") -> None:
         """Raise ValueError naming the first invalid key as prefix.group.key."""
@@ -256,7 +231,6 @@ class RedetectParams:
         self.search.validate(f"{prefix}.search")
         self.accept.validate(f"{prefix}.accept")
         self.colour.validate(f"{prefix}.colour")
-        self.distractors.validate(f"{prefix}.distractors")
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any] | None, prefix: str = "redetect") -> "RedetectParams":
@@ -265,7 +239,7 @@ class RedetectParams:
         if mapping is None:
             return params
         if not isinstance(mapping, Mapping):
-            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour, distractors), got {mapping!r}")
+            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour), got {mapping!r}")
         groups = {f.name: getattr(params, f.name) for f in dataclasses.fields(cls)}
         replaced: dict[str, Any] = {}
         for group, values in mapping.items():

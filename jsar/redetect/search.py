@@ -134,7 +134,6 @@ class LossSearch:
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
     refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold
     coasting: bool = False  # the core followed its own detection on the last lost frame
-    distractors: list[Candidate] = field(default_factory=list)  # look-alikes surveyed before the loss (distractors.py)
 
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""
@@ -164,8 +163,8 @@ class LossSearch:
                 if candidate.distance_sides((r.x, r.y), self.side_px) <= self.accept.confirm_radius_sides]
         return self.accept.refute_margin * max(near) if near else 0.0
 
-    def decide(self, candidates: list[Candidate], bar: float, check: Callable[[Candidate], bool] | None = None,
-               floor: Callable[[Candidate], float] | None = None) -> Candidate | None:
+    def decide(self, candidates: list[Candidate], bar: float,
+               check: Callable[[Candidate], bool] | None = None) -> Candidate | None:
         """The candidate taken on this frame, or None; the best candidate found at least RECENTRE_SIDES
         off its window's centre becomes the lead (a lattice window rarely centres the target, and scores
         it lower the farther off: the next frame looks again centred on it, at its angle).
@@ -173,16 +172,15 @@ class LossSearch:
         taken once a candidate above the bar lies within confirm_radius_sides of the pending one on
         confirm_frames consecutive frames (the pending one moves along with it). No candidate is
         taken in the first holdoff_frames lost frames, nor beyond reach_sides of anchor_xy, nor near a
-        refuted re-acquisition unless it beats refute_margin x that one's score. `floor` (optional) is a
-        further bar per candidate (raw peak; a look-alike's, distractors.distractor_bar). `check` (optional)
-        is a further test a candidate must pass to count as above the bar; it is asked only of candidates
+        refuted re-acquisition unless it beats refute_margin x that one's score. `check` (optional) is a
+        further test a candidate must pass to count as above the bar; it is asked only of candidates
         that passed the others."""
         # The lead is the best candidate found off its window's centre: a window scores a target off its
         # centre low (the cosine window), one centred on it tells its real score. A candidate already
         # centred is known; re-centring on it again would let one look-alike hold the lead for good.
         off_centre = [c for c in candidates if c.off_centre_sides(self.side_px) >= RECENTRE_SIDES]
         self.lead = max(off_centre, key=lambda c: c.score) if off_centre else None
-        above = [c for c in candidates if c.score >= max(bar, self.refuted_bar(c), floor(c) if floor else 0.0)
+        above = [c for c in candidates if c.score >= max(bar, self.refuted_bar(c))
                  and c.distance_sides(self.anchor_xy, self.side_px) <= self.reach_sides
                  and (check is None or check(c))]
         if self.pending is not None:

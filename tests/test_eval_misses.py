@@ -1,6 +1,7 @@
 """`python -m jsar.eval.misses`: what became of each long-term event, on hand-made runs and a real result file."""
 import json
 import math
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -136,3 +137,44 @@ def test_cli_errors_name_the_problem(longterm_result, tmp_path):
         misses.main([str(one_pass)])
     with pytest.raises(SystemExit, match="error: "):
         misses.main([str(tmp_path / "missing.json")])
+
+
+def test_several_results_are_pooled_and_counted_per_sequence(longterm_result, tmp_path, capsys):
+    path, _ = longterm_result
+    # A second run (another seed or kernel): the same, but its first event not re-acquired.
+    again = json.loads(path.read_text())
+    first_run = next(iter(again["sequences"].values()))
+    first_run["trackers"]["kcf"]["longterm"]["events"][0]["reacquired"] = False
+    other = tmp_path / "lt-again.json"
+    other.write_text(json.dumps(again))
+    pooled = misses.event_outcomes(json.loads(path.read_text()), "kcf") + misses.event_outcomes(again, "kcf")
+    assert misses.main([str(path), str(other), "--tracker", "kcf", "--by-sequence", "--events"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    summary = misses.summary_lines(pooled)
+    assert summary[0].startswith(f"{len(pooled)} events: ") and out[-1 - len(summary):-1] == summary
+    # One sequence ("syn", both kinds): its events from both files and each outcome's count.
+    assert out[-1] == misses.sequence_lines(pooled)[0]
+    counts = Counter(o.outcome for o in pooled)
+    assert out[-1].startswith(f"syn    {len(pooled)} events: ") and len(counts) > 1
+    assert all(f"{name} {n}" in out[-1] for name, n in counts.items())
+    # --events names the file the missed event comes from.
+    missed = [line for line in out if "from the loss place, " in line]
+    assert len(missed) == 1 and missed[0].startswith(f"{other.name}: ")
+
+
+def test_sequence_lines_put_the_sequences_with_the_most_misses_first():
+    def outcome(run: str, name: str) -> misses.EventOutcome:
+        return misses.EventOutcome(run, "occlusion", 10, 15, name, 1.0, 1.0)
+
+    lines = misses.sequence_lines([outcome("a+occlusion", "re-acquired"), outcome("a+out-of-view", "stayed lost"),
+                                   outcome("b+occlusion", "stayed lost"), outcome("b+real", "began off target")])
+    assert lines == ["b    2 events: began off target 1, stayed lost 1",
+                     "a    2 events: re-acquired 1, stayed lost 1"]
+
+
+def test_a_file_that_is_not_a_long_term_result_is_named(longterm_result, tmp_path):
+    path, _ = longterm_result
+    one_pass = tmp_path / "one-pass.json"
+    one_pass.write_text('{"sequences": {}}')
+    with pytest.raises(SystemExit, match="one-pass.json: not a long-term result"):
+        misses.main([str(path), str(one_pass), "--tracker", "kcf"])

@@ -1,7 +1,9 @@
-"""python -m jsar.eval.misses LONGTERM.json [--tracker jsar-re] [--events] [--false]
+"""python -m jsar.eval.misses LONGTERM.json [...] [--tracker jsar-re] [--events] [--false] [--by-sequence]
 
-What became of each long-term event in a `python -m jsar.eval --longterm --json` result, for one tracker:
-re-acquired, or why not. Distances are in target sides sqrt(w*h) of the box on the frame before the event.
+What became of each long-term event in `python -m jsar.eval --longterm --json` results, for one tracker:
+re-acquired, or why not; several results (seeds, kernels) are pooled, and `--by-sequence` counts the outcomes
+per sequence over all of them (which sequences the misses come from). Distances are in target sides sqrt(w*h)
+of the box on the frame before the event.
 
 Outcomes (the first that applies):
 - "re-acquired": on target within the scoring window after the target came back;
@@ -30,6 +32,7 @@ after a brief drop, rather than a search's take).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -191,20 +194,50 @@ def summary_lines(outcomes: list[EventOutcome], near_sides: float = 1.5) -> list
     return lines
 
 
+def sequence_lines(outcomes: list[EventOutcome]) -> list[str]:
+    """Per sequence (the run's name before "+kind"), its events and the count of each outcome, the sequences
+    with the most misses first."""
+    by_sequence: dict[str, Counter] = {}
+    for o in outcomes:
+        by_sequence.setdefault(o.run.split("+")[0], Counter())[o.outcome] += 1
+    order = sorted(by_sequence, key=lambda name: (by_sequence[name]["re-acquired"] - sum(by_sequence[name].values()),
+                                                  name))
+    width = max(len(name) for name in order) if order else 0
+    return [f"{name:{width}s} {sum(by_sequence[name].values()):4d} events: "
+            + ", ".join(f"{outcome} {by_sequence[name][outcome]}" for outcome in OUTCOMES if by_sequence[name][outcome])
+            for name in order]
+
+
+def load_longterm(path: Path) -> dict:
+    """A `python -m jsar.eval --longterm --json` result; ValueError naming the file if it is not one."""
+    result = json.loads(path.read_text())
+    if "criteria" not in result:
+        raise ValueError(f"{path}: not a long-term result (no 'criteria'): rerun python -m jsar.eval --longterm --json")
+    return result
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m jsar.eval.misses", description=__doc__.split("\n\n")[0])
-    parser.add_argument("result", type=Path, help="JSON written by python -m jsar.eval --longterm --json")
+    parser.add_argument("results", type=Path, nargs="+",
+                        help="JSON written by python -m jsar.eval --longterm --json (several: pooled)")
     parser.add_argument("--tracker", default="jsar-re")
     parser.add_argument("--events", action="store_true", help="also one line per event not re-acquired")
     parser.add_argument("--false", action="store_true", dest="false_reinit",
                         help="also the false re-initialisations by kind")
+    parser.add_argument("--by-sequence", action="store_true", help="also the outcomes per sequence")
     args = parser.parse_args(argv)
+    outcomes: list[EventOutcome] = []
+    frames: list[FalseFrame] = []
+    absent = 0
     try:
-        result = json.loads(args.result.read_text())
-        if "criteria" not in result:
-            raise ValueError("not a long-term result (no 'criteria'): rerun python -m jsar.eval --longterm --json")
-        outcomes = event_outcomes(result, args.tracker)
-        frames = run_false_frames(result, args.tracker) if args.false_reinit else []
+        for path in args.results:
+            result = load_longterm(path)
+            prefix = f"{path.name}: " if len(args.results) > 1 else ""
+            outcomes += [dataclasses.replace(o, run=prefix + o.run) for o in event_outcomes(result, args.tracker)]
+            if args.false_reinit:
+                frames += [dataclasses.replace(f, run=prefix + f.run) for f in run_false_frames(result, args.tracker)]
+                absent += sum(entry["trackers"][args.tracker]["longterm"]["absent_frames"]
+                              for entry in result["sequences"].values())
     except (OSError, ValueError) as exc:
         raise SystemExit(f"error: {exc}") from exc
     if args.events:
@@ -214,9 +247,11 @@ def main(argv: list[str] | None = None) -> int:
                       f"from the loss place, {o.from_box_sides:5.2f} from the box")
     for line in summary_lines(outcomes):
         print(line)
+    if args.by_sequence:
+        # Pooled over the files: the file prefix is not part of the sequence's name.
+        for line in sequence_lines([dataclasses.replace(o, run=o.run.split(": ")[-1]) for o in outcomes]):
+            print(line)
     if args.false_reinit:
-        absent = sum(entry["trackers"][args.tracker]["longterm"]["absent_frames"]
-                     for entry in result["sequences"].values())
         for line in false_lines(frames, absent):
             print(line)
     return 0

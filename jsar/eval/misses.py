@@ -227,13 +227,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--by-sequence", action="store_true", help="also the outcomes per sequence")
     args = parser.parse_args(argv)
     outcomes: list[EventOutcome] = []
+    files: list[str] = []  # the file each outcome comes from ("" with one file)
     frames: list[FalseFrame] = []
     absent = 0
     try:
         for path in args.results:
             result = load_longterm(path)
             prefix = f"{path.name}: " if len(args.results) > 1 else ""
-            outcomes += [dataclasses.replace(o, run=prefix + o.run) for o in event_outcomes(result, args.tracker)]
+            found = event_outcomes(result, args.tracker)
+            outcomes += found
+            files += [prefix] * len(found)
             if args.false_reinit:
                 frames += [dataclasses.replace(f, run=prefix + f.run) for f in run_false_frames(result, args.tracker)]
                 absent += sum(entry["trackers"][args.tracker]["longterm"]["absent_frames"]
@@ -241,15 +244,14 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         raise SystemExit(f"error: {exc}") from exc
     if args.events:
-        for o in outcomes:
+        for prefix, o in zip(files, outcomes):
             if o.outcome != "re-acquired":
-                print(f"{o.run:40s} [{o.start}, {o.stop}) {o.outcome:20s} came back {o.from_loss_sides:5.2f} sides "
+                print(f"{prefix + o.run:40s} [{o.start}, {o.stop}) {o.outcome:20s} came back {o.from_loss_sides:5.2f} sides "
                       f"from the loss place, {o.from_box_sides:5.2f} from the box")
     for line in summary_lines(outcomes):
         print(line)
     if args.by_sequence:
-        # Pooled over the files: the file prefix is not part of the sequence's name.
-        for line in sequence_lines([dataclasses.replace(o, run=o.run.split(": ")[-1]) for o in outcomes]):
+        for line in sequence_lines(outcomes):
             print(line)
     if args.false_reinit:
         for line in false_lines(frames, absent):

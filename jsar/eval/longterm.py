@@ -349,6 +349,14 @@ def box_jumps(predicted: np.ndarray, criteria: LongTermCriteria) -> np.ndarray:
     return jumps
 
 
+def spans_mask(spans: list[tuple[int, int]], n_frames: int) -> np.ndarray:
+    """(n_frames,) bool: True on the frames of the [start, stop) spans."""
+    mask = np.zeros(n_frames, dtype=bool)
+    for start, stop in spans:
+        mask[start:stop] = True
+    return mask
+
+
 def false_reinit_masks(predicted: np.ndarray, states: list[str], groundtruth: np.ndarray, absent: np.ndarray,
                        criteria: LongTermCriteria) -> tuple[np.ndarray, np.ndarray]:
     """(N,) bool masks of the false re-initialisations (see longterm_scores): absent frames where the tracker
@@ -387,11 +395,10 @@ def longterm_scores(predicted: np.ndarray, states: list[str], groundtruth: np.nd
         spans = absent_spans(groundtruth)
         absent = ~visible
     else:
-        absent = np.zeros(n, dtype=bool)
         for start, stop in spans:
             if visible[start:stop].any():
                 raise ValueError(f"event span [{start}, {stop}) has visible ground-truth frames")
-            absent[start:stop] = True
+        absent = spans_mask(spans, n)
     for start, stop in spans:
         if stop >= n:
             continue  # never reappears: no re-acquisition to measure

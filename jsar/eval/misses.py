@@ -130,9 +130,7 @@ def false_frames(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray, 
                  criteria: longterm.LongTermCriteria) -> list[tuple[int, str, int]]:
     """(frame, kind, loss_frames) of every frame longterm_scores counts as a false re-initialisation for these
     boxes (N, 4) x, y, w, h px, states and ground truth, its absent frames the [start, stop) spans."""
-    absent = np.zeros(len(boxes), dtype=bool)
-    for start, stop in spans:
-        absent[start:stop] = True
+    absent = longterm.spans_mask(spans, len(boxes))
     false_absent, wrong_object = longterm.false_reinit_masks(boxes, states, groundtruth, absent, criteria)
     found, lost_run = [], 0
     for index, state in enumerate(states):
@@ -246,8 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.events:
         for prefix, o in zip(files, outcomes):
             if o.outcome != "re-acquired":
-                print(f"{prefix + o.run:40s} [{o.start}, {o.stop}) {o.outcome:20s} came back {o.from_loss_sides:5.2f} sides "
-                      f"from the loss place, {o.from_box_sides:5.2f} from the box")
+                print(f"{prefix + o.run:40s} [{o.start}, {o.stop}) {o.outcome:20s} came back "
+                      f"{o.from_loss_sides:5.2f} sides from the loss place, {o.from_box_sides:5.2f} from the box")
     for line in summary_lines(outcomes):
         print(line)
     if args.by_sequence:

@@ -10,8 +10,8 @@ frames it learns and while lost.
 - Tracking, not confident: a loss; the frame is searched as below and reported "lost".
 - Lost: if the core's peak is confident again and the decision filter scores its sample above the
   core's bar (params.AcceptParams.core_fraction; its peak within a side of the core's) on
-  accept.core_confirm_frames consecutive lost frames, the frame is committed and the loss ends. Otherwise the decision filter
-  scores the core's sample and a few lattice windows, upright and turned, around where the target
+  accept.core_confirm_frames consecutive lost frames, the frame is committed and the loss ends.
+  Otherwise the decision filter scores the core's sample and a few lattice windows, upright and turned, around where the target
   was going (search.py: a per-frame budget, the square growing as the paper's omega); a candidate
   above the bar confirmed on the next frame is taken: the core moves there, with its filters as they
   were before the loss or as they coasted, whichever responds more strongly ("relocate"; "retrain" =
@@ -256,7 +256,7 @@ class JsarReTracker:
         if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, search)
                 and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)):
             search.core_agreements += 1
-            if search.core_agreements >= self.redetect.accept.core_confirm_frames:
+            if search.core_agreements >= accept.core_confirm_frames:
                 self._commit(frame, loc, verdict.reliable, own)
                 return self._found(loc.peak)
         else:

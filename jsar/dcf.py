@@ -9,7 +9,6 @@ The response is r(t) = sum_c sum_n f_c(n) x_c(n + t), i.e. spectrum sum_c conj(F
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -122,7 +121,6 @@ def admm_solve(
     penalty_growth: float,
     penalty_max: float,
     box_transforms: bool | None = None,
-    context_f: np.ndarray | None = None,
 ) -> np.ndarray:
     """STRCF filter spectrum (C, H, W//2+1) complex64 minimising, by ADMM,
 
@@ -144,11 +142,6 @@ def admm_solve(
     only and the forward DFT of a box-supported signal is two small matrix products.
     `box_transforms`: None = use them when the window is such a box covering <= 1/4 of the
     map, False = always full FFTs, True = require the box path (ValueError if not a box).
-
-    `context_f` (M, C, H, W//2+1), optional: spectra of context samples, each already scaled by the
-    square root of its weight, whose responses the filter should drive to zero (context-aware
-    correlation filters, Mueller et al. 2017): E gains 1/2 sum_m sum_k |sum_c conj(F_c) A_mc|^2 and
-    the f-step's system becomes rank 1 + M per frequency, solved by the Woodbury identity.
     """
     height = sample_f.shape[1]
     shape_hw = (height, reg_window.shape[1])
@@ -181,10 +174,6 @@ def admm_solve(
     h_f = np.zeros_like(sample_f)
     penalty = penalty_init * n
     penalty_cap = penalty_max * n
-    if context_f is not None:
-        # Columns of the per-frequency low-rank part: the sample and the weighted context samples.
-        basis = np.concatenate([sample_f[None], context_f.astype(np.complex64, copy=False)])  # (M+1, C, H, Wf)
-        gram = np.einsum("ichw,jchw->hwij", basis.conj(), basis)  # (H, Wf, M+1, M+1): U^H U per frequency
     for it in range(iterations):
         # f-step: (x x^H + (mu + p) I) f = q, q = x conj(y) + mu f_prev + p g - h,
         # solved per frequency by Sherman-Morrison.
@@ -194,18 +183,6 @@ def admm_solve(
             np.multiply(g_f, np.float32(penalty), out=q)
             q += constant
             q -= h_f
-        if context_f is not None:
-            q = _woodbury_f_step(basis, gram, q, mu_n + penalty)
-            if it == iterations - 1:
-                break
-            numerator = np.multiply(q, np.float32(penalty), out=tmp)
-            numerator += h_f
-            g_f = _g_step(numerator, partial, box, lam, penalty, reg_sq, shape_hw, g_f)
-            np.subtract(q, g_f, out=tmp)
-            tmp *= np.float32(penalty)
-            h_f += tmp
-            penalty = min(penalty * penalty_growth, penalty_cap)
-            continue
         np.multiply(sample_conj, q, out=tmp)
         coeff = tmp.sum(axis=0)
         coeff /= sxx + np.float32(mu_n + penalty)
@@ -236,35 +213,6 @@ def admm_solve(
         h_f += tmp
         penalty = min(penalty * penalty_growth, penalty_cap)
     return q
-
-
-def _woodbury_f_step(basis: np.ndarray, gram: np.ndarray, q: np.ndarray, shift: float) -> np.ndarray:
-    """Solve (U U^H + shift I) f = q per frequency, U = basis (K, C, H, Wf) as K columns of C:
-    f = (q - U (shift I + U^H U)^-1 U^H q) / shift (Woodbury; gram = U^H U as (H, Wf, K, K))."""
-    k = basis.shape[0]
-    projected = np.einsum("kchw,chw->hwk", basis.conj(), q)  # U^H q
-    system = gram + np.complex64(shift) * np.eye(k, dtype=np.complex64)
-    z = np.linalg.solve(system, projected[..., None])[..., 0]  # (H, Wf, K)
-    return ((q - np.einsum("kchw,hwk->chw", basis, z)) / np.float32(shift)).astype(np.complex64)
-
-
-def _g_step(numerator: np.ndarray, partial: "_BoxDft | None", box: Any, lam: float, penalty: float,
-            reg_sq: np.ndarray, shape_hw: tuple[int, int], g_f: np.ndarray) -> np.ndarray:
-    """g = numerator / (lam w^2 + p), spatial and element-wise (the box path when available)."""
-    if partial is not None and box is not None:
-        _, inside, outside = box
-        a = 1.0 / (lam * outside**2 + penalty)
-        b = 1.0 / (lam * inside**2 + penalty) - a
-        inner = partial.inverse(numerator)
-        inner *= np.float32(b)
-        partial.forward(inner, out=g_f)
-        numerator *= np.float32(a)
-        g_f += numerator
-        return g_f
-    spatial = fourier.irfft2(numerator, shape_hw)
-    spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
-    g_f[...] = fourier.rfft2(spatial.astype(np.float32, copy=False))
-    return g_f
 
 
 def _two_valued_box(window: np.ndarray) -> tuple[tuple[int, int, int, int], float, float] | None:

@@ -106,7 +106,7 @@ class JsarReTracker:
     def init(self, frame: np.ndarray, box: Box) -> None:
         """Start tracking `box` (x, y, w, h px) in `frame`; trains the core and the decision filter."""
         self.core.init(frame, box)
-        self.memory = DecisionMemory(self.params, self.core, self.redetect.memory)
+        self.memory = DecisionMemory(self.params, self.core)
         self.colour = self._new_colour_model()
         self.colour.learn(frame, self.core.box)
         self.monitor = FailureMonitor(self.redetect.monitor)
@@ -200,7 +200,7 @@ class JsarReTracker:
         self._remember_position()
         if reliable:
             assert own is not None
-            self.memory.train(self.core, own.score, frame)
+            self.memory.train(self.core, own.score)
             self.colour.learn(frame, self.core.box)
         else:
             self.memory.skip()

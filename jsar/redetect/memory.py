@@ -19,7 +19,6 @@ from jsar.config import JsarParams
 from jsar.features import patches
 from jsar.features import translation as translation_features
 from jsar.redetect.monitor import updated_reference
-from jsar.redetect.params import MemoryParams
 from jsar.redetect.search import Candidate
 from jsar.tracking.jsar_tracker import JsarTracker
 from jsar.tracking.translation import TranslationFilter
@@ -31,12 +30,9 @@ REFERENCE_FALL = 0.02  # ... and lower ones slowly (as the monitor's)
 class DecisionMemory:
     """The decision filter and its reference; `train` after each committed frame, `score_*` anywhere."""
 
-    def __init__(self, params: JsarParams, core: JsarTracker, context: MemoryParams | None = None) -> None:
+    def __init__(self, params: JsarParams, core: JsarTracker) -> None:
         translation = core.translation
         self.params = params
-        self.context = context if context is not None else MemoryParams()
-        self.context_f: np.ndarray | None = None  # (M, C, H, W//2+1) weighted context spectra
-        self._context_age = 0  # reliable frames since the context was sampled
         self.filter = TranslationFilter(params, translation.shape_hw, core.target_cells())
         self.filter.filter_f = translation.filter_f  # trained on the same first sample (mu = 0)
         # True while the decision filter has seen exactly the core's training history: then both are
@@ -103,23 +99,10 @@ class DecisionMemory:
                                    (float(centre[0]), float(centre[1]))))
         return found
 
-    def train(self, core: JsarTracker, own_peak: float, frame: np.ndarray | None = None) -> None:
+    def train(self, core: JsarTracker, own_peak: float) -> None:
         """Learn the core's last training sample (a reliable committed frame); own_peak is this
-        filter's peak on that frame's detection sample (updates the reference); frame: that frame
-        (needed for the context, MemoryParams)."""
+        filter's peak on that frame's detection sample (updates the reference)."""
         self.reference = updated_reference(self.reference, own_peak, REFERENCE_RISE, REFERENCE_FALL)
-        if self.context.context_weight > 0:
-            if frame is None:
-                raise ValueError("the decision filter's context needs the frame")
-            if self.context_f is None or self._context_age >= self.context.context_every:
-                self.context_f = self._sample_context(core.prepare(frame), core)
-                self._context_age = 0
-            self._context_age += 1
-            self.in_sync = False
-            self.filter.set_target_cells(core.target_cells())
-            assert core.last_training_sample_f is not None
-            self.filter.train(core.last_training_sample_f, self.context_f)
-            return
         if self.in_sync:
             # Same previous filter, same sample, label and windows -> the same STRCF solution.
             self.filter.filter_f = core.translation.filter_f
@@ -129,22 +112,6 @@ class DecisionMemory:
         assert sample_f is not None
         self.filter.set_target_cells(core.target_cells())
         self.filter.train(sample_f)
-
-    def _sample_context(self, image: np.ndarray, core: JsarTracker) -> np.ndarray:
-        """Weighted spectra (M, C, H, W//2+1) of the context windows around the core's target."""
-        d = self.context.context_sides
-        offsets = [(-d, 0.0), (d, 0.0), (0.0, -d), (0.0, d)]
-        if self.context.context_windows == 8:
-            offsets += [(-d, -d), (d, -d), (-d, d), (d, d)]
-        w, h = core.size_wh
-        side = math.sqrt(w * h)
-        centres = np.asarray(core.center_xy) + np.asarray(offsets) * side
-        cells = self.filter.shape_hw[0]
-        px_per_cell = self.params.search_area_factor * side / cells
-        windows, _ = window_features(image, core.feature_colour_table, centres, px_per_cell, cells,
-                                     self.params.cell_size)
-        spectra = fourier.rfft2_channels_last(windows * self.filter.cos_window[None, :, :, None])
-        return np.moveaxis(spectra, -1, 1) * np.float32(math.sqrt(self.context.context_weight))
 
     def skip(self) -> None:
         """The core trained on a frame this filter does not learn: their histories part."""

@@ -217,27 +217,6 @@ class ColourParams:
 
 
 @dataclass(frozen=True)
-class MemoryParams:
-    """The decision filter's context (memory.py): every `context_every` reliable frames the windows
-    centred `context_sides` target sides left, right, above and below the target (and the four
-    diagonals with `context_windows` 8) are sampled; the filter then learns each reliable frame with
-    their responses driven to zero at `context_weight` x the target sample's (context-aware
-    correlation filter; 0: none, the decision filter shares the core's solution)."""
-
-    context_weight: float = 0.0
-    context_sides: float = 2.5
-    context_windows: int = 4
-    context_every: int = 10
-
-    def validate(self, prefix: str = "memory") -> None:
-        """Raise ValueError naming `prefix.key` of the first invalid value."""
-        _require(prefix, "context_weight", self.context_weight >= 0, f">= 0, got {self.context_weight}")
-        _require(prefix, "context_sides", self.context_sides > 0, f"> 0, got {self.context_sides}")
-        _require(prefix, "context_windows", self.context_windows in (4, 8), f"4 or 8, got {self.context_windows}")
-        _require(prefix, "context_every", self.context_every >= 1, f">= 1, got {self.context_every}")
-
-
-@dataclass(frozen=True)
 class RedetectParams:
     """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check (see their classes)."""
 
@@ -245,7 +224,6 @@ class RedetectParams:
     search: SearchParams = field(default_factory=SearchParams)
     accept: AcceptParams = field(default_factory=AcceptParams)
     colour: ColourParams = field(default_factory=ColourParams)
-    memory: MemoryParams = field(default_factory=MemoryParams)
 
     def validate(self, prefix: str = "redetect") -> None:
         """Raise ValueError naming the first invalid key as prefix.group.key."""
@@ -253,7 +231,6 @@ class RedetectParams:
         self.search.validate(f"{prefix}.search")
         self.accept.validate(f"{prefix}.accept")
         self.colour.validate(f"{prefix}.colour")
-        self.memory.validate(f"{prefix}.memory")
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any] | None, prefix: str = "redetect") -> "RedetectParams":
@@ -262,7 +239,7 @@ class RedetectParams:
         if mapping is None:
             return params
         if not isinstance(mapping, Mapping):
-            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour, memory), got {mapping!r}")
+            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour), got {mapping!r}")
         groups = {f.name: getattr(params, f.name) for f in dataclasses.fields(cls)}
         replaced: dict[str, Any] = {}
         for group, values in mapping.items():

@@ -52,17 +52,15 @@ class TranslationFilter:
         stack = np.moveaxis(features_hwc, -1, 0) * self.cos_window[None]
         return fourier.rfft2(stack.astype(np.float32, copy=False))
 
-    def train(self, sample_f: np.ndarray, context_f: np.ndarray | None = None) -> None:
-        """One STRCF update on a sample spectrum (the previous filter is the temporal anchor); context_f
-        (M, C, H, W//2+1): weighted context spectra whose responses are driven to zero (dcf.admm_solve)."""
+    def train(self, sample_f: np.ndarray) -> None:
+        """One STRCF update on a sample spectrum (the previous filter is the temporal anchor)."""
         if self.filter_f is not None and self.filter_f.shape != sample_f.shape:
             raise ValueError(f"sample spectrum {sample_f.shape} does not match the filter {self.filter_f.shape}")
         p = self.params
         self.filter_f = dcf.admm_solve(
             sample_f, self.label_f, self.reg_window, self.filter_f, lam=p.admm_lambda,
             mu=p.temporal_mu, iterations=p.admm_iterations, penalty_init=p.admm_penalty_init,
-            penalty_growth=p.admm_penalty_growth, penalty_max=p.admm_penalty_max,
-            context_f=context_f)
+            penalty_growth=p.admm_penalty_growth, penalty_max=p.admm_penalty_max)
 
     def response(self, sample_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(response (H, W) float32 with peak at the displacement, its half spectrum)."""

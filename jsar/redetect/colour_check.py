@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
 from jsar.redetect.monitor import updated_reference
@@ -126,51 +125,6 @@ class ColourModel:
         share = float(observed[self._target_colours()].sum()) / self.share_reference
         return max(share, bhattacharyya(self.object_hist, observed) / self.similarity_reference)
 
-    def target_colour_set(self) -> np.ndarray | None:
-        """(bins^C,) bool: the colours likelier the target's than its surround's (None before learning)."""
-        return None if self.object_hist is None else self._target_colours()
-
     def _target_colours(self) -> np.ndarray:
         assert self.object_hist is not None and self.surround_hist is not None
         return target_colours(self.object_hist, self.surround_hist, self.surround_prior)
-
-
-def colour_peaks(frame: np.ndarray, colours: np.ndarray, bins: int, centre_xy: tuple[float, float],
-                 radius_px: float, box_wh: tuple[float, float], count: int, min_share: float,
-                 exclude_xy: list[tuple[float, float]], exclude_px: float) -> list[tuple[float, float, float]]:
-    """Up to `count` places (x px, y px, share) within radius_px of centre_xy where a box of box_wh (w, h px)
-    holds the largest share of pixels in the target's `colours` ((bins^C,) bool, target_colours), best
-    first, at least min_share, none within 1.5 box sides of a better one or within exclude_px of
-    exclude_xy. The map is sampled every side/4 px (the target about four samples across)."""
-    w, h = box_wh
-    side = math.sqrt(w * h)
-    step = max(1, int(side / 4.0))
-    height, width = frame.shape[:2]
-    reach = radius_px + max(w, h) / 2.0
-    x0, y0 = max(int(centre_xy[0] - reach), 0), max(int(centre_xy[1] - reach), 0)
-    x1, y1 = min(int(centre_xy[0] + reach) + 1, width), min(int(centre_xy[1] + reach) + 1, height)
-    if x1 <= x0 or y1 <= y0 or count <= 0:
-        return []
-    region = frame[y0:y1:step, x0:x1:step]
-    index = (region.astype(np.int32) * bins) >> 8
-    if region.ndim == 3:
-        index = np.ravel_multi_index(tuple(np.moveaxis(index, -1, 0)), (bins,) * region.shape[2])
-    in_colours = colours[index].astype(np.float32)
-    kernel = (max(1, int(round(w / step))), max(1, int(round(h / step))))
-    share = cv2.boxFilter(in_colours, -1, kernel, normalize=True, borderType=cv2.BORDER_CONSTANT)
-    xs = x0 + np.arange(share.shape[1]) * step
-    ys = y0 + np.arange(share.shape[0]) * step
-    dx, dy = xs[None, :] - centre_xy[0], ys[:, None] - centre_xy[1]
-    share[dx ** 2 + dy ** 2 > radius_px ** 2] = 0.0
-    for ex, ey in exclude_xy:
-        share[(xs[None, :] - ex) ** 2 + (ys[:, None] - ey) ** 2 <= exclude_px ** 2] = 0.0
-    peaks: list[tuple[float, float, float]] = []
-    while len(peaks) < count:
-        row, col = np.unravel_index(int(np.argmax(share)), share.shape)
-        value = float(share[row, col])
-        if value < min_share or value <= 0.0:
-            break
-        x, y = float(xs[col]), float(ys[row])
-        peaks.append((x, y, value))
-        share[(xs[None, :] - x) ** 2 + (ys[:, None] - y) ** 2 <= (1.5 * side) ** 2] = 0.0
-    return peaks

@@ -44,7 +44,7 @@ import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
-from jsar.redetect.colour_check import ColourModel, colour_peaks
+from jsar.redetect.colour_check import ColourModel
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
@@ -230,10 +230,6 @@ class JsarReTracker:
         assert self.memory is not None
         image = self.core.prepare(frame)
         centres, angles = search.windows((frame.shape[1], frame.shape[0]))
-        places = self._colour_places(frame, search, own)
-        if places:
-            centres = np.vstack([centres, places])
-            angles = np.append(angles, np.zeros(len(places)))
         focus = search.pending if search.pending is not None else search.lead
         if focus is not None:
             centres = np.vstack([centres, [[focus.x, focus.y]]])
@@ -242,24 +238,6 @@ class JsarReTracker:
         found = self.memory.score_windows(image, self.core.feature_colour_table, centres, side, angles)
         factor = self.redetect.search.turned_score_factor
         return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
-
-    def _colour_places(self, frame: np.ndarray, search: LossSearch, own: Candidate) -> list[tuple[float, float]]:
-        """Centres (px) for this frame's colour windows: within the motion gate, where a box of the target's
-        size holds most of its colours, away from the core's window and the last two frames' colour windows
-        (so a lasting patch of the target's colours does not take every frame's windows)."""
-        count = self.redetect.search.colour_windows
-        colours = self.colour.target_colour_set()
-        if count == 0 or colours is None or not self.colour.share_reference:
-            return []
-        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
-        radius = search.reach_sides * search.side_px
-        exclude = [(own.x, own.y), *(xy for recent in search.colour_recent for xy in recent)]
-        peaks = colour_peaks(frame, colours, self.colour.bins, search.anchor_xy, radius, (w, h), count,
-                             self.redetect.search.colour_min_share * self.colour.share_reference, exclude,
-                             search.side_px)
-        places = [(x, y) for x, y, _ in peaks]
-        search.colour_recent = [*search.colour_recent[-1:], places]
-        return places
 
     def _search_lost(self, frame: np.ndarray, loc: Localisation, verdict: Verdict, own: Candidate) -> TrackResult:
         """One lost frame: the core confident again where the decision filter recognises the target

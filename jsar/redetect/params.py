@@ -86,8 +86,6 @@ class SearchParams:
     coast_radius_sides: float = 0.5  # while lost the core follows its detection (as plain JSAR) within this of the prediction (0: never)
     motion_frames: int = 5  # the search follows the target's velocity over its last this-many committed frames ...
     predict_max_frames: int = 3  # ... for at most this many lost frames, then holds (0: the last centre)
-    colour_windows: int = 0  # of windows_per_frame, this many go where a box holds most of the target's colours ...
-    colour_min_share: float = 0.5  # ... if at least this x the learnt target's share of them (within the motion gate)
 
     def validate(self, prefix: str = "search") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
@@ -105,9 +103,6 @@ class SearchParams:
         _require(prefix, "coast_radius_sides", self.coast_radius_sides >= 0, f">= 0, got {self.coast_radius_sides}")
         _require(prefix, "motion_frames", self.motion_frames >= 2, f">= 2, got {self.motion_frames}")
         _require(prefix, "predict_max_frames", self.predict_max_frames >= 0, f">= 0, got {self.predict_max_frames}")
-        _require(prefix, "colour_windows", 0 <= self.colour_windows <= self.windows_per_frame,
-                 f"0 <= colour_windows <= windows_per_frame, got {self.colour_windows}, {self.windows_per_frame}")
-        _require(prefix, "colour_min_share", self.colour_min_share >= 0, f">= 0, got {self.colour_min_share}")
 
 
 @dataclass(frozen=True)

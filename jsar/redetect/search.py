@@ -134,7 +134,6 @@ class LossSearch:
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
     refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold
     coasting: bool = False  # the core followed its own detection on the last lost frame
-    colour_recent: list[list[tuple[float, float]]] = field(default_factory=list)  # colour windows of the last frames
 
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""
@@ -147,7 +146,7 @@ class LossSearch:
         the cycle."""
         entries = search_cycle(self.area_sides(), self.search.stride_sides, self.search.turned_angles_deg,
                                self.search.turned_rings)
-        budget = min(self.search.windows_per_frame - self.search.colour_windows, len(entries))
+        budget = min(self.search.windows_per_frame, len(entries))
         if budget == 0:
             return np.empty((0, 2)), np.empty(0)
         picked = entries[(self.cursor + np.arange(budget)) % len(entries)]

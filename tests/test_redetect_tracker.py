@@ -586,13 +586,14 @@ def test_gradual_occlusion_is_caught_before_the_target_is_gone_and_not_followed(
     assert on_target and on_target[0] <= 70 and on_target[-1] == 79, states
 
 
-def _hidden_target_scene(patch: np.ndarray, top_left: tuple[int, int], shown: range) -> Callable[[int], np.ndarray]:
-    """Frame index -> frame: the target stands at (100, 100), hidden on frames 35..59, and `patch` stands at
-    top_left (px) on the frames in `shown`."""
+def _hidden_target_scene(patch: np.ndarray, top_left: tuple[int, int], shown: range,
+                         hidden: range = range(35, 60)) -> Callable[[int], np.ndarray]:
+    """Frame index -> frame: the target stands at (100, 100), hidden on the frames in `hidden` (35..59), and
+    `patch` stands at top_left (px) on the frames in `shown`."""
     background = _background()
 
     def frame(index: int) -> np.ndarray:
-        image = _frame(background, None if 35 <= index < 60 else (100, 100))
+        image = _frame(background, None if index in hidden else (100, 100))
         if index in shown:
             _paste(image, patch, top_left)
         return image
@@ -662,6 +663,32 @@ def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
     relost_standing = min(i for i in range(50, 60) if standing[i][0] == "lost")
     assert math.dist(_centre(standing[relost_standing][1]), target_centre) > 30
     assert all(not never[i] for i in range(1, 75))
+
+
+def test_a_refuted_take_restarts_the_cores_count_towards_its_own_way_out():
+    """The look-alike of _run_with_a_passing_look_alike is taken while the target is hidden, and the take is refuted
+    on the frame the target comes back where the search waits for it. The core's own way out needs two consecutive
+    passing lost frames (accept.core_confirm_frames): had the core passed once on the take's frame, that count must
+    not survive the refutation, or the loss would end on the one frame the restored core sees the target."""
+
+    def states(hidden_until: int, core_passed_on_take: bool) -> dict[int, str]:
+        frame = _hidden_target_scene(_same_colour_look_alike(), (150, 100), range(38, 50), range(35, hidden_until))
+        tracker = JsarReTracker(JsarParams.jsar_re(), RedetectParams())
+        tracker.init(frame(0), _target_box((100, 100)))
+        seen: dict[int, str] = {}
+        for index in range(1, 60):
+            seen[index] = tracker.update(frame(index)).state
+            if core_passed_on_take and seen[index] == "recovered" and index < 50:
+                assert tracker.probation is not None
+                tracker.probation.search.core_agreements = 1  # as if the core had passed its tests on that frame
+        return seen
+
+    hidden_long = states(60, core_passed_on_take=False)
+    taken = [i for i in range(35, 50) if hidden_long[i] == "recovered"]
+    relost = [i for i in range(50, 60) if hidden_long[i] == "lost"]
+    assert taken and relost, "no refuted take: the scenario tests nothing"
+    back = states(relost[0], core_passed_on_take=True)  # the target is back on the refutation's frame
+    assert back[relost[0]] == "lost" and back[relost[0] + 1] == "recovered", [back[i] for i in range(48, 56)]
 
 
 def test_the_core_confident_again_on_a_single_lost_frame_does_not_end_the_loss():

@@ -188,7 +188,8 @@ class JsarReTracker:
         self._track.clear()
         self._track.extend(kept.track)
         self.search = kept.search
-        self.search.pending, self.search.confirmations = None, 0
+        # The counts towards a way out start afresh: what passed before the take proved nothing.
+        self.search.pending, self.search.confirmations, self.search.core_agreements = None, 0, 0
         self.search.refuted.append(kept.taken)
 
     # ----------------------------------------------------------------- steps

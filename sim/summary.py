@@ -125,9 +125,16 @@ def counter_rows(counters: dict[str, Any]) -> list[Row]:
             if key not in CAMERA_COMMAND_KEYS]
 
 
+MAX_VALUE_WIDTH = 24
+
+
 def format_rows(title: str, rows: list[Row]) -> str:
-    """Aligned `label  value  meaning` lines under a title."""
+    """Aligned `label  value  meaning` lines under a title: the labels' column as wide as the longest label, the
+    values' as the longest value of up to MAX_VALUE_WIDTH characters (a longer one, e.g. a file path, overflows
+    rather than pushing every meaning right)."""
+    label_width = max([36, *(len(label) for label, _, _ in rows)])
+    value_width = max([12, *(len(str(value)) for _, value, _ in rows if len(str(value)) <= MAX_VALUE_WIDTH)])
     lines = [f"== {title} =="]
     for label, value, meaning in rows:
-        lines.append(f"  {label:36s} {str(value):>12s}  {meaning}".rstrip())
+        lines.append(f"  {label:{label_width}s} {str(value):>{value_width}s}  {meaning}".rstrip())
     return "\n".join(lines)

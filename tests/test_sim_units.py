@@ -553,6 +553,10 @@ def test_demo_summary_explains_every_figure_and_reads_polling_as_normal():
     assert "daemon out_gimbal" in text and "gimbal rate commands sent" in text
     assert "daemon brand_new_counter" in text  # an unexplained counter is shown, not dropped
     assert "daemon mavlink_rejected" not in text  # the camera commands are shown once, split by reason
+    # One column for the meanings, also past a label longer than the usual width (a refused kind with its message).
+    rows = camera_command_rows(counters, refusals) + counter_rows(counters)
+    lines = format_rows("summary", rows).splitlines()[1:]
+    assert len({line.index(meaning) for line, (_, _, meaning) in zip(lines, rows) if meaning}) == 1, lines
 
 
 def test_the_sims_base_config_is_the_source_trees_else_the_current_directorys(tmp_path, monkeypatch):

@@ -553,8 +553,12 @@ def test_demo_summary_explains_every_figure_and_reads_polling_as_normal():
     assert "daemon out_gimbal" in text and "gimbal rate commands sent" in text
     assert "daemon brand_new_counter" in text  # an unexplained counter is shown, not dropped
     assert "daemon mavlink_rejected" not in text  # the camera commands are shown once, split by reason
-    # One column for the meanings, also past a label longer than the usual width (a refused kind with its message).
+    # One column for the meanings, past a long value ("5 accepted, 125 refused") and a label longer than the usual
+    # 36 characters (a refused kind with its message's name).
+    refusals.append({"result": "UNSUPPORTED", "command": 512, "message": 269, "count": 18,
+                     "reason": "no video stream (video.stream.enabled is false)"})
     rows = camera_command_rows(counters, refusals) + counter_rows(counters)
+    assert any(len(label) > 36 for label, _, _ in rows)
     lines = format_rows("summary", rows).splitlines()[1:]
     assert len({line.index(meaning) for line, (_, _, meaning) in zip(lines, rows) if meaning}) == 1, lines
 

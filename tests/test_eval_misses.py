@@ -92,6 +92,9 @@ def test_false_frames_are_the_protocols_false_reinitialisations_by_kind():
     assert lines[0] == ("5 false re-initialisations (100.00 % of 5 absent frames): taken while absent 1, "
                         "moved while lost 1, jumped while tracking 1, taken wrong 2")
     assert lines[1] == "taken (3): 2 ended a loss of at most 3 frames"
+    assert lines[2] == "runs with the most:"
+    assert lines[3].split() == ["a", "5", "(taken", "while", "absent", "1,", "moved", "while", "lost", "1,", "jumped",
+                                "while", "tracking", "1,", "taken", "wrong", "2)"]
 
 
 @pytest.fixture(scope="module")

@@ -159,7 +159,7 @@ def run_false_frames(result: dict, tracker: str) -> list[FalseFrame]:
 
 def false_lines(frames: list[FalseFrame], absent_frames: int, short_loss: int = 3) -> list[str]:
     """A count per kind of false re-initialisation (of absent_frames), and how many "taken" ones ended a loss of
-    at most short_loss frames; then the runs with the most."""
+    at most short_loss frames; then the five runs with the most, each with its count per kind."""
     counts = Counter(f.kind for f in frames)
     share = f" ({100.0 * len(frames) / absent_frames:.2f} % of {absent_frames} absent frames)" if absent_frames else ""
     lines = [f"{len(frames)} false re-initialisations{share}: "
@@ -169,7 +169,12 @@ def false_lines(frames: list[FalseFrame], absent_frames: int, short_loss: int = 
         short = sum(f.loss_frames <= short_loss for f in taken)
         lines.append(f"taken ({len(taken)}): {short} ended a loss of at most {short_loss} frames")
     per_run = Counter(f.run for f in frames)
-    lines.extend(f"  {run:40s} {count}" for run, count in per_run.most_common(5))
+    if per_run:
+        lines.append("runs with the most:")
+    for run, count in per_run.most_common(5):
+        kinds = Counter(f.kind for f in frames if f.run == run)
+        lines.append(f"  {run:40s} {count} (" + ", ".join(f"{kind} {kinds[kind]}" for kind in FALSE_KINDS
+                                                          if kinds[kind]) + ")")
     return lines
 
 

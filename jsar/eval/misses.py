@@ -160,22 +160,25 @@ def run_false_frames(result: dict, tracker: str) -> list[FalseFrame]:
 def false_lines(frames: list[FalseFrame], absent_frames: int, short_loss: int = 3) -> list[str]:
     """A count per kind of false re-initialisation (of absent_frames), and how many "taken" ones ended a loss of
     at most short_loss frames; then the five runs with the most, each with its count per kind."""
-    counts = Counter(f.kind for f in frames)
     share = f" ({100.0 * len(frames) / absent_frames:.2f} % of {absent_frames} absent frames)" if absent_frames else ""
-    lines = [f"{len(frames)} false re-initialisations{share}: "
-             + ", ".join(f"{kind} {counts[kind]}" for kind in FALSE_KINDS if counts[kind])]
+    lines = [f"{len(frames)} false re-initialisations{share}: " + _by_kind(Counter(f.kind for f in frames))]
     taken = [f for f in frames if f.kind.startswith("taken")]
     if taken:
         short = sum(f.loss_frames <= short_loss for f in taken)
         lines.append(f"taken ({len(taken)}): {short} ended a loss of at most {short_loss} frames")
-    per_run = Counter(f.run for f in frames)
-    if per_run:
+    kinds_by_run: dict[str, Counter[str]] = {}
+    for f in frames:
+        kinds_by_run.setdefault(f.run, Counter())[f.kind] += 1
+    if kinds_by_run:
         lines.append("runs with the most:")
-    for run, count in per_run.most_common(5):
-        kinds = Counter(f.kind for f in frames if f.run == run)
-        lines.append(f"  {run:40s} {count} (" + ", ".join(f"{kind} {kinds[kind]}" for kind in FALSE_KINDS
-                                                          if kinds[kind]) + ")")
+    most = sorted(kinds_by_run.items(), key=lambda item: -item[1].total())[:5]  # stable: ties in order seen
+    lines.extend(f"  {run:40s} {kinds.total()} ({_by_kind(kinds)})" for run, kinds in most)
     return lines
+
+
+def _by_kind(counts: Counter[str]) -> str:
+    """`kind n, kind n` in FALSE_KINDS order, kinds with no frame left out."""
+    return ", ".join(f"{kind} {counts[kind]}" for kind in FALSE_KINDS if counts[kind])
 
 
 def summary_lines(outcomes: list[EventOutcome], near_sides: float = 1.5) -> list[str]:

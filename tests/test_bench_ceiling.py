@@ -1,0 +1,82 @@
+"""bench.ceiling on a tiny synthetic sequence: the probe leaves the tracker's run as jsar.eval's long-term
+protocol has it, and the oracle's window recognises the target where it is and nowhere else."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jsar
+from bench import ceiling
+from jsar.eval import dataset, evaluate, longterm
+from jsar.eval.synthetic import synthetic_clip, write_otb_sequence
+
+N_FRAMES = 60  # one 5-frame event after the protocol's first 30 frames and before its 15-frame gap
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> dataset.Sequence:
+    root = tmp_path_factory.mktemp("otb")
+    frames, boxes = synthetic_clip(n_frames=N_FRAMES, size=(120, 160), object_size=(20, 16), seed=4)
+    write_otb_sequence(root / "syn", frames, boxes)
+    return dataset.load_sequence(root / "syn")
+
+
+def test_the_probe_only_reads_the_tracker(sequence):
+    """The same boxes' scores as jsar.eval's long-term run of jsar-re on the same events: the oracle's
+    windows change nothing the tracker does; the events re-acquired there are within reach here."""
+    events = longterm.inject_events(sequence, "occlusion", (5,), seed=0)
+    assert events.events, "the synthetic sequence must hold one event"
+    probed = ceiling.run_sequence(events, window=15, needed=2)
+    reference = evaluate.evaluate_longterm([sequence], ["jsar-re"], ["occlusion"], (5,), 0)
+    run = reference["sequences"][events.name]["trackers"]["jsar-re"]["longterm"]
+    for key in ("n_reacquired", "false_reinit_absent", "false_reinit_wrong_object", "absent_reported_lost"):
+        assert probed[key] == run[key], key
+    for event in probed["events"]:
+        if event["reacquired"]:
+            assert event["reach_tracker"] and event["reach_groundtruth"]
+
+
+def test_the_oracle_recognises_the_target_and_not_the_background(sequence):
+    """Right after init the decision filter knows the target: a window on the ground truth passes the
+    candidate's tests; the same window on the background in a corner, over 3 sides away, does not."""
+    tracker = jsar.create("jsar-re")
+    first = sequence.read_frame(0)
+    tracker.init(first, tuple(float(v) for v in sequence.groundtruth[0]))
+    frame, box = sequence.read_frame(1), np.array(sequence.groundtruth[1], dtype=float)
+    tracker.update(frame)
+    side = float(np.sqrt(box[2] * box[3]))
+    assert ceiling.oracle_recognises(tracker, frame, box, frames_since=1, side_px=side)
+    corner = np.array([2.0, 2.0, box[2], box[3]])  # the top-left corner's background
+    assert np.hypot(*(box[:2] - corner[:2])) > 3 * side, "the synthetic target must lie away from the corner"
+    assert not ceiling.oracle_recognises(tracker, frame, corner, frames_since=1, side_px=side)
+
+
+def test_the_oracle_search_takes_nothing_while_the_target_is_absent(sequence):
+    """With the search given only the target's windows ("oracle"), no loss ends while the target is
+    hidden: no frame of the event is "recovered" and none is counted as a false re-initialisation."""
+    events = longterm.inject_events(sequence, "occlusion", (5,), seed=0)
+    scores = ceiling.run_sequence(events, window=15, needed=2, search="oracle")
+    assert scores["false_reinit_absent"] == 0 and scores["false_reinit_wrong_object"] == 0
+
+
+def test_the_oracle_search_scores_the_target_only_while_lost_and_visible(sequence):
+    """The oracle tracker's extra windows are centred on the ground truth, and none is scored while the
+    target is absent."""
+    tracker = ceiling.OracleSearchTracker("oracle")
+    frame = sequence.read_frame(0)
+    tracker.init(frame, tuple(float(v) for v in sequence.groundtruth[0]))
+    tracker.lost = True
+    tracker.search = tracker._new_search()
+    own = tracker._own(tracker.core.locate(frame))
+    tracker.groundtruth_box = np.full(4, np.nan)
+    assert tracker._candidates(frame, tracker.search, own) == [dataclasses.replace(own, score=0.0)]
+    box = np.array(sequence.groundtruth[0], dtype=float)
+    tracker.groundtruth_box = box
+    found = tracker._candidates(frame, tracker.search, tracker._own(tracker.core.locate(frame)))
+    centre = box[:2] + box[2:] / 2.0
+    windows = [c.window_xy for c in found[1:]]
+    assert len(windows) == 1 + len(tracker.redetect.search.turned_angles_deg)
+    assert all(np.allclose(w, centre) for w in windows)

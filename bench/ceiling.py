@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 import jsar  # noqa: E402
 from jsar.eval import dataset, longterm  # noqa: E402
 from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
-from jsar.redetect.search import decayed_bar  # noqa: E402
+from jsar.redetect.search import LossSearch, decayed_bar  # noqa: E402
 
 SIZES = ("tracker", "groundtruth")  # the side the oracle's window is scored at
 FALSE_KEYS = ("false_reinit_absent", "false_reinit_wrong_object", "absent_frames")  # longterm_scores' counts
@@ -140,6 +140,22 @@ def oracle_look(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, f
     return OracleLook(found.score, bar, colour, minimum, found.distance_sides(centre, side_px))
 
 
+SEARCH_PLACES = ("outside gate", "outside lattice", "inside lattice", "first ring")
+
+
+def search_reach(search: LossSearch, gt_box: np.ndarray) -> str:
+    """Where the target (gt_box x, y, w, h px) lies for the lost search on this frame: beyond its motion
+    gate, inside the gate but beyond the lattice's square (search.py), inside both, or among the windows
+    of the centre and the lattice's first ring (within 1.5 strides of the search's centre, Chebyshev)."""
+    centre = (gt_box[0] + gt_box[2] / 2.0, gt_box[1] + gt_box[3] / 2.0)
+    dx, dy = ((centre[k] - search.anchor_xy[k]) / search.side_px for k in (0, 1))
+    if math.hypot(dx, dy) > search.reach_sides:
+        return "outside gate"
+    if max(abs(dx), abs(dy)) > (search.area_sides() + search.search.stride_sides) / 2.0:
+        return "outside lattice"
+    return "inside lattice" if max(abs(dx), abs(dy)) > 1.5 * search.search.stride_sides else "first ring"
+
+
 def oracle_recognises(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, frames_since: int,
                       side_px: float) -> bool:
     """Whether oracle_look's window passes every test a lattice candidate must pass."""
@@ -158,6 +174,7 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
     gt = events.groundtruth
     recognised = {size: np.zeros(n, dtype=bool) for size in SIZES}
     looks: dict[int, OracleLook] = {}  # frame -> the oracle's look at the tracker's side
+    where: dict[int, str] = {}  # frame -> where the target lay for the lost search (search_reach)
     probe_frames = {i: e for e in events.events for i in range(e.stop, min(e.stop + window, n))}
     loss_start: int | None = None
     for index, frame in enumerate(events.frames()):
@@ -185,6 +202,8 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
             recognised[size][index] = look.failed_test() is None
             if size == "tracker":
                 looks[index] = look
+        if tracker.search is not None:
+            where[index] = search_reach(tracker.search, gt[index])
     scores = longterm.longterm_scores(boxes, states, gt, longterm.LongTermCriteria(window=window),
                                       events.scored_spans)
     for entry in scores["events"]:  # type: ignore[union-attr]
@@ -200,6 +219,8 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
         seen = [looks[i] for i in range(stop, min(stop + window, n)) if i in looks]
         entry["failed_tests"] = {test: sum(look.failed_test() == test for look in seen)
                                  for test in ("place", "bar", "colour")}
+        entry["target_for_search"] = {place: sum(where.get(i) == place for i in range(stop, min(stop + window, n)))
+                                      for place in SEARCH_PLACES}
         entry["best_score_over_bar"] = max((look.score / look.bar for look in seen), default=None)
         # What the tracker was doing when the target came back: still searching ("lost"), or tracking
         # something it took during the event (a "recovered" frame there) or never let go of.

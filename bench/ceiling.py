@@ -56,6 +56,7 @@ from jsar.redetect.search import LossSearch, decayed_bar  # noqa: E402
 SIZES = ("tracker", "groundtruth")  # the side the oracle's window is scored at
 FALSE_KEYS = ("false_reinit_absent", "false_reinit_wrong_object", "absent_frames")  # longterm_scores' counts
 SEARCHES = ("tracker", "oracle", "oracle+lattice")  # --search: what the lost tracker's search scores
+SEARCH_PLACES = ("outside gate", "outside lattice", "inside lattice", "first ring")  # search_reach's answers
 
 
 class OracleSearchTracker(JsarReTracker):
@@ -140,9 +141,6 @@ def oracle_look(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, f
     return OracleLook(found.score, bar, colour, minimum, found.distance_sides(centre, side_px))
 
 
-SEARCH_PLACES = ("outside gate", "outside lattice", "inside lattice", "first ring")
-
-
 def search_reach(search: LossSearch, gt_box: np.ndarray) -> str:
     """Where the target (gt_box x, y, w, h px) lies for the lost search on this frame: beyond its motion
     gate, inside the gate but beyond the lattice's square (search.py), inside both, or among the windows
@@ -216,11 +214,11 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
         entry["sequence"], entry["kind"] = events.name, events.kind
         # Why the oracle's window (tracker's side) failed on the event's frames: frames per first failed test,
         # and the best score over the bar.
-        seen = [looks[i] for i in range(stop, min(stop + window, n)) if i in looks]
+        seen = [looks[i] for i in range(stop, min(stop + window, n)) if i in looks]  # the tracker's side
         entry["failed_tests"] = {test: sum(look.failed_test() == test for look in seen)
                                  for test in ("place", "bar", "colour")}
-        entry["target_for_search"] = {place: sum(where.get(i) == place for i in range(stop, min(stop + window, n)))
-                                      for place in SEARCH_PLACES}
+        returned = range(stop, min(stop + window, n))
+        entry["target_for_search"] = {place: sum(where.get(i) == place for i in returned) for place in SEARCH_PLACES}
         entry["best_score_over_bar"] = max((look.score / look.bar for look in seen), default=None)
         # What the tracker was doing when the target came back: still searching ("lost"), or tracking
         # something it took during the event (a "recovered" frame there) or never let go of.
@@ -286,15 +284,17 @@ def main(argv: list[str] | None = None) -> int:
                   f"{int(bool(e['took_during_event']))} reacquired {int(bool(e['reacquired']))} "
                   f"reach tracker-side {int(bool(e['reach_tracker']))} ({e['recognised_frames_tracker']} frames) "
                   f"gt-side {int(bool(e['reach_groundtruth']))} ({e['recognised_frames_groundtruth']} frames)")
-    print(f"seed {args.seed}, search {args.search}: {counts['events']} events, re-acquired {counts['reacquired']}, within reach "
-          f"{counts['reach_tracker']} (tracker's side) / {counts['reach_groundtruth']} (ground truth's side); "
+    print(f"seed {args.seed}, search {args.search}: {counts['events']} events, re-acquired {counts['reacquired']}, "
+          f"within reach {counts['reach_tracker']} (tracker's side) / {counts['reach_groundtruth']} "
+          f"(ground truth's side); "
           f"began on target {counts['on_target_events']}: re-acquired {counts['on_target_reacquired']}, within reach "
           f"{counts['on_target_reach_tracker']} / {counts['on_target_reach_groundtruth']}; false re-initialisations "
           f"{counts['false_reinit_absent']} + {counts['false_reinit_wrong_object']} of {counts['absent_frames']} "
           f"absent frames")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"seed": args.seed, "search": args.search, "summary": counts, "events": entries}, indent=1))
+        args.json.write_text(json.dumps({"seed": args.seed, "search": args.search, "summary": counts,
+                                         "events": entries}, indent=1))
     return 0
 
 

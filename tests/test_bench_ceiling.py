@@ -3,6 +3,7 @@ protocol has it, and the oracle's window recognises the target where it is and n
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -80,3 +81,18 @@ def test_the_oracle_search_scores_the_target_only_while_lost_and_visible(sequenc
     windows = [c.window_xy for c in found[1:]]
     assert len(windows) == 1 + len(tracker.redetect.search.turned_angles_deg)
     assert all(np.allclose(w, centre) for w in windows)
+
+
+def test_the_command_line_writes_the_counts_and_names_a_wrong_sequence(sequence, tmp_path, capsys):
+    """`python -m bench.ceiling ROOT --search oracle --json F`: the summary line and the JSON's counts agree
+    with the events it lists; a sequence not under ROOT is an error naming it."""
+    root = Path(sequence.frame_paths[0]).parents[1].parent
+    out = tmp_path / "ceiling.json"
+    assert ceiling.main([str(root), "--search", "oracle", "--kinds", "occlusion", "--json", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert written["search"] == "oracle" and written["summary"]["events"] == len(written["events"]) >= 1
+    assert written["summary"]["reacquired"] == sum(e["reacquired"] for e in written["events"])
+    assert f"{written['summary']['events']} events" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        ceiling.main([str(root), "--sequences", "nowhere"])
+    assert "nowhere" in capsys.readouterr().err

@@ -30,8 +30,12 @@ look-alikes still in reach).
 
 Per seed: events, re-acquired, within reach at the tracker's side and at the ground truth's, each
 also for the events that began with the box on the target, and the protocol's false
-re-initialisations; a line per event with --events, and with --json per event why the oracle's window
-failed (frames per first failed test: place, bar, colour).
+re-initialisations; then the misses by reason (miss_breakdown); a line per event with --events, and with
+--json per event why the oracle's window failed (frames per first failed test: place, bar, colour).
+
+    python -m bench.ceiling --from-json F [F ...]
+
+prints the misses by reason of saved --json runs, pooled (several seeds).
 """
 from __future__ import annotations
 
@@ -238,9 +242,56 @@ def summary(entries: list[dict[str, object]]) -> dict[str, int]:
     return out
 
 
+def miss_reason(entry: dict[str, object]) -> str:
+    """Why a missed event (an entry of run_sequence's) was missed, the first that holds: "tracking" (the
+    tracker was following something else when the target came back), "bar" (the oracle's window stayed
+    under the bar on every frame), "colour" (it passed place and bar wherever it was looked at, and the
+    colour check refused it there), "other"."""
+    tests = entry["failed_tests"]
+    assert isinstance(tests, dict)
+    best = entry["best_score_over_bar"]
+    if entry["state_at_return"] != "lost":
+        return "tracking"
+    if best is not None and float(best) < 1.0:  # type: ignore[arg-type]
+        return "bar"
+    if entry["recognised_frames_tracker"] == 0 and tests["colour"] > 0 and tests["place"] == tests["bar"] == 0:
+        return "colour"
+    return "other"
+
+
+def lay_most(entry: dict[str, object]) -> str:
+    """Where the target lay for the lost search on most of the event's returned frames (ties: the farther)."""
+    places = entry["target_for_search"]
+    assert isinstance(places, dict)
+    return max(SEARCH_PLACES, key=lambda place: places[place])
+
+
+def miss_breakdown(entries: list[dict[str, object]]) -> str:
+    """The events not re-acquired, by miss_reason (for "bar": the best frame's score over the bar, median and
+    quartiles) and, for those still lost at the return, by lay_most with how many were within reach."""
+    missed = [e for e in entries if not e["reacquired"]]
+    reasons = [miss_reason(e) for e in missed]
+    tracking = [e for e, r in zip(missed, reasons) if r == "tracking"]
+    taken = sum(bool(e["took_during_event"]) for e in tracking)
+    best = [float(e["best_score_over_bar"]) for e, r in zip(missed, reasons) if r == "bar"]  # type: ignore[arg-type]
+    quartiles = (" (best frame over the bar: median {1:.2f}, quartiles {0:.2f}-{2:.2f})".format(
+        *np.percentile(best, [25, 50, 75])) if best else "")
+    lost = [e for e in missed if e["state_at_return"] == "lost"]
+    where = [(lay_most(e), bool(e["reach_tracker"])) for e in lost]
+    places = ", ".join(f"{place} {sum(p == place for p, _ in where)} "
+                       f"({sum(p == place and reach for p, reach in where)} within reach)"
+                       for place in reversed(SEARCH_PLACES))
+    return (f"missed {len(missed)}: tracking something else at the return {len(tracking)} (taken during the "
+            f"event {taken}); under the bar on every frame {reasons.count('bar')}{quartiles}; refused by the "
+            f"colour check {reasons.count('colour')}; other {reasons.count('other')}. Lost at the return "
+            f"{len(lost)}, the target on most frames: {places}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("data_root", type=Path)
+    parser.add_argument("data_root", type=Path, nargs="?")
+    parser.add_argument("--from-json", type=Path, nargs="+", default=None,
+                        help="print the misses by reason of saved --json runs (pooled) instead of running")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sequences", default="", help="comma-separated sequence names (default: all)")
     parser.add_argument("--kinds", default=",".join(longterm.EVENT_KINDS))
@@ -250,6 +301,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--events", action="store_true", help="a line per event")
     args = parser.parse_args(argv)
+    if args.from_json is not None:
+        pooled: list[dict[str, object]] = []
+        for path in args.from_json:
+            events = json.loads(path.read_text())["events"]
+            missing = {"failed_tests", "target_for_search", "best_score_over_bar"} - set(events[0] if events else {})
+            if missing:
+                parser.error(f"--from-json: {path} has no {', '.join(sorted(missing))} "
+                             "(written by an older bench.ceiling)")
+            pooled.extend(events)
+        print(miss_breakdown(pooled))
+        return 0
+    if args.data_root is None:
+        parser.error("data_root is required (or --from-json)")
     cap_loaded_pools()
     folders = dataset.discover_sequences(args.data_root)
     wanted = {s for s in args.sequences.split(",") if s}
@@ -291,6 +355,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{counts['on_target_reach_tracker']} / {counts['on_target_reach_groundtruth']}; false re-initialisations "
           f"{counts['false_reinit_absent']} + {counts['false_reinit_wrong_object']} of {counts['absent_frames']} "
           f"absent frames")
+    print(miss_breakdown(entries))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"seed": args.seed, "search": args.search, "summary": counts,

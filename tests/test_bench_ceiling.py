@@ -61,6 +61,7 @@ def test_the_oracle_search_takes_nothing_while_the_target_is_absent(sequence):
     events = longterm.inject_events(sequence, "occlusion", (5,), seed=0)
     scores = ceiling.run_sequence(events, window=15, needed=2, search="oracle")
     assert scores["false_reinit_absent"] == 0 and scores["false_reinit_wrong_object"] == 0
+    assert not any(event["took_during_event"] for event in scores["events"])
 
 
 def test_the_oracle_search_scores_the_target_only_while_lost_and_visible(sequence):
@@ -93,6 +94,27 @@ def test_the_command_line_writes_the_counts_and_names_a_wrong_sequence(sequence,
     assert written["search"] == "oracle" and written["summary"]["events"] == len(written["events"]) >= 1
     assert written["summary"]["reacquired"] == sum(e["reacquired"] for e in written["events"])
     assert f"{written['summary']['events']} events" in capsys.readouterr().out
+    assert ceiling.main(["--from-json", str(out)]) == 0
+    missed = written["summary"]["events"] - written["summary"]["reacquired"]
+    assert capsys.readouterr().out.startswith(f"missed {missed}:")
     with pytest.raises(SystemExit):
         ceiling.main([str(root), "--sequences", "nowhere"])
     assert "nowhere" in capsys.readouterr().err
+
+
+def test_a_miss_is_put_down_to_the_first_reason_that_holds():
+    """Tracking something else at the return comes first; then the oracle's window under the bar on every
+    frame; then the colour check refusing it wherever place and bar passed; anything else is "other"."""
+    base = {"reacquired": False, "reach_tracker": False, "state_at_return": "lost", "best_score_over_bar": 1.3,
+            "recognised_frames_tracker": 0,
+            "failed_tests": {"place": 0, "bar": 0, "colour": 15}, "took_during_event": False,
+            "target_for_search": {"outside gate": 2, "outside lattice": 2, "inside lattice": 0, "first ring": 1}}
+    assert ceiling.miss_reason(base) == "colour"
+    assert ceiling.miss_reason(base | {"state_at_return": "tracking", "best_score_over_bar": 0.5}) == "tracking"
+    assert ceiling.miss_reason(base | {"best_score_over_bar": 0.9}) == "bar"
+    assert ceiling.miss_reason(base | {"recognised_frames_tracker": 1}) == "other"
+    assert ceiling.miss_reason(base | {"failed_tests": {"place": 1, "bar": 0, "colour": 14}}) == "other"
+    assert ceiling.lay_most(base) == "outside gate"  # a tie: the farther place
+    line = ceiling.miss_breakdown([base, base | {"best_score_over_bar": 0.6}, base | {"reacquired": True}])
+    assert line.startswith("missed 2:") and "under the bar on every frame 1 " in line
+    assert "outside gate 2 (0 within reach)" in line

@@ -19,7 +19,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--config", required=True, help="YAML configuration (see config.yaml)")
     parser.add_argument("--source", help="override source: /dev/videoN, a video file or image folder, or 'zenoh'")
     parser.add_argument("--mavlink", help="override mavlink.url: udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, "
-                        "tcpin:HOST:PORT or a serial device path")
+                        "tcpin:HOST:PORT (each also as udpout://HOST:PORT etc.) or a serial device path")
     return parser.parse_args(argv)
 
 

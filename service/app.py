@@ -17,7 +17,7 @@ from service.loop import FrameReport, TrackingLoop
 from service.mavlink.camera import CameraComponent
 from service.mavlink.link import MavlinkLink
 from service.mavlink.outputs import MavlinkOutputs
-from service.sources import CaptureWorker, LatestSlot, make_reader
+from service.sources import CaptureWorker, LatestSlot, check_source, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
@@ -50,6 +50,7 @@ class Service:
                               "set 0 to run it without the range size bound")
         if config.video.stream.enabled:
             check_destination(config.video.stream)
+        check_source(config.source)
         self._session = open_session(config.zenoh) if config.zenoh.enabled else None
         try:
             self.mailbox: LatestSlot[Frame] = LatestSlot()

@@ -101,7 +101,8 @@ class SigningConfig:
 
 @dataclass(frozen=True)
 class MavlinkConfig:
-    """The one MAVLink link (pymavlink connection string) and the camera component's identity."""
+    """The one MAVLink link (pymavlink connection string; `udpout://HOST:PORT` and the like are taken as
+    `udpout:HOST:PORT`) and the camera component's identity."""
 
     url: str = "udpout:127.0.0.1:14555"
     baud: int = _checked(921600, _positive)  # serial devices only
@@ -232,7 +233,7 @@ def config_from_mapping(raw: object) -> ServiceConfig:
     """Build and validate a ServiceConfig from plain data (as parsed YAML)."""
     config = _build(ServiceConfig, raw, "")
     _check_cross_fields(config)
-    return config
+    return _normalised(config)
 
 
 def source_override(source: str) -> dict[str, str]:
@@ -270,7 +271,7 @@ def with_overrides(config: ServiceConfig, source: str | None = None, mavlink_url
     if mavlink_url is not None:
         config = dataclasses.replace(config, mavlink=dataclasses.replace(config.mavlink, url=mavlink_url))
     _check_cross_fields(config)
-    return config
+    return _normalised(config)
 
 
 def as_plain(config: ServiceConfig) -> dict[str, Any]:
@@ -284,6 +285,15 @@ def as_plain(config: ServiceConfig) -> dict[str, Any]:
             return {str(k): plain(v) for k, v in value.items()}
         return value
     return plain(config)
+
+
+def _normalised(config: ServiceConfig) -> ServiceConfig:
+    """A checked config with its values in the one form the adapters take: mavlink.url in pymavlink's
+    `scheme:HOST:PORT` (see normalise_mavlink_url)."""
+    url = normalise_mavlink_url(config.mavlink.url)
+    if url == config.mavlink.url:
+        return config
+    return dataclasses.replace(config, mavlink=dataclasses.replace(config.mavlink, url=url))
 
 
 def _check_cross_fields(config: ServiceConfig) -> None:
@@ -324,14 +334,32 @@ _NETWORK_SCHEMES = ("udpout", "udpin", "tcp", "tcpin")
 
 
 def parse_network_url(url: str) -> tuple[str, str, int] | None:
-    """`scheme:HOST:PORT` with one of the network schemes -> (scheme, host, port); None for anything else."""
-    parts = url.split(":")
-    if len(parts) != 3 or parts[0] not in _NETWORK_SCHEMES:
+    """`scheme:HOST:PORT` or the URL form `scheme://HOST:PORT` (as mavsdk and `gcs.cli` write it) with one of
+    the network schemes -> (scheme, host, port); None for anything else."""
+    scheme, colon, rest = url.partition(":")
+    if not colon or scheme not in _NETWORK_SCHEMES:
         return None
-    scheme, host, port = parts
-    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+    if rest.startswith("//"):
+        rest = rest[2:]
+    parts = rest.split(":")
+    if len(parts) != 2:
+        return None
+    host, port = parts
+    if not host or "/" in host or any(c.isspace() for c in host):
+        return None
+    if not port.isdigit() or not 0 < int(port) < 65536:
         return None
     return scheme, host, int(port)
+
+
+def normalise_mavlink_url(url: str) -> str:
+    """A network link in pymavlink's form `scheme:HOST:PORT` (`udpout://HOST:PORT` -> `udpout:HOST:PORT`);
+    anything else (a serial device, a malformed URL) unchanged."""
+    parsed = parse_network_url(url)
+    if parsed is None:
+        return url
+    scheme, host, port = parsed
+    return f"{scheme}:{host}:{port}"
 
 
 def mavlink_url_problem(url: str) -> str | None:
@@ -340,7 +368,8 @@ def mavlink_url_problem(url: str) -> str | None:
         return None  # a serial device; whether it exists is checked when the link opens
     if parse_network_url(url) is not None:
         return None
-    return f"{url!r} is not a MAVLink link; accepted forms: {'; '.join(MAVLINK_URL_FORMS)}"
+    return (f"{url!r} is not a MAVLink link; accepted forms: {'; '.join(MAVLINK_URL_FORMS)} "
+            "(each network form also as scheme://HOST:PORT)")
 
 
 def _build(cls: type, raw: object, path: str) -> Any:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -47,6 +48,12 @@ def test_documented_default_config_loads_and_matches_dataclass_defaults() -> Non
     ({"mavlink": {"url": "udpout:10.0.0.1"}}, "mavlink.url: 'udpout:10.0.0.1' is not a MAVLink link"),
     ({"mavlink": {"url": "udpout:10.0.0.1:70000"}}, "mavlink.url: 'udpout:10.0.0.1:70000' is not a MAVLink link"),
     ({"mavlink": {"url": "tcp::5760"}}, "mavlink.url: 'tcp::5760' is not a MAVLink link"),
+    ({"mavlink": {"url": "udpout://127.0.0.1"}}, "mavlink.url: 'udpout://127.0.0.1' is not a MAVLink link"),
+    ({"mavlink": {"url": "udpout://:14550"}}, "mavlink.url: 'udpout://:14550' is not a MAVLink link"),
+    ({"mavlink": {"url": "udpout:///127.0.0.1:14550"}}, "mavlink.url: 'udpout:///127.0.0.1:14550' is not a MAVLink"),
+    ({"mavlink": {"url": "udpout:/127.0.0.1:14550"}}, "mavlink.url: 'udpout:/127.0.0.1:14550' is not a MAVLink link"),
+    ({"mavlink": {"url": "tcp://10.0.0.1:5760/x"}}, "mavlink.url: 'tcp://10.0.0.1:5760/x' is not a MAVLink link"),
+    ({"mavlink": {"url": "udp://127.0.0.1:14550"}}, "mavlink.url: 'udp://127.0.0.1:14550' is not a MAVLink link"),
     ({"source": {"kind": "file"}}, "source.path: must name a video file or an image folder"),
     ({"source": {"kind": "v4l2", "fourcc": "MJPEG"}}, "source.fourcc: must be 4 characters"),
     ({"source": {"retry_initial_s": 2.0, "retry_max_s": 1.0}}, "source.retry_max_s: must be >= source.retry_initial_s"),
@@ -79,6 +86,20 @@ def test_command_line_overrides_pick_the_source_kind() -> None:
 def test_accepted_mavlink_url_forms(url: str) -> None:
     config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "mavlink": {"url": url}})
     assert config.mavlink.url == url
+
+
+@pytest.mark.parametrize("url, pymavlink_form", [
+    ("udpout://127.0.0.1:14550", "udpout:127.0.0.1:14550"), ("udpin://0.0.0.0:14550", "udpin:0.0.0.0:14550"),
+    ("tcp://10.0.0.1:5760", "tcp:10.0.0.1:5760"), ("tcpin://0.0.0.0:5760", "tcpin:0.0.0.0:5760")])
+def test_the_url_form_of_a_network_link_becomes_pymavlink_form(tmp_path: Path, url: str, pymavlink_form: str) -> None:
+    """`--mavlink udpout://HOST:PORT` as `jsar-gcs --url` (mavsdk) takes it: accepted from the command line
+    and from the file, and stored as pymavlink's `udpout:HOST:PORT` (pymavlink took '//HOST' for the host)."""
+    base = {"tracker": {"name": "csrt", "range_size_band": 0}}
+    assert config_from_mapping({**base, "mavlink": {"url": url}}).mavlink.url == pymavlink_form
+    assert with_overrides(config_from_mapping(base), mavlink_url=url).mavlink.url == pymavlink_form
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(base))
+    assert load_config(path, mavlink_url=url).mavlink.url == pymavlink_form
 
 
 def test_command_line_overrides_are_applied_before_validation(tmp_path: Path) -> None:
@@ -116,6 +137,24 @@ def test_daemon_reports_every_configuration_error_in_one_form(tmp_path: Path) ->
     assert bad.returncode == 2, bad.stderr
     assert bad.stderr.strip().splitlines()[-1].startswith("jsar-service: configuration error: tracker.params: "), bad.stderr
     assert "foo" in bad.stderr
+
+
+def test_a_missing_source_file_or_folder_is_a_configuration_error(tmp_path: Path) -> None:
+    """A --source file or image folder that is not there at start (a typo) stops the daemon, exit code 2,
+    naming source.path; before, it looked like a failing camera, retried for ever."""
+    base = tmp_path / "base.yaml"
+    base.write_text("zenoh:\n  enabled: false\ntracker:\n  name: csrt\n  range_size_band: 0\n")
+    clip = tmp_path / "x.avi"
+    proc = _run_service(["--config", str(base), "--source", str(clip), "--mavlink", "udpout:127.0.0.1:14550"])
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == \
+        f"jsar-service: configuration error: source.path: no such file or folder: '{clip}'", proc.stderr
+    assert "event=started" not in proc.stderr
+    from service.app import Service
+    folder = tmp_path / "no_frames"
+    with pytest.raises(ConfigError, match=f"^source.path: no such file or folder: '{re.escape(str(folder))}'$"):
+        Service(config_from_mapping({**yaml.safe_load(base.read_text()),
+                                     "source": {"kind": "file", "path": str(folder)}}))
 
 
 def test_daemon_exits_2_naming_the_key_on_a_bad_config(tmp_path: Path) -> None:

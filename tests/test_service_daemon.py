@@ -211,3 +211,171 @@ def test_stop_is_prompt_even_while_the_tracker_is_stuck_in_a_frame(frames_dir: P
         assert not running.thread.is_alive() and time.monotonic() - started < 2.0
     finally:
         release.set()
+
+
+class _StderrLines:
+    """The daemon's stderr read line by line on a thread; wait_for(text) waits on a condition, not a sleep."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        import threading
+
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
+        self._thread.start()
+
+    def _read(self, proc: subprocess.Popen) -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            with self._cond:
+                self.lines.append(line)
+                self._cond.notify_all()
+        with self._cond:
+            self.lines.append("")  # end of output: the daemon has exited
+            self._cond.notify_all()
+
+    def count(self, text: str) -> int:
+        with self._cond:
+            return sum(text in line for line in self.lines)
+
+    def wait_for(self, text: str, times: int, timeout_s: float) -> None:
+        with self._cond:
+            self._cond.wait_for(lambda: sum(text in line for line in self.lines) >= times or "" in self.lines,
+                                timeout=timeout_s)
+            if sum(text in line for line in self.lines) < times:
+                raise AssertionError(f"{text!r} not logged {times} times within {timeout_s} s:\n" + "".join(self.lines))
+
+    def text(self, timeout_s: float) -> str:
+        self._thread.join(timeout_s)
+        with self._cond:
+            return "".join(self.lines)
+
+
+def _stop_daemon(proc: subprocess.Popen) -> int:
+    """SIGTERM and the exit code (killed after 10 s)."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def test_daemon_takes_the_url_form_of_a_mavlink_link(tmp_path: Path, frames_dir: Path) -> None:
+    """`--mavlink udpout://HOST:PORT`, the form `jsar-gcs --url` (mavsdk) takes, once stopped the daemon at
+    start ("cannot resolve host '//127.0.0.1'"); now it is pymavlink's udpout:HOST:PORT and the camera meets a
+    ground station through the autopilot on it."""
+    config_file = tmp_path / "config.yaml"
+    config_file.write_text(yaml.safe_dump({"tracker": {"name": "csrt", "range_size_band": 0},
+                                           "zenoh": {"enabled": False},
+                                           "source": {"loop": True}}))
+    service_port, gcs_port = free_udp_port(), free_udp_port()
+    autopilot = AutopilotPeer(service_port, gcs_port, system_id=7).start()
+    gcs = GroundStation(gcs_port).start()
+    proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", str(frames_dir),
+                             "--mavlink", f"udpout://127.0.0.1:{service_port}"],
+                            cwd=REPO, env={**os.environ, "MAVLINK20": "1"}, stderr=subprocess.PIPE, text=True)
+    log = _StderrLines(proc)
+    try:
+        log.wait_for("event=started", 1, 60.0)
+        camera_handshake(gcs, system_id=7, timeout_s=10.0)
+        assert _stop_daemon(proc) == 0
+    finally:
+        gcs.close()
+        autopilot.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = log.text(5.0)
+    assert f"mavlink=udpout:127.0.0.1:{service_port} " in stderr, stderr
+    assert "//" not in stderr and "Traceback" not in stderr, stderr
+
+
+def test_an_absent_camera_is_retried_not_a_configuration_error(tmp_path: Path) -> None:
+    """Unlike a missing file (source.path, exit 2: test_service_config), a /dev/video* device absent at start
+    may be plugged in later: the daemon starts, reports the source fault and retries it with backoff."""
+    device = "/dev/video97"
+    if os.path.exists(device):
+        pytest.skip(f"{device} exists on this machine")
+    config_file = tmp_path / "config.yaml"
+    config_file.write_text(yaml.safe_dump({"tracker": {"name": "csrt", "range_size_band": 0},
+                                           "zenoh": {"enabled": False},
+                                           "source": {"retry_initial_s": 0.1, "retry_max_s": 0.4}}))
+    autopilot = AutopilotPeer(free_udp_port(), free_udp_port()).start()
+    proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", device,
+                             "--mavlink", f"udpout:127.0.0.1:{autopilot.links['service'].sock.getsockname()[1]}"],
+                            cwd=REPO, env={**os.environ, "MAVLINK20": "1"}, stderr=subprocess.PIPE, text=True)
+    log = _StderrLines(proc)
+    try:
+        log.wait_for("event=started", 1, 60.0)
+        for delay_s in ("0.1", "0.2", "0.4"):  # the backoff doubles (a source state is logged when it changes)
+            log.wait_for(f"camera {device} is absent (unplugged?); retry in {delay_s} s", 1, 10.0)
+        assert proc.poll() is None, "the daemon stopped on an absent camera"
+        assert _stop_daemon(proc) == 0
+    finally:
+        autopilot.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = log.text(5.0)
+    assert "configuration error" not in stderr and "Traceback" not in stderr, stderr
+
+
+def test_a_v4l2_device_absent_at_start_or_unplugged_mid_run_is_retried(tmp_path: Path, monkeypatch) -> None:
+    """The service builds with its camera absent (no ConfigError), retries it, tracks frames once it is
+    plugged in, and after an unplug mid-run retries again until it is back. The device node is a file in
+    tmp_path and OpenCV's V4L2 capture a fake that delivers frames while that file exists."""
+    import threading
+
+    import numpy as np
+
+    from service.app import Service
+    from service.config import config_from_mapping
+    from service.sources import v4l2
+
+    device = tmp_path / "video0"
+
+    class FakeCapture:
+        """cv2.VideoCapture on a V4L2 device: frames while the device node exists."""
+
+        def __init__(self, path: str, api: int) -> None:
+            assert (path, api) == (str(device), cv2.CAP_V4L2)
+            self.frame_period = threading.Event()
+
+        def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
+            return device.exists()
+
+        def set(self, prop: int, value: float) -> bool:
+            return True
+
+        def read(self) -> tuple[bool, np.ndarray | None]:
+            self.frame_period.wait(0.01)  # a camera's frame interval (pacing, not synchronisation)
+            if not device.exists():
+                return False, None
+            return True, np.zeros((48, 64, 3), np.uint8)
+
+        def release(self) -> None:
+            pass
+
+    monkeypatch.setattr(v4l2.cv2, "VideoCapture", FakeCapture)
+    config = config_from_mapping({
+        "source": {"kind": "v4l2", "device": str(device), "retry_initial_s": 0.01, "retry_max_s": 0.05},
+        "tracker": {"name": "csrt", "range_size_band": 0}, "zenoh": {"enabled": False},
+        "mavlink": {"url": f"udpout:127.0.0.1:{free_udp_port()}"}})
+    service = Service(config)  # an absent camera is not a configuration error
+    health = service.worker.health
+    service.worker.start()
+    try:
+        assert health.wait_for(lambda h: h.failures >= 2 and h.state == "error", 5.0)
+        assert "is absent (unplugged?); retry in" in health.reason
+        device.touch()  # plugged in
+        assert health.wait_for(lambda h: h.state == "ok" and h.frames >= 3, 5.0)
+        failures = health.failures
+        device.unlink()  # unplugged mid-run
+        assert health.wait_for(lambda h: h.failures >= failures + 2 and "is absent" in h.reason, 5.0)
+        frames = health.frames
+        device.touch()  # back
+        assert health.wait_for(lambda h: h.state == "ok" and h.frames > frames, 5.0)
+    finally:
+        service.worker.stop()
+        service.link.close()

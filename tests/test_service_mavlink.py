@@ -149,7 +149,9 @@ def test_status_stream_follows_the_requested_interval_and_turns_off(rig: Rig) ->
 
 
 def test_track_command_fails_without_camera_frames(tmp_path: Path) -> None:
-    rig = Rig({"source": {"path": str(tmp_path / "no_such.avi")}})
+    junk = tmp_path / "junk.avi"  # there but unreadable: a source fault, retried (a missing file is a config error)
+    junk.write_bytes(b"not a video")
+    rig = Rig({"source": {"path": str(junk)}})
     try:
         assert rig.service.worker.health.wait_for(lambda h: h.failures >= 1, 5.0)
         assert rig.gcs.received.wait_for(lambda: rig.service.link.system_id == AP_SYSID, 5.0)

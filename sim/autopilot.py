@@ -173,10 +173,22 @@ class MockAutopilot:
         with self.changed:
             return self.changed.wait_for(predicate, timeout=timeout_s)
 
-    def wait_for_heartbeat(self, component: int, timeout_s: float, link: str = "service") -> bool:
-        """Wait until a heartbeat from `component` arrived on `link`."""
-        return self.wait_for(lambda: any(k[0] == link and k[2] == component for k in self.stats.heartbeats),
-                             timeout_s)
+    def heard_heartbeat(self, component: int, link: str = "service") -> bool:
+        """Whether a heartbeat from `component` has arrived on `link` (call under the lock, or accept a race)."""
+        return any(k[0] == link and k[2] == component for k in self.stats.heartbeats)
+
+    def wait_for_heartbeat(self, component: int, timeout_s: float, link: str = "service",
+                           unless: Callable[[], bool] = lambda: False) -> bool:
+        """Wait until a heartbeat from `component` arrived on `link`, or `unless()` holds (re-checked when the
+        condition is notified: whoever makes it true notifies `changed`); True only for the heartbeat."""
+        self.wait_for(lambda: unless() or self.heard_heartbeat(component, link), timeout_s)
+        with self.lock:
+            return self.heard_heartbeat(component, link)
+
+    def wake_waiters(self) -> None:
+        """Notify `changed` (e.g. something a wait_for predicate also looks at has happened elsewhere)."""
+        with self.changed:
+            self.changed.notify_all()
 
     def send_state_now(self) -> None:
         """Send a heartbeat and the telemetry streams immediately (lockstep: after each step, so peers see

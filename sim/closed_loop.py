@@ -345,18 +345,28 @@ class ClosedLoop:
 
     # ----- lifecycle ----------------------------------------------------------------------------
     def start(self) -> "ClosedLoop":
-        """Start the mock and the daemon; wait for the daemon's heartbeat and its first telemetry."""
+        """Start the mock and the daemon; wait for the daemon's heartbeat and its first telemetry. A daemon
+        that exits meanwhile (e.g. a configuration error) ends the wait at once: DaemonExited with its log."""
         self.autopilot.start()
         self.daemon.start()
-        if not self.autopilot.wait_for_heartbeat(100, self.cfg.startup_timeout_s):
-            raise RuntimeError(f"no heartbeat from the daemon (component 100) within {self.cfg.startup_timeout_s} s;"
-                               f" log:\n{self.daemon.log_tail()}")
+        # the daemon's exit wakes whoever waits on it: the heartbeat, telemetry, gimbal-command waits
+        self.daemon.on_exit(self.autopilot.wake_waiters)
+        self.daemon.on_exit(self.camera.telemetry.mark_source_gone)
+        heard = self.autopilot.wait_for_heartbeat(SERVICE_COMPONENT, self.cfg.startup_timeout_s,
+                                                  unless=self.daemon.exited.is_set)
+        if self.daemon.exited.is_set():
+            raise self.daemon.exited_error("at start, before its first heartbeat")
+        if not heard:
+            raise RuntimeError(f"no heartbeat from the daemon (component {SERVICE_COMPONENT}) within "
+                               f"{self.cfg.startup_timeout_s} s; log:\n{self.daemon.log_tail()}")
         deadline = time.monotonic() + self.cfg.startup_timeout_s
         frame, _ = self.render(0.0)
         while self.camera.telemetry.last is None:  # the daemon's subscriber may not be declared yet
-            if time.monotonic() > deadline or not self.daemon.alive():
+            if self.daemon.exited.is_set():
+                raise self.daemon.exited_error("at start, before its first telemetry")
+            if time.monotonic() > deadline:
                 raise RuntimeError(f"no telemetry from the daemon; log:\n{self.daemon.log_tail()}")
-            self.publish(frame)
+            self.publish(frame)  # re-sent every 0.5 s until the subscriber is there; the wait ends on exit too
             self.camera.telemetry.wait_frame(self.frame_id, 0.5)
         return self
 
@@ -427,6 +437,8 @@ class ClosedLoop:
     def wait_telemetry(self, frame_id: int, timeout_s: float) -> dict[str, Any]:
         """The daemon's telemetry of exactly frame_id; RuntimeError (with the daemon's log) on timeout."""
         sample = self.camera.telemetry.wait_frame(frame_id, timeout_s)
+        if sample is None and self.daemon.exited.is_set():
+            raise self.daemon.exited_error(f"waiting for frame {frame_id}'s telemetry")
         if sample is None or int(sample["frame_id"]) != frame_id:
             raise RuntimeError(f"no telemetry for frame {frame_id} within {timeout_s} s (got "
                                f"{None if sample is None else sample['frame_id']}); log:\n{self.daemon.log_tail()}")
@@ -447,6 +459,8 @@ class ClosedLoop:
             try:
                 info = self.gcs.wait_for_camera(0.2)
             except TimeoutError:
+                if self.daemon.exited.is_set():
+                    raise self.daemon.exited_error("while the ground station looked for its camera") from None
                 if time.monotonic() > deadline:
                     raise
         self.gcs.set_status_interval(info.component_id, 0.1)

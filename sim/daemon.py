@@ -10,8 +10,9 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -82,8 +83,22 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (fields 14, 15)
 
 
+class DaemonExited(RuntimeError):
+    """The daemon process ended while the sim was waiting on it: its exit code and its last log lines (a
+    configuration error at start is the daemon's own message, e.g. `gimbal.coast_s: must be in ...`)."""
+
+    def __init__(self, code: int | None, log_tail: str, during: str) -> None:
+        self.code = code
+        self.log_tail = log_tail
+        super().__init__(f"the daemon exited {during} (exit code {code}); its log ends:\n{log_tail}")
+
+
 class Daemon:
-    """The service subprocess: start(), alive(), rss_kib(), stop() (SIGTERM, then kill after a grace)."""
+    """The service subprocess: start(), alive(), rss_kib(), stop() (SIGTERM, then kill after a grace).
+
+    A watcher thread waits on the process from start() on: `exited` is set the moment it ends and the
+    `on_exit` callbacks run, so whoever waits on the daemon (its heartbeat, its telemetry) can wait on that
+    event too instead of sitting out a timeout."""
 
     def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str, module: str = "service") -> None:
         self.workdir = workdir
@@ -94,6 +109,21 @@ class Daemon:
         self.mavlink_url = mavlink_url
         self.process: subprocess.Popen | None = None
         self._log_handle = None
+        self.exited = threading.Event()  # set by the watcher when the process has ended
+        self._on_exit: list[Callable[[], None]] = []
+
+    def on_exit(self, callback: Callable[[], None]) -> None:
+        """Call `callback()` (on the watcher thread) when the process ends; at once if it already has (a
+        callback registered just as the process ends may run twice: it must not mind)."""
+        self._on_exit.append(callback)
+        if self.exited.is_set():
+            callback()
+
+    def _watch(self, process: subprocess.Popen) -> None:
+        process.wait()
+        self.exited.set()
+        for callback in list(self._on_exit):
+            callback()
 
     def start(self) -> "Daemon":
         env = dict(os.environ, MAVLINK20="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
@@ -103,6 +133,7 @@ class Daemon:
             [sys.executable, "-m", self.module, "--config", str(self.config_path), "--source", "zenoh",
              "--mavlink", self.mavlink_url],
             cwd=REPO_ROOT, env=env, stdout=self._log_handle, stderr=subprocess.STDOUT)
+        threading.Thread(target=self._watch, args=(self.process,), name="daemon-exit", daemon=True).start()
         return self
 
     @property
@@ -113,7 +144,12 @@ class Daemon:
 
     def alive(self) -> bool:
         """True while the subprocess runs."""
-        return self.process is not None and self.process.poll() is None
+        return self.process is not None and not self.exited.is_set() and self.process.poll() is None
+
+    def exited_error(self, during: str) -> DaemonExited:
+        """The DaemonExited to raise for a process that has ended (exit code, last log lines)."""
+        code = self.process.returncode if self.process is not None else None
+        return DaemonExited(code, self.log_tail(), during)
 
     def rss_kib(self) -> int:
         """Current RSS of the daemon in KiB."""

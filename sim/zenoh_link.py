@@ -51,9 +51,16 @@ class TelemetryLog:
     received: int = 0
     malformed: int = 0
     last: dict[str, Any] | None = None
+    source_gone: bool = False  # the daemon has exited: nothing more will arrive (waits end at once)
 
     def __post_init__(self) -> None:
         self.cond = threading.Condition()
+
+    def mark_source_gone(self) -> None:
+        """The sender has ended: wake every wait_frame (they return what has arrived, None otherwise)."""
+        with self.cond:
+            self.source_gone = True
+            self.cond.notify_all()
 
     def add(self, payload: bytes) -> None:
         """Store one JSON sample (malformed ones are counted, not raised: they come from another process)."""
@@ -73,11 +80,14 @@ class TelemetryLog:
             self.cond.notify_all()
 
     def wait_frame(self, frame_id: int, timeout_s: float) -> dict[str, Any] | None:
-        """The sample for frame_id (or a later frame: that one was skipped), None on timeout."""
+        """The sample for frame_id (or a later frame: that one was skipped), None on timeout or when the
+        source has gone (mark_source_gone) without sending it."""
+        def arrived() -> bool:
+            return self.last is not None and int(self.last["frame_id"]) >= frame_id
+
         with self.cond:
-            ok = self.cond.wait_for(lambda: self.last is not None and int(self.last["frame_id"]) >= frame_id,
-                                    timeout=timeout_s)
-            if not ok:
+            self.cond.wait_for(lambda: arrived() or self.source_gone, timeout=timeout_s)
+            if not arrived():
                 return None
             return self.by_frame.get(frame_id, self.last)
 

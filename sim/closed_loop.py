@@ -56,6 +56,10 @@ SIM_CLOCK_EPOCH_S = float(2 ** 20)
 # The run summary's "first 3 s of a loss": the window in which re-detection can find a car that drove
 # under a canopy (the default scene's car reappears 1.2-1.8 s after the loss) and gimbal.coast_s's default.
 LOST_EARLY_S = 3.0
+# A false lock: the daemon reports tracking (or recovered) while its box's centre is off the car (further from
+# the car's centre than the car's own width across or height down, or the car out of the image) for at least
+# this long in a row. Shorter stretches are a box catching up with a turning car, not a lock on something else.
+FALSE_LOCK_MIN_S = 1.0
 
 
 class World(Protocol):
@@ -135,6 +139,24 @@ class FrameRecord:
     mode: str
     link_down: bool
 
+    @property
+    def reports_track(self) -> bool:
+        """The daemon reported this frame as tracking (or recovered): it claims its box is on the target."""
+        return self.state in ("tracking", "recovered")
+
+    def box_off_car(self) -> bool:
+        """The reported box's centre is off the car: further from the car's centre than the car's width
+        horizontally or its height vertically (the car's box grown by half its size on each side), or the car
+        is not in the image at all. False without a box."""
+        if self.box is None:
+            return False
+        if self.truth.in_view_fraction <= 0.0:
+            return True
+        x, y, w, h = self.box
+        cx, cy = self.truth.centre
+        _, _, car_w, car_h = self.truth.box
+        return abs(x + w / 2 - cx) > car_w or abs(y + h / 2 - cy) > car_h
+
     def centred(self, width: int, height: int, fraction: float = 0.1) -> bool:
         """Ground-truth centre within +-fraction of the image size from the image centre."""
         cx, cy = self.truth.centre
@@ -165,6 +187,9 @@ class RunResult:
     gimbal_command_timeouts: int = 0  # lockstep frames stepped without their gimbal command (see log)
     refusals: list = field(default_factory=list)  # the daemon's refused camera commands by kind (status query)
     cpu_s: list[tuple[float, float]] = field(default_factory=list)  # (time_s, daemon CPU seconds), with the RSS
+    # frames sent before the run (daemon start-up, camera discovery, the selection): the daemon processed and
+    # counted them too, so its `frames` counter is startup_frames + the run frames it answered
+    startup_frames: int = 0
 
     def centring_ratio(self, exclude: tuple[tuple[float, float], ...] = ()) -> float:
         """Fraction of visible frames with the car in the central 20 %, outside the `exclude` windows."""
@@ -191,6 +216,26 @@ class RunResult:
                 recovered += 1
             previous = r.state if r.state is not None else previous
         return lost, recovered
+
+    def false_locks(self, min_s: float = FALSE_LOCK_MIN_S) -> list[tuple[float, float]]:
+        """Stretches (start_s, end_s) of at least min_s, simulated time, in which every answered frame was
+        reported tracking with its box off the car (FrameRecord.box_off_car): the track had left the car
+        while the daemon said it was on it. Unanswered frames neither break nor extend a stretch."""
+        spans: list[tuple[float, float]] = []
+        start = end = None
+        for r in self.records:
+            if r.state is None:
+                continue
+            if r.reports_track and r.box_off_car():
+                start = r.time_s if start is None else start
+                end = r.time_s
+                continue
+            if start is not None and end - start >= min_s:
+                spans.append((start, end))
+            start = end = None
+        if start is not None and end - start >= min_s:
+            spans.append((start, end))
+        return spans
 
     def box_error_px(self) -> list[float]:
         """On frames with the car visible and a reported box: pixels from the car's centre to the box's centre."""
@@ -221,12 +266,16 @@ class RunResult:
         lost_gaps, early_gaps = self.lost_car_to_box_px(), self.lost_car_to_box_px(within_s=LOST_EARLY_S)
         latencies = [r.latency_ms for r in self.records if r.latency_ms is not None]
         lost, recovered = self.lost_recovered()
+        false_locks = self.false_locks()
         return {"frames": len(self.records), "answered": sum(r.state is not None for r in self.records),
+                "startup_frames": self.startup_frames,
                 "wall_s": round(self.wall_s, 2),
                 "sent_fps": round(len(self.records) / max(self.wall_s, 1e-9), 1),
                 "processed_fps": round(sum(r.state is not None for r in self.records) / max(self.wall_s, 1e-9), 1),
                 "dropped_frames": self.dropped_frames, "gimbal_command_timeouts": self.gimbal_command_timeouts,
                 "lost": lost, "recovered": recovered,
+                "false_lock_frames": sum(r.reports_track and r.box_off_car() for r in self.records),
+                "false_lock_first_s": round(false_locks[0][0], 2) if false_locks else None,
                 "centred_ratio": round(self.centring_ratio(), 3),
                 "in_view_ratio": round(self.in_view_ratio(), 3),
                 "centring_error_px_median": round(float(np.median(errors)), 1) if errors else None,
@@ -304,6 +353,15 @@ def annotate(frame: np.ndarray, record: FrameRecord) -> np.ndarray:
     draw_status_line(out, f"t={record.time_s:.1f} s  {record.state or 'not answered (daemon took a newer frame)'}  mode {record.mode}"
                           f"{'  LINK DOWN' if record.link_down else ''}{_distance_text(record)}")
     return out
+
+
+def _centring_text(record: FrameRecord, width: int, height: int) -> str:
+    """The status line's centring error: pixels from the image centre to the car's, or why there is none
+    (the car hidden under cover or out of the image), in the same width."""
+    if record.truth.visible:
+        cx, cy = record.truth.centre
+        return f"{math.hypot(cx - width / 2, cy - height / 2):6.1f} px"
+    return "out of view" if record.truth.in_view_fraction < 0.5 else "car hidden "
 
 
 def _distance_text(record: FrameRecord) -> str:
@@ -435,7 +493,8 @@ class ClosedLoop:
         return arrived
 
     def wait_telemetry(self, frame_id: int, timeout_s: float) -> dict[str, Any]:
-        """The daemon's telemetry of exactly frame_id; RuntimeError (with the daemon's log) on timeout."""
+        """The daemon's telemetry of exactly frame_id; RuntimeError (with the daemon's log) on timeout,
+        DaemonExited at once if the daemon has exited."""
         sample = self.camera.telemetry.wait_frame(frame_id, timeout_s)
         if sample is None and self.daemon.exited.is_set():
             raise self.daemon.exited_error(f"waiting for frame {frame_id}'s telemetry")
@@ -487,6 +546,7 @@ class ClosedLoop:
         """Run cfg.duration_s of simulated time after the selection; returns the per-frame record."""
         cfg = self.cfg
         selection = self.select_target()
+        startup_frames = self.frame_id  # every frame so far came before the run (ids count from 1)
         dt = 1.0 / cfg.fps
         frames = int(round(cfg.duration_s * cfg.fps))
         writer = None
@@ -571,7 +631,8 @@ class ClosedLoop:
         return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
                          int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
                          self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
-                         selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []), cpu)
+                         selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []), cpu,
+                         startup_frames)
 
     def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
                  final: bool) -> None:
@@ -604,7 +665,6 @@ class ClosedLoop:
         r = records[-1]
         state = r.state or (self.camera.telemetry.last or {}).get("state") or "-"
         elapsed = time.monotonic() - start_wall
-        cx, cy = r.truth.centre
-        err = math.hypot(cx - self.cfg.camera.width / 2, cy - self.cfg.camera.height / 2) if r.truth.visible else math.nan
         print(f"\rframe {k + 1:5d}/{frames}  sim {r.time_s:6.1f} s  {(k + 1) / max(elapsed, 1e-9):5.1f} fps  "
-              f"state {state:9s}  centring error {err:6.1f} px  mode {r.mode:8s}{_distance_text(r)} ", end="", flush=True)
+              f"state {state:9s}  centring error {_centring_text(r, self.cfg.camera.width, self.cfg.camera.height)}  "
+              f"mode {r.mode:8s}{_distance_text(r)} ", end="", flush=True)

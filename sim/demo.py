@@ -10,37 +10,71 @@ prints to watch the video with the track, click on the car to select it again, E
     python -m sim.demo --replay UAVDT_S0310             # a shared sequence from $JSAR_DATA_ROOT
     python -m sim.demo --coast-s 0                      # hold the gimbal at once when lost (no coasting)
     python -m sim.demo --duration 600 --web-port 8081   # ten minutes to click around, page on port 8081
+
+The summary ends with a VERDICT line against the run's bar (sim.summary); the exit status follows it (0 pass,
+1 fail), so a script or CI can tell a run that lost the car. `--help` lists runs that pass and runs that fail.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
 import os
+import signal
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
-from sim.daemon import deep_merge, exit_on_sigterm
+from sim.daemon import DaemonExited, deep_merge, exit_on_sigterm
 from sim.scene import CameraConfig, SceneConfig
-from sim.summary import camera_command_rows, counter_rows, format_rows, run_rows
-from sim.web_station import daemon_listen, web_station_beside
+from sim.summary import (Verdict, camera_command_rows, counter_rows, format_rows, frame_accounting_row,
+                         replay_verdict, run_rows, verdict)
+from sim.web_station import WebStation, daemon_listen, web_station_beside
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "out"
+EPILOG = """\
+The summary ends with the web station's address again and a VERDICT line: PASS when the car was kept in
+view and centred (sim.summary's bar: in view on >= 95 % of the frames, centred on >= 90 % of the frames it
+was visible on, no false lock -- tracking reported with the box off the car for 1 s or more --, the daemon
+alive), FAIL with every reason otherwise, and then the exit status is 1. Ctrl-C: exit status 130.
+
+Runs that pass and runs that fail (procedural ground, JSAR_DATA_ROOT unset; lockstep, so load cannot decide):
+  python -m sim.demo --pace lockstep --duration 20              PASS
+  python -m sim.demo --pace lockstep --seed 1                   PASS (another path for the car)
+  python -m sim.demo --pace lockstep --guidance off             FAIL: lost under the canopy, never back
+  python -m sim.demo --pace lockstep --tracker kcf --coast-s 0  FAIL: KCF loses the car, the gimbal holds
+  python -m sim.demo --pace lockstep --duration 40              FAIL: the track leaves the car at 23 s
+                                                                while reporting tracking (a false lock)
+  python -m sim.demo --coast-s -1                               FAIL at once: the daemon refuses the config
+"""
 
 
 def print_summary(title: str, summary: dict, status: dict | None = None) -> None:
-    """Each figure with what it means, then the daemon's counters (sim.summary); status: the daemon's
-    status answer (counters, mavlink_refusals)."""
+    """Each figure with what it means, then the daemon's counters (sim.summary), its frame count reconciled
+    with the sim's right under it; status: the daemon's status answer (counters, mavlink_refusals)."""
     status = status or {}
     counters = status.get("counters", {})
-    rows = run_rows(summary) + camera_command_rows(counters, status.get("mavlink_refusals", [])) + counter_rows(counters)
+    daemon_rows = counter_rows(counters)
+    after_frames = next((i + 1 for i, (label, _, _) in enumerate(daemon_rows) if label == "daemon frames"),
+                        len(daemon_rows))
+    daemon_rows[after_frames:after_frames] = frame_accounting_row(summary, counters)
+    rows = run_rows(summary) + camera_command_rows(counters, status.get("mavlink_refusals", [])) + daemon_rows
     print("\n" + format_rows(title, rows))
 
 
+def print_ending(station: WebStation | None, judged: Verdict) -> int:
+    """The web station's address again (the run's first lines have scrolled away), then the VERDICT line, last;
+    the exit status: 0 passed, 1 failed."""
+    if station is not None:
+        print(f"web ground station: {station.url}  (it closes now, with the demo; --duration 600 keeps it up "
+              f"for ten minutes)")
+    print(judged.line(), flush=True)
+    return 0 if judged.passed else 1
+
+
 def web_station(args: argparse.Namespace, loop: ClosedLoop, daemon_zenoh_port: int) -> contextlib.AbstractContextManager:
-    """The web ground station beside the run (unless --no-web); prints its address."""
+    """The web ground station beside the run (unless --no-web: None); prints its address."""
     if args.no_web:
         return contextlib.nullcontext()
 
@@ -63,7 +97,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
                            video_path=video, daemon_overrides=overrides)
     print(f"closed loop: mock {args.flavour} autopilot, synthetic scene (seed {args.seed}), daemon with "
           f"guidance {args.guidance}, {args.pace} pacing, {args.duration:.0f} s", flush=True)
-    with ClosedLoop(cfg) as loop, web_station(args, loop, web_zenoh_port):
+    with ClosedLoop(cfg) as loop, web_station(args, loop, web_zenoh_port) as station:
         print(f"ground texture: {loop.scene.texture_source}; selecting the car through the mavsdk ground station",
               flush=True)
         result = loop.run(live=True)
@@ -71,7 +105,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         summary["autopilot_events"] = "; ".join(e for _, e in loop.autopilot.model.events[-5:]) or "none"
         summary["annotated_video"] = str(video.relative_to(OUT_DIR.parent))
         print_summary("closed loop summary", summary, {"counters": result.counters, "mavlink_refusals": result.refusals})
-    return 0 if result.daemon_alive else 1
+        return print_ending(station, verdict(result))
 
 
 def run_replay(args: argparse.Namespace) -> int:
@@ -101,22 +135,35 @@ def run_replay(args: argparse.Namespace) -> int:
                            daemon_overrides=daemon_listen(web_zenoh_port))
     print(f"replay {path.name}: {count} frames {width}x{height} at {recording.fps:.0f} fps; selecting the first "
           "ground-truth box via the mavsdk ground station", flush=True)
-    with ClosedLoop(cfg, world=world) as loop, web_station(args, loop, web_zenoh_port):
+    with ClosedLoop(cfg, world=world) as loop, web_station(args, loop, web_zenoh_port) as station:
         result = loop.run(live=True)
-    summary, errors = result.summary(), result.box_error_px()
-    print_summary(f"replay summary ({path.name})", {
-        "track_rectangle": result.selection_result, "frames_sent": summary["frames"],
-        "frames_processed": summary["answered"], "wall_s": summary["wall_s"], "send_fps": summary["sent_fps"],
-        "processed_fps": summary["processed_fps"], "dropped_frames": summary["dropped_frames"],
-        "lost": summary["lost"], "recovered": summary["recovered"],
-        "centre_error_px_median": round(float(np.median(errors)), 1) if errors else None,
-        "annotated_video": str(video.relative_to(OUT_DIR.parent))},
-        {"counters": result.counters, "mavlink_refusals": result.refusals})
-    return 0 if result.daemon_alive else 1
+        summary, errors = result.summary(), result.box_error_px()
+        print_summary(f"replay summary ({path.name})", {
+            "track_rectangle": result.selection_result, "frames_sent": summary["frames"],
+            "frames_processed": summary["answered"], "startup_frames": summary["startup_frames"],
+            "wall_s": summary["wall_s"], "send_fps": summary["sent_fps"],
+            "processed_fps": summary["processed_fps"], "dropped_frames": summary["dropped_frames"],
+            "lost": summary["lost"], "recovered": summary["recovered"],
+            "centre_error_px_median": round(float(np.median(errors)), 1) if errors else None,
+            "annotated_video": str(video.relative_to(OUT_DIR.parent))},
+            {"counters": result.counters, "mavlink_refusals": result.refusals})
+        return print_ending(station, replay_verdict(result))
+
+
+def interrupt_once() -> None:
+    """Ctrl-C: KeyboardInterrupt in the main thread once; a second Ctrl-C is ignored, so it cannot cut short the
+    clean-up the first one started (stopping the daemon, the mock autopilot, the web station)."""
+    def _interrupt(_signum: int, _frame: object) -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, _interrupt)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    """Exit status: 0 the run passed its bar, 1 it failed (or the daemon exited at start), 130 Ctrl-C, 143 SIGTERM."""
+    parser = argparse.ArgumentParser(prog="python -m sim.demo", description=__doc__.splitlines()[0],
+                                     epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--flavour", choices=("ardupilot", "px4"), default="ardupilot")
     parser.add_argument("--duration", type=float, default=30.0, help="seconds (simulated in lockstep)")
     parser.add_argument("--pace", choices=("realtime", "lockstep"), default="realtime")
@@ -132,10 +179,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-web", action="store_true", help="run without the web ground station")
     args = parser.parse_args(argv)
     exit_on_sigterm()
+    interrupt_once()
     cv2.setNumThreads(1)
-    if args.replay:
-        return run_replay(args)
-    return run_closed_loop(args)
+    try:
+        if args.replay:
+            return run_replay(args)
+        return run_closed_loop(args)
+    except KeyboardInterrupt:  # the with blocks have stopped the daemon, the mock and the web station by now
+        print("\ninterrupted (Ctrl-C): the run was stopped, its children too; no summary", flush=True)
+        return 130
+    except DaemonExited as exc:
+        print(f"\n{exc}", flush=True)
+        print(f"VERDICT FAIL: the daemon exited (code {exc.code}) before the run: see its log above", flush=True)
+        return 1
 
 
 if __name__ == "__main__":

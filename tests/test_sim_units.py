@@ -611,3 +611,148 @@ def test_a_closed_loop_that_cannot_start_leaves_no_socket_or_session_open(tmp_pa
     with pytest.raises(RuntimeError, match="zenoh refused"):
         closed_loop.ClosedLoop(closed_loop.ClosedLoopConfig(duration_s=1.0), workdir=tmp_path)
     assert len(opened) == 1 and all(link.sock.fileno() == -1 for link in opened[0].links.values())
+
+
+# ----- the demo's verdict and summary ------------------------------------------------------------
+def _run(frames: list[tuple[float, str | None, tuple | None, float, float]], alive: bool = True,
+         width: int = 640, height: int = 480):
+    """A RunResult of frames (time_s, state, box, car_x, in_view): a 40x20 px car at (car_x, 240), visible
+    whenever in view; ten startup frames."""
+    from sim.closed_loop import FrameRecord, RunResult
+    from sim.scene import GroundTruth, TargetPose
+
+    records = []
+    for k, (t, state, box, car_x, in_view) in enumerate(frames):
+        truth = GroundTruth((car_x - 20.0, 230.0, 40.0, 20.0), in_view, in_view, TargetPose(0.0, 0.0, 0.0, 5.0))
+        records.append(FrameRecord(k + 11, t, truth, state, box, 10.0, (0.0, 0.0), 0.0, "GUIDED", False))
+    return RunResult(records, width, height, [], 10.0, 0, {}, alive, None if alive else -9, "SUCCESS",
+                     startup_frames=10)
+
+
+def _on(car_x: float) -> tuple[float, float, float, float]:
+    return (car_x - 20.0, 230.0, 40.0, 20.0)
+
+
+def test_false_locks_are_stretches_of_tracking_off_the_car():
+    frames = [(k / 10, "tracking", _on(320.0), 320.0, 1.0) for k in range(10)]  # on the car 0-0.9 s
+    frames += [(1.0 + k / 10, "tracking", _on(400.0), 320.0, 1.0) for k in range(15)]  # 80 px off: 1.0-2.4 s
+    frames += [(2.5, None, None, 320.0, 1.0)]  # unanswered: neither breaks nor extends
+    frames += [(2.6 + k / 10, "tracking", _on(345.0), 320.0, 1.0) for k in range(5)]  # 25 px off: within a car width
+    frames += [(3.1 + k / 10, "tracking", _on(100.0), 320.0, 1.0) for k in range(5)]  # off, but 0.4 s only
+    frames += [(3.6 + k / 10, "lost", _on(100.0), 320.0, 1.0) for k in range(3)]  # lost: says so, not a false lock
+    frames += [(3.9 + k / 10, "tracking", _on(320.0), 900.0, 0.0) for k in range(12)]  # car out of the image: off
+    result = _run(frames)
+    assert result.false_locks() == [(1.0, pytest.approx(2.4)), (3.9, pytest.approx(5.0))]
+    assert result.false_locks(min_s=2.0) == []
+    summary = result.summary()
+    assert summary["false_lock_first_s"] == 1.0 and summary["false_lock_frames"] == 15 + 5 + 12
+    assert summary["startup_frames"] == 10
+
+
+def test_verdict_passes_a_run_that_kept_the_car_and_names_why_one_failed():
+    from sim.summary import BAR_CENTRED, BAR_IN_VIEW, verdict
+
+    good = _run([(k / 30, "tracking", _on(330.0), 330.0, 1.0) for k in range(300)])
+    judged = verdict(good)
+    assert judged.passed and judged.reasons == ()
+    assert judged.line() == ("VERDICT PASS: car in view on 100 % of frames (bar 95 %); centred on 100 % of the 300 "
+                             "frames it was visible (bar 90 %); no false lock; daemon alive")
+    # from 6.4 s the car drives off at 3 px a frame while the box stays: off by more than the car's 40 px width
+    # from frame 205 (6.8 s) on, while reporting tracking; the car out of the image from 8 s
+    frames = [(k / 30, "tracking", _on(330.0), 330.0, 1.0) for k in range(192)]
+    frames += [(k / 30, "tracking", _on(330.0), 330.0 + 3 * (k - 191), 1.0 if k < 240 else 0.0)
+               for k in range(192, 300)]
+    failed = verdict(_run(frames))
+    assert not failed.passed
+    assert failed.line().startswith("VERDICT FAIL: car in view on 80 % of frames (bar 95 %); ")
+    assert "the track left the car at 6.8 s while reporting tracking (off the car for 3.1 s in 1 stretch)" \
+        in failed.line()
+    # the bar is the constants': just under them fails, at them passes
+    assert (BAR_IN_VIEW, BAR_CENTRED) == (0.95, 0.90)
+    edge = [(k / 30, "tracking", _on(330.0), 330.0, 1.0) for k in range(95)]
+    edge += [(3.2 + k / 30, "lost", None, 330.0, 0.0) for k in range(5)]  # hidden, lost: 95 % in view
+    assert verdict(_run(edge)).passed
+    edge.append((3.4, "lost", None, 330.0, 0.0))
+    assert not verdict(_run(edge)).passed and "car in view on 94 % of frames" in verdict(_run(edge)).line()
+    # off-centre: the car 100 px right of the centre on a quarter of the frames
+    skewed = [(k / 30, "tracking", _on(420.0 if k % 4 == 0 else 330.0), 420.0 if k % 4 == 0 else 330.0, 1.0)
+              for k in range(100)]
+    assert verdict(_run(skewed)).reasons == ("centred on 75 % of the 100 frames it was visible (bar 90 %)",)
+    # a daemon that died; a loss never recovered while the car could be seen is named as why
+    dead = verdict(_run([(k / 30, "tracking", _on(330.0), 330.0, 1.0) for k in range(100)], alive=False))
+    assert dead.reasons == ("the daemon died (exit code -9)",)
+    lost = [(k / 30, "tracking", _on(330.0), 330.0, 1.0) for k in range(30)]
+    lost += [(1.0 + k / 30, "lost", _on(330.0), 330.0 + 5 * k, 1.0 if k < 50 else 0.0) for k in range(70)]
+    reasons = verdict(_run(lost)).reasons
+    assert reasons[-1] == "the track was lost at 1.0 s and never came back (the car visible on 50 frames after that)"
+    assert verdict(_run([])).reasons[0] == "the daemon answered none of the run's frames"
+
+
+def test_summary_reads_na_for_figures_without_frames_and_reconciles_the_frame_counts():
+    from sim.summary import NOT_AVAILABLE, counter_rows, format_rows, frame_accounting_row, run_rows
+
+    hidden = _run([(k / 30, "lost", None, 330.0, 0.0) for k in range(30)])  # never visible: no centring figures
+    summary = hidden.summary()
+    rows = dict((label, value) for label, value, _ in run_rows(summary))
+    assert summary["centring_error_px_median"] is None and rows["centring_error_px_median"] == NOT_AVAILABLE
+    assert rows["false_lock_first_s"] == NOT_AVAILABLE
+    text = format_rows("summary", run_rows(summary))
+    assert "None" not in text and "nan" not in text
+    # the daemon's count = startup frames + answered run frames; a difference is said
+    assert frame_accounting_row(summary, {"frames": 40}) == [
+        ("frame accounting", "10 + 30 = 40", "the daemon's frame count = startup_frames + answered run frames: "
+                                            "they agree")]
+    assert "the daemon counted 43, 3 more than" in frame_accounting_row(summary, {"frames": 43})[0][2]
+    assert frame_accounting_row(summary, {}) == []
+    replay = {"frames_sent": 60, "frames_processed": 60, "startup_frames": 8}  # the replay's names
+    assert frame_accounting_row(replay, {"frames": 68})[0][1] == "8 + 60 = 68"
+    # every counter the daemon reports today has its meaning, the video outputs' too
+    counters = {key: 1 for key in ("frames", "size_bounded_frames", "preview_offered", "preview_rate_skipped",
+                                   "preview_dropped", "preview_sent", "preview_errors", "preview_cpu_ms",
+                                   "stream_offered", "stream_sent")}
+    meanings = {label: meaning for label, _, meaning in counter_rows(counters)}
+    assert all(meanings.values()), [label for label, meaning in meanings.items() if not meaning]
+    assert "not how often it changed the box" in meanings["daemon size_bounded_frames"]
+    assert "video.preview.max_fps" in meanings["daemon preview_rate_skipped"]
+    assert "H.264" in meanings["daemon stream_offered"]
+    assert counter_rows({"brand_new": None}) == [("daemon brand_new", NOT_AVAILABLE, "")]
+
+
+def test_the_demo_ends_with_the_web_address_and_its_verdict_and_exits_by_it(capsys):
+    import types
+
+    from sim.demo import main, print_ending
+    from sim.summary import Verdict
+
+    station = types.SimpleNamespace(url="http://127.0.0.1:8080/")
+    assert print_ending(station, Verdict(True, ("car in view",), ())) == 0
+    assert print_ending(None, Verdict(False, (), ("car in view on 64 % of frames (bar 95 %)",))) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("web ground station: http://127.0.0.1:8080/")
+    assert lines[1:] == ["VERDICT PASS: car in view", "VERDICT FAIL: car in view on 64 % of frames (bar 95 %)"]
+    with pytest.raises(SystemExit) as stopped:
+        main(["--help"])
+    assert stopped.value.code == 0
+    help_text = capsys.readouterr().out
+    assert help_text.startswith("usage: python -m sim.demo ") and "VERDICT" in help_text
+
+
+def test_telemetry_waits_end_when_the_daemon_has_gone():
+    from sim.zenoh_link import TelemetryLog
+
+    log = TelemetryLog()
+    returned = threading.Event()
+    results = []
+
+    def wait() -> None:
+        results.append(log.wait_frame(5, timeout_s=600.0))
+        returned.set()
+
+    threading.Thread(target=wait, daemon=True).start()
+    log.add(json.dumps({"frame_id": 3}).encode())  # an older frame: still waiting
+    assert not returned.wait(0.2)
+    log.mark_source_gone()
+    assert returned.wait(10.0), "wait_frame did not end when the source went"
+    assert results == [None]
+    log.add(json.dumps({"frame_id": 5}).encode())
+    assert log.wait_frame(5, 0.0)["frame_id"] == 5  # what did arrive is still returned

@@ -6,7 +6,9 @@ Keys (the daemon's public contract, docs/video.md and config.yaml's `zenoh:`):
 - `<prefix>/camera/preview`: the tracked frames as JPEG (gcs.preview), frame id and capture time those
   of the frame's track sample;
 - `<prefix>/status` (queryable): status JSON, including `mavlink_system_id` and `config.mavlink.component_id`:
-  the MAVLink camera that commands for this drone go to.
+  the MAVLink camera that commands for this drone go to; `autopilot.state` (waiting_for_heartbeat / connected /
+  heartbeat_lost) and `autopilot.system_id`, `config.mavlink.system_id` (0: learnt from the heartbeat) and
+  `config.gimbal.backend` (ardupilot / px4 / none): whether the daemon has an autopilot to send gimbal commands to.
 
 A drone appears when its track samples or its status answer arrive (`**/track` is subscribed, `**/status`
 queried every `status_every_s`). Previews are subscribed only for the drones a page watches (a 640x480
@@ -66,6 +68,7 @@ class Drone:
     system_id: int | None = None  # MAVLink system of its camera (from the status queryable)
     component_id: int | None = None  # MAVLink component of its camera
     daemon_status: str | None = None  # ok / starting / error, from the status queryable
+    autopilot: dict[str, Any] | None = None  # from the status queryable, see autopilot_summary
     last_track: dict[str, Any] | None = None
     last_track_s: float | None = None  # monotonic
     last_status_s: float | None = None
@@ -80,7 +83,30 @@ class Drone:
         return {"prefix": self.prefix, "system_id": self.system_id, "component_id": self.component_id,
                 "daemon_status": self.daemon_status, "online": bool(heard) and now_s - max(heard) <= online_s,
                 "state": track.get("state"), "coasting": bool(track.get("coasting")), "score": track.get("score"),
-                "previews": self.previews}
+                "previews": self.previews, "autopilot": self.autopilot}
+
+
+def autopilot_summary(status: dict[str, Any]) -> dict[str, Any] | None:
+    """What a daemon's status answer says about its autopilot and gimbal: {"state": waiting_for_heartbeat /
+    connected / heartbeat_lost, "system_id": the autopilot's (None until heard), "configured_system_id":
+    config.mavlink.system_id (0: learnt from the heartbeat), "gimbal_backend": ardupilot / px4 / none,
+    "gimbal_commands": "sent" / "held" / "none"}; None if the answer has no `autopilot` part (an older daemon).
+
+    The daemon sends gimbal commands once it knows a system id to send them to (heard, or configured), whether
+    or not the heartbeat is still fresh; with none, they are held. Whether a gimbal is actually attached and
+    moving is not in the status answer."""
+    autopilot = status.get("autopilot")
+    if not isinstance(autopilot, dict):
+        return None
+    config = status.get("config") if isinstance(status.get("config"), dict) else {}
+    mavlink = config.get("mavlink") if isinstance(config.get("mavlink"), dict) else {}
+    gimbal = config.get("gimbal") if isinstance(config.get("gimbal"), dict) else {}
+    system_id = autopilot.get("system_id") or None
+    configured = mavlink.get("system_id") or 0
+    backend = gimbal.get("backend")
+    commands = "none" if backend == "none" else "sent" if (system_id or configured) else "held"
+    return {"state": autopilot.get("state"), "system_id": system_id, "configured_system_id": configured,
+            "gimbal_backend": backend, "gimbal_commands": commands}
 
 
 @dataclass
@@ -185,6 +211,7 @@ class DroneDirectory:
                 drone = self._drone(prefix)
                 drone.system_id, drone.component_id = system_id, component_id
                 drone.daemon_status = str(status.get("status"))
+                drone.autopilot = autopilot_summary(status)
                 drone.last_status_s = time.monotonic()
                 self._changed.notify_all()
         with self._changed:

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from gcs.drones import ZenohSettings
+from gcs.confidence import LOW_CONFIDENCE, ConfidenceGauge
+from gcs.drones import ZenohSettings, autopilot_summary
 from gcs.mavlink_station import StatusTextAssembler, tracking_status_name
 from gcs.preview import decode_preview, drone_prefix
 from gcs.web.__main__ import is_loopback
@@ -125,3 +126,49 @@ def test_the_ground_side_imports_nothing_of_the_service_the_sim_or_the_tracker()
     wrong = {(module, name) for module, names in graph.items() if within(module, ("gcs",))
              for name in names if within(name, ("service", "sim", "jsar", "bench"))}
     assert not wrong
+
+
+def test_confidence_is_the_score_against_the_best_of_the_lock() -> None:
+    gauge = ConfidenceGauge()
+    assert gauge.update({"state": "idle", "score": None}) is None
+    # a JSAR lock: the raw peak rises as the filter learns, then the target fades (a drifting or false lock)
+    shown = [gauge.update({"state": "tracking", "score": score}) for score in (0.026, 0.04, 0.06, 0.05, 0.0419)]
+    assert [c["percent"] for c in shown] == [100, 100, 100, 83, 69]
+    assert [c["low"] for c in shown] == [False, False, False, False, True]  # 69 % < 70 %: low, still "tracking"
+    assert shown[-1]["reference"] == 0.06 and shown[-1]["low_below"] == LOW_CONFIDENCE == 0.7
+    assert gauge.update({"state": "tracking", "score": 0.042})["low"] is False  # exactly 70 %: not low
+    lost = gauge.update({"state": "lost", "score": 0.012})  # while lost: against the same lock's best
+    assert (lost["percent"], lost["reference"]) == (20, 0.06)
+    assert gauge.update({"state": "lost", "score": 0.09})["reference"] == 0.06  # a lost frame never raises it
+    # re-detected: a new lock, its own reference
+    assert gauge.update({"state": "recovered", "score": 0.02}) == {"percent": 100, "low": False,
+                                                                   "low_below": 0.7, "reference": 0.02}
+    # a new selection while tracking (this station's command accepted): the reference starts again
+    gauge.update({"state": "tracking", "score": 0.03})
+    gauge.new_lock()
+    assert gauge.update({"state": "tracking", "score": 0.01})["percent"] == 100
+    # OpenCV's trackers score 1 / 0; a sample without a usable score shows none
+    kcf = ConfidenceGauge()
+    assert kcf.update({"state": "tracking", "score": 1.0})["percent"] == 100
+    assert kcf.update({"state": "lost", "score": 0.0})["percent"] == 0
+    for score in (None, float("nan"), True, "0.5"):
+        assert ConfidenceGauge().update({"state": "tracking", "score": score}) is None
+    assert ConfidenceGauge().update({"state": "tracking", "score": 0.0}) is None  # no positive best yet
+
+
+def test_autopilot_and_gimbal_from_the_daemons_status() -> None:
+    def status(state: str, heard: int | None, configured: int = 0, backend: str = "ardupilot") -> dict:
+        return {"autopilot": {"system_id": heard, "alive": state == "connected", "state": state, "custom_mode": None},
+                "config": {"mavlink": {"system_id": configured}, "gimbal": {"backend": backend}}}
+
+    assert autopilot_summary(status("connected", 1)) == {
+        "state": "connected", "system_id": 1, "configured_system_id": 0, "gimbal_backend": "ardupilot",
+        "gimbal_commands": "sent"}
+    # never heard, nothing configured: the daemon holds its gimbal commands (nobody to send them to)
+    none = autopilot_summary(status("waiting_for_heartbeat", None))
+    assert (none["state"], none["system_id"], none["gimbal_commands"]) == ("waiting_for_heartbeat", None, "held")
+    # a configured system id: sent, unanswered; heard once then lost: still sent to it; no gimbal configured
+    assert autopilot_summary(status("waiting_for_heartbeat", None, configured=7))["gimbal_commands"] == "sent"
+    assert autopilot_summary(status("heartbeat_lost", 1))["gimbal_commands"] == "sent"
+    assert autopilot_summary(status("connected", 1, backend="none"))["gimbal_commands"] == "none"
+    assert autopilot_summary({"status": "ok"}) is None  # an answer without it: unknown, not "none"

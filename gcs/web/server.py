@@ -4,8 +4,9 @@
 - `GET /api/drones`: the drone list as JSON (also pushed to the pages every second).
 - `WS /ws`: server -> page: binary messages are preview samples as the daemon sent them (32-byte "JFR1"
   header + JPEG; the page reads the frame id from the header), text messages are JSON
-  `{"type": "events", "events": [...]}` (track samples of the watched drone, its 275 status, command
-  outcomes, camera texts) and `{"type": "drones", ...}`. Page -> server: JSON `{"type": "watch", "prefix"}`,
+  `{"type": "events", "events": [...]}` (track samples of the watched drone with the station's reading of
+  their confidence (gcs.confidence), its 275 status, command outcomes, camera texts) and `{"type": "drones",
+  ...}` (each drone's autopilot and gimbal as its status query reports them). Page -> server: JSON `{"type": "watch", "prefix"}`,
   `{"type": "point", "prefix", "x", "y", "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1",
   "y1", "id"}`, `{"type": "stop", "prefix", "id"}` (coordinates normalised 0..1, top-left origin).
 
@@ -34,6 +35,7 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from gcs.confidence import ConfidenceGauge
 from gcs.drones import DroneDirectory, ZenohSettings
 from gcs.mavlink_station import CommandOutcome, ImageStatus, MavlinkStation
 from gcs.preview import PreviewFrame
@@ -86,6 +88,7 @@ class Hub:
         self.pages: set[Page] = set()
         self.directory: DroneDirectory | None = None
         self.station: MavlinkStation | None = None
+        self.gauges: dict[str, ConfidenceGauge] = {}  # per drone prefix, fed every track sample (on the loop)
 
     # called from the Zenoh / MAVLink threads: hop onto the loop (nothing to do before the server runs)
     def _hop(self, callback: Any, *args: Any) -> None:
@@ -94,7 +97,7 @@ class Hub:
             loop.call_soon_threadsafe(callback, *args)
 
     def on_track(self, prefix: str, sample: dict[str, Any]) -> None:
-        self._hop(self._event_for, prefix, {"type": "track", "prefix": prefix, "sample": finite(sample)})
+        self._hop(self._track, prefix, finite(sample))
 
     def on_preview(self, prefix: str, frame: PreviewFrame, payload: bytes) -> None:
         self._hop(self._frame_for, prefix, payload)
@@ -109,6 +112,14 @@ class Hub:
                    "text": text})
 
     # on the loop
+    def _track(self, prefix: str, sample: dict[str, Any]) -> None:
+        confidence = self.gauges.setdefault(prefix, ConfidenceGauge()).update(sample)
+        self._event_for(prefix, {"type": "track", "prefix": prefix, "sample": sample, "confidence": confidence})
+
+    def new_lock(self, prefix: str) -> None:
+        """This station's track command was accepted: the drone's confidence starts a new reference."""
+        self.gauges.setdefault(prefix, ConfidenceGauge()).new_lock()
+
     def _event_for(self, prefix: str, event: dict[str, Any]) -> None:
         for page in self.pages:
             if page.watching == prefix:
@@ -190,6 +201,7 @@ async def run_command(hub: Hub, message: dict[str, Any]) -> dict[str, Any]:
     log.info("event=command prefix=%s command=%s result=%s reason=%s", prefix, base["command"],
              outcome.result_name, outcome.reason)
     if outcome.accepted and kind != "stop":
+        hub.new_lock(prefix)
         # as QGroundControl does after a track command: ask for the camera's 275 (2 Hz)
         await asyncio.to_thread(station.request_status, system_id, component_id, 0.5, 0.0)
     return {**base, **outcome.as_json(), "command": base["command"]}

@@ -7,6 +7,11 @@ sim scene, the real daemon, the mock autopilot and `python -m gcs.web`, everythi
    command is shown with the camera's reason.
 2. Two drones through one Zenoh router: both listed with their MAVLink ids, the operator picks the
    second, drags a rectangle on its car: only that drone tracks; the Stop button stops it.
+3. A bench without an autopilot (the daemon and the station on one MAVLink link, a still camera): the page
+   says "autopilot: none — gimbal commands held" across the video and in the status panel; Stop is disabled
+   until there is a track; the confidence reads as a percentage, green; the car taken out of the frame
+   while the daemon still reports tracking: the box turns amber, "low confidence"; no word in the status
+   panel broken across lines. Procedural ground: needs no JSAR_DATA_ROOT.
 
 Screenshots (test artifacts, git-ignored): out/gcs-web/*.png. Without Chromium the tests skip
 (`apt-get install chromium`; .ci/run installs it). The scene is the closed-loop tests' (ground textured
@@ -16,8 +21,10 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import shutil
+import threading
 from pathlib import Path
 from typing import Iterator
 
@@ -26,8 +33,10 @@ os.environ.setdefault("MAVLINK20", "1")
 import pytest
 
 from sim.closed_loop import ClosedLoop, ClosedLoopConfig, free_port
-from sim.scene import GroundTruth, SceneConfig
+from sim.daemon import Daemon
+from sim.scene import CameraConfig, GroundTruth, Scene, SceneConfig, pose_from_vehicle
 from sim.web_station import OperatorRun, WebStation
+from sim.zenoh_link import SimCamera, ZenohEndpoints
 
 pytestmark = pytest.mark.slow
 
@@ -102,6 +111,24 @@ def wait_page(page, expression: str, timeout_s: float, what: str, station: WebSt
                     f"page errors: {page.errors}\nstation:\n{station.output()[-3000:]}")
 
 
+# Words of the status panel that the browser broke across two lines (a Range over each word: more than one line
+# box). Words only: a token longer than the whole panel may break, none of the page's do.
+BROKEN_WORDS_JS = """() => {
+  const broken = [];
+  const walker = document.createTreeWalker(document.getElementById('status-panel'), NodeFilter.SHOW_TEXT);
+  for (let node = walker.nextNode(); node; node = walker.nextNode()) {
+    for (const match of node.textContent.matchAll(/\\S+/g)) {
+      const range = document.createRange();
+      range.setStart(node, match.index);
+      range.setEnd(node, match.index + match[0].length);
+      const tops = new Set([...range.getClientRects()].filter((r) => r.width > 0).map((r) => Math.round(r.top)));
+      if (tops.size > 1) broken.push(match[0]);
+    }
+  }
+  return broken;
+}"""
+
+
 def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     daemon_zenoh = free_port(1)  # the daemon listens here, as on a drone (config.yaml zenoh.listen)
@@ -122,6 +149,13 @@ def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path
                 truth = run.truth(shown["frameId"])
                 assert truth is not None and truth.visible and not centred(truth)
                 assert shown["frameSize"] == [WIDTH, HEIGHT]
+
+                # the mock autopilot's heartbeat reaches the daemon: shown as connected, no warning on the video
+                wait_page(page, "document.getElementById('autopilot').textContent === 'connected (system 1)'", 15,
+                          "the autopilot shown connected", station)
+                assert page.locator("#video-warning").inner_text() == ""
+                assert page.locator("#gimbal").inner_text() == "ardupilot gimbal manager, through the autopilot"
+                assert page.locator("#stop").is_disabled()  # nothing to stop yet
 
                 page.mouse.click(*click_point(page, *truth.centre))
                 wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the click", station)
@@ -149,6 +183,12 @@ def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path
                     assert inside >= 0.5 and centre_in, (shown, truth.box)
                     checked += 1
                 assert checked >= 6
+                # the score reads as a percentage of the lock's best, the box green while it is high
+                assert page.locator("#stop").is_enabled()
+                assert "% of this lock's best" in page.locator("#confidence").inner_text()
+                shown = view(page)
+                if shown["confidence"] is not None and shown["confidence"] >= 70:
+                    assert shown["boxColour"] == "#2ecc40" and shown["boxLabel"].startswith("tracking ")
 
                 # the gimbal turns to the car: centred on 15 frames in a row
                 def centred_lately() -> bool:
@@ -172,6 +212,7 @@ def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path
                 assert run.wait_for(lambda: (loop.camera.telemetry.last or {}).get("state") == "idle", 10.0)
                 wait_page(page, "window.gcsView.state === 'idle' && window.gcsView.box === null", 10,
                           "no box drawn after Stop", station)
+                wait_page(page, "document.getElementById('stop').disabled", 5, "Stop disabled when idle", station)
                 page.screenshot(path=str(OUT / "stopped.png"))
 
                 # a refusal is shown with the camera's reason (the page itself never sends this: it clamps)
@@ -260,3 +301,98 @@ def test_two_drones_through_one_router_select_the_second(data_root, tmp_path: Pa
         for loop in loops:
             loop.__exit__(None, None, None)
         router.close()
+
+
+class StillCamera:
+    """The daemon's camera for a bench: publishes the image it is shown, 10 frames a second, on its own thread."""
+
+    def __init__(self, camera: SimCamera, image) -> None:
+        self.camera, self.image = camera, image
+        self.frame_id = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="still-camera", daemon=True)
+        self._thread.start()
+
+    def show(self, image) -> None:
+        self.image = image
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.frame_id += 1
+            self.camera.publish(self.image, self.frame_id)
+            self._stop.wait(0.1)  # camera pacing, not synchronisation
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+def test_no_autopilot_and_a_fading_lock_in_a_browser(tmp_path: Path) -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    zenoh_port, mavlink_port = free_port(1), free_port(2)
+    # plain JSAR: it never declares a loss itself, so a target that goes away leaves it "tracking" on the ground
+    # (what a false lock looks like from the ground); only its score can tell
+    overrides = {"source": {"kind": "zenoh"}, "camera": {"hfov_deg": CameraConfig().hfov_deg},
+                 "tracker": {"name": "jsar", "params": {}, "range_size_band": 0},
+                 "zenoh": {"enabled": True, "mode": "peer", "listen": [f"tcp/127.0.0.1:{zenoh_port}"], "connect": [],
+                           "multicast_scouting": False, "prefix": "jsar"}}
+    scene = Scene(SceneConfig(texture="procedural", occlusion_times_s=(), occlusion_period_s=0.0), CameraConfig())
+    pose = pose_from_vehicle(0.0, 0.0, -30.0, 0.0, math.radians(-45.0), 0.0)  # the closed loop's start
+    with_car, truth = scene.render(pose, 0.0)
+    ground, gone = scene.render(pose, 40.0)  # the same view 40 s later: the car has driven out of it
+    assert truth.visible and gone.in_view_fraction == 0.0
+    daemon = Daemon(tmp_path, overrides, f"udpout:127.0.0.1:{mavlink_port}").start()  # no autopilot on its link
+    camera = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{zenoh_port}",)))
+    still = StillCamera(camera, with_car)
+    station = None
+    try:
+        station = WebStation([f"udpin:127.0.0.1:{mavlink_port}"], [f"tcp/127.0.0.1:{zenoh_port}"]).start()
+        with browser_page(tmp_path) as page:
+            page.goto(station.url)
+            wait_page(page, "window.gcsView.prefix === 'jsar' && window.gcsView.drawnFrames >= 3", 60,
+                      "the bench's video on the page", station)
+            held = "none — gimbal commands held"
+            wait_page(page, f"document.getElementById('autopilot').textContent === '{held}'", 15,
+                      "the missing autopilot on the page", station)
+            assert page.locator("#video-warning").inner_text() == f"autopilot: {held}"
+            assert page.locator("#gimbal").inner_text() == "ardupilot — commands held (no autopilot)"
+            assert "no autopilot" in page.locator("#drones").inner_text()
+            assert page.locator("#stop").is_disabled()
+            page.keyboard.press("Escape")  # nothing to stop: nothing sent
+            assert view(page)["lastAck"] is None
+
+            x, y, w, h = truth.box
+            page.mouse.move(*click_point(page, x - 3, y - 3))
+            page.mouse.down()
+            page.mouse.move(*click_point(page, x + w + 3, y + h + 3), steps=4)
+            page.mouse.up()
+            wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the drag", station)
+            assert (view(page)["lastAck"]["command"], view(page)["lastAck"]["result_name"]) == \
+                ("TRACK_RECTANGLE", "ACCEPTED")
+            wait_page(page, "window.gcsView.box !== null && window.gcsView.confidence !== null", 15,
+                      "the tracked car drawn with its confidence", station)
+            wait_page(page, "!document.getElementById('stop').disabled", 5, "Stop enabled while tracking", station)
+            shown = view(page)
+            assert shown["state"] == "tracking" and not shown["lowConfidence"] and shown["confidence"] >= 70
+            assert shown["boxColour"] == "#2ecc40" and shown["boxLabel"] == f"tracking {shown['confidence']} %"
+            assert page.locator("#confidence").inner_text() == f"{shown['confidence']} % of this lock's best"
+            assert page.locator("#score").inner_text().startswith("raw score 0.")
+            assert page.evaluate(BROKEN_WORDS_JS) == []
+            page.screenshot(path=str(OUT / "no-autopilot.png"))
+
+            still.show(ground)  # the car gone; the tracker goes on "tracking" the ground where it was
+            catch = ("(() => { const v = window.gcsView; if (v.lowConfidence && v.box) "
+                     "{ window.caught = JSON.parse(JSON.stringify(v)); return true; } return false; })()")
+            wait_page(page, catch, 20, "the low-confidence state drawn", station)
+            caught = page.evaluate("window.caught")
+            assert caught["state"] == "tracking" and caught["confidence"] < 70
+            assert caught["boxColour"] == "#ffb000" and caught["boxLabel"] == f"low confidence {caught['confidence']} %"
+            page.screenshot(path=str(OUT / "low-confidence.png"))
+            assert page.evaluate(BROKEN_WORDS_JS) == []
+            assert page.errors == [], page.errors
+    finally:
+        still.stop()
+        if station is not None:
+            station.stop()
+        camera.close()
+        daemon.stop()

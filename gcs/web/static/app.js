@@ -2,15 +2,19 @@
 // Video: binary WebSocket messages, each a preview sample as the daemon sent it (32-byte little-endian
 // header "JFR1" "JPEG" width height frame_id capture_time, then the JPEG). The box drawn on a frame is the
 // one of that frame's own track sample (same frame_id), never a newer or older one.
-// Commands: click = track point, drag = track rectangle, Stop button / Escape = stop tracking; coordinates
-// normalised 0..1 from the image's top-left corner, sent to the selected drone's camera over MAVLink.
+// Commands: click = track point, drag = track rectangle, Stop button / Escape = stop tracking (only while
+// there is a track to stop); coordinates normalised 0..1 from the image's top-left corner, sent to the
+// selected drone's camera over MAVLink.
+// Confidence: the station reads each track sample's raw score as a percentage of the best score of the
+// current lock (gcs/confidence.py); below its bar the box is drawn amber, "low confidence", even while the
+// daemon still reports tracking.
 "use strict";
 
 const HEADER_BYTES = 32;
 const TRACK_KEEP = 600;           // track samples kept by frame id (20 s at 30 fps)
 const DRAG_MIN_PX = 8;            // a press that moves less than this (CSS px) is a click
 const POINT_RADIUS_PX = 20;       // QGroundControl's click radius, as a fraction of the shown width
-const COLOURS = { tracking: "#2ecc40", recovered: "#2ecc40", coasting: "#ffb000", lost: "#ff3b30" };
+const COLOURS = { tracking: "#2ecc40", low: "#ffb000", coasting: "#ffb000", lost: "#ff3b30" };
 
 const canvas = document.getElementById("video");
 const ctx = canvas.getContext("2d");
@@ -18,7 +22,8 @@ const el = (id) => document.getElementById(id);
 
 const view = {                    // what the page shows; window.gcsView for tests and the curious
   prefix: null, frameId: null, captureTime: null, frameSize: null, box: null, state: null, coasting: false,
-  score: null, drawnFrames: 0, framesWithBox: 0, status275: null, lastAck: null, drones: [],
+  score: null, confidence: null, lowConfidence: false, boxColour: null, boxLabel: null, drawnFrames: 0,
+  framesWithBox: 0, lowConfidenceFrames: 0, status275: null, lastAck: null, drones: [], autopilot: null,
 };
 window.gcsView = view;
 
@@ -26,7 +31,7 @@ let socket = null;
 let reconnectMs = 500;
 let bitmap = null;                // the frame on screen
 let decodingId = -1;              // newest frame id handed to the decoder
-const tracks = new Map();         // frame_id -> track sample (watched drone)
+const tracks = new Map();         // frame_id -> {sample, confidence} (watched drone)
 let latestTrack = null;
 let drag = null;                  // {x0, y0, x1, y1} in normalised coordinates while the mouse is down
 let nextCommandId = 1;
@@ -70,7 +75,7 @@ function onJson(message) {
 function onEvent(event) {
   if (event.type === "drones") { onDrones(event.drones, event.complete); return; }
   if (event.prefix !== view.prefix) return;  // from before the operator switched drones
-  if (event.type === "track") onTrack(event.sample);
+  if (event.type === "track") onTrack(event.sample, event.confidence);
   else if (event.type === "status275") onStatus275(event.status);
   else if (event.type === "ack") onAck(event);
   else if (event.type === "text") addMessage(event.text, event.severity <= 4 ? "warn" : "");
@@ -97,6 +102,7 @@ function onDrones(drones, complete) {
     const ident = drone.system_id == null ? "MAVLink id unknown" : `sys ${drone.system_id} comp ${drone.component_id}`;
     const problems = [];
     if (!drone.online) problems.push("offline");
+    if (drone.autopilot && drone.autopilot.state !== "connected") problems.push("no autopilot");
     if (drone.system_id != null && !drone.mavlink_heard) problems.push("not heard on MAVLink");
     if (drone.conflict) problems.push("MAVLink id clash");
     detail.textContent = `${drone.state || "–"} · ${ident}${problems.length ? " · " + problems.join(", ") : ""}`;
@@ -109,6 +115,7 @@ function onDrones(drones, complete) {
   if (!view.prefix && complete && drones.length === 1) select(drones[0].prefix);
   const current = drones.find((d) => d.prefix === view.prefix);
   if (current) {
+    showAutopilot(current.autopilot);
     setText("mavlink-id", current.system_id == null ? "unknown (status not answered yet)"
       : `system ${current.system_id}, component ${current.component_id}` +
         (current.mavlink_heard ? "" : " (not heard on MAVLink)") + (current.conflict ? " (id clash!)" : ""),
@@ -125,8 +132,14 @@ function select(prefix) {
   decodingId = -1;
   frameTimes = [];
   Object.assign(view, { frameId: null, captureTime: null, frameSize: null, box: null, state: null,
-    coasting: false, score: null, status275: null, lastAck: null });
-  for (const id of ["state", "score", "status275", "ack", "latency", "video-info", "mavlink-id"]) setText(id, "–");
+    coasting: false, score: null, confidence: null, lowConfidence: false, status275: null, lastAck: null,
+    autopilot: null });
+  for (const id of ["state", "confidence", "status275", "ack", "latency", "video-info", "mavlink-id", "autopilot",
+    "gimbal"]) setText(id, "–");
+  setText("score", "");
+  showConfidence(null, null);
+  el("video-warning").textContent = "";
+  updateStop(null);
   el("messages").replaceChildren();
   setText("drone-name", prefix);
   el("video-note").textContent = "Waiting for video…";
@@ -135,16 +148,64 @@ function select(prefix) {
   draw();
 }
 
-function onTrack(sample) {
-  tracks.set(sample.frame_id, sample);
+function onTrack(sample, confidence) {
+  tracks.set(sample.frame_id, { sample, confidence });
   if (tracks.size > TRACK_KEEP) tracks.delete(tracks.keys().next().value);
-  if (!latestTrack || sample.frame_id >= latestTrack.frame_id) latestTrack = sample;
-  const cls = stateClass(sample.state, sample.coasting);
-  setText("state", sample.state + (sample.state === "lost" && sample.coasting ? " (coasting)" : ""), cls === "tracking" ? "good" : cls === "coasting" ? "warn" : cls === "lost" ? "bad" : "");
-  setText("score", sample.score == null ? "–" : sample.score.toFixed(3));
+  if (latestTrack && sample.frame_id < latestTrack.frame_id) return;  // an older sample: the panel shows the newest
+  latestTrack = sample;
+  const cls = stateClass(sample.state, sample.coasting, confidence);
+  const stateText = sample.state + (sample.state === "lost" && sample.coasting ? " (coasting)" : "") +
+    (cls === "low" ? " (low confidence)" : "");
+  setText("state", stateText, { tracking: "good", low: "warn", coasting: "warn", lost: "bad" }[cls] || "");
+  showConfidence(sample, confidence);
   const latency = sample.latency_ms || {};
   setText("latency", latency.total == null ? "–" : `${latency.total.toFixed(1)} ms`);
+  updateStop(sample.state);
   if (sample.frame_id === view.frameId) draw();  // the box of the frame on screen arrived after it
+}
+
+// The confidence row: a bar (the mark at the low-confidence bar) and "N % of this lock's best", the raw
+// score beside it, small.
+function showConfidence(sample, confidence) {
+  const fill = el("confidence-fill");
+  if (!sample || !confidence) {
+    fill.style.width = "0";
+    setText("confidence", sample && sample.state !== "idle" ? "no score" : "–", "");
+    setText("score", sample && sample.score != null ? `raw score ${sample.score.toFixed(3)}` : "");
+    return;
+  }
+  const lost = sample.state === "lost";
+  const cls = lost ? "bad" : confidence.low ? "warn" : "good";
+  fill.style.width = `${confidence.percent}%`;
+  fill.className = cls;
+  el("confidence-mark").style.left = `${Math.round(100 * confidence.low_below)}%`;
+  setText("confidence", `${confidence.percent} % of this lock's best` +
+    (lost ? " (lost)" : confidence.low ? " · low confidence" : ""), cls);
+  setText("score", `raw score ${sample.score.toFixed(3)}`);
+}
+
+// The autopilot and gimbal rows, from the daemon's status answer (gcs/drones.py autopilot_summary), and a
+// warning across the video when no autopilot takes the gimbal commands.
+function showAutopilot(ap) {
+  view.autopilot = ap;
+  let text = "unknown (status not answered yet)", cls = "", gimbal = "–", gimbalCls = "";
+  if (ap) {
+    if (ap.state === "connected") { text = `connected (system ${ap.system_id})`; cls = "good"; }
+    else if (ap.state === "heartbeat_lost") { text = `heartbeat lost (system ${ap.system_id}) — guidance held`; cls = "bad"; }
+    else if (ap.gimbal_commands === "held") { text = "none — gimbal commands held"; cls = "bad"; }
+    else { text = `none heard — commands sent to system ${ap.configured_system_id} unanswered`; cls = "bad"; }
+    if (ap.gimbal_commands === "none") { gimbal = "none configured (gimbal.backend: none)"; gimbalCls = "warn"; }
+    else if (ap.gimbal_commands === "held") { gimbal = `${ap.gimbal_backend} — commands held (no autopilot)`; gimbalCls = "bad"; }
+    else { gimbal = `${ap.gimbal_backend} gimbal manager, through the autopilot`; gimbalCls = ap.state === "connected" ? "" : "warn"; }
+  }
+  setText("autopilot", text, cls);
+  setText("gimbal", gimbal, gimbalCls);
+  el("video-warning").textContent = ap && ap.state !== "connected" ? `autopilot: ${text}` : "";
+}
+
+// Stop is offered only while there is a track to stop (the daemon reports tracking or lost).
+function updateStop(state) {
+  el("stop").disabled = !(view.prefix && (state === "tracking" || state === "recovered" || state === "lost"));
 }
 
 function onStatus275(status) {
@@ -194,9 +255,9 @@ function onFrame(buffer) {
   }).catch(() => { /* a frame that does not decode is skipped; the next one replaces it */ });
 }
 
-function stateClass(state, coasting) {
+function stateClass(state, coasting, confidence) {
   if (state === "lost") return coasting ? "coasting" : "lost";
-  if (state === "tracking" || state === "recovered") return "tracking";
+  if (state === "tracking" || state === "recovered") return confidence && confidence.low ? "low" : "tracking";
   return "idle";
 }
 
@@ -213,20 +274,27 @@ function draw() {
   }
   const W = canvas.width, H = canvas.height;
   const scale = Math.max(1, W / 640);
-  const sample = view.frameId == null ? null : tracks.get(view.frameId);
+  const entry = view.frameId == null ? null : tracks.get(view.frameId);
+  const sample = entry ? entry.sample : null;
+  const confidence = entry ? entry.confidence : null;
   view.box = null;
+  view.boxColour = null;
+  view.boxLabel = null;
   view.state = sample ? sample.state : null;
   view.coasting = sample ? !!sample.coasting : false;
   view.score = sample ? sample.score : null;
+  view.confidence = confidence ? confidence.percent : null;
+  view.lowConfidence = !!(sample && stateClass(sample.state, sample.coasting, confidence) === "low");
   if (sample && sample.box_norm && sample.state !== "idle") {
     const [x, y, w, h] = sample.box_norm;
-    const cls = stateClass(sample.state, sample.coasting);
+    const cls = stateClass(sample.state, sample.coasting, confidence);
     ctx.strokeStyle = COLOURS[cls] || "#ffffff";
     ctx.lineWidth = 2 * scale;
-    if (cls !== "tracking") ctx.setLineDash([6 * scale, 4 * scale]);
+    if (cls === "coasting" || cls === "lost") ctx.setLineDash([6 * scale, 4 * scale]);  // dashed: lost
     ctx.strokeRect(x * W, y * H, w * W, h * H);
     ctx.setLineDash([]);
-    const label = `${cls === "coasting" ? "lost, coasting" : sample.state}${sample.score == null ? "" : " " + sample.score.toFixed(2)}`;
+    const name = { coasting: "lost, coasting", low: "low confidence", tracking: sample.state }[cls] || sample.state;
+    const label = name + (confidence && cls !== "lost" && cls !== "coasting" ? ` ${confidence.percent} %` : "");
     ctx.font = `${Math.round(13 * scale)}px system-ui, sans-serif`;
     const tw = ctx.measureText(label).width + 8 * scale;
     const ty = y * H > 20 * scale ? y * H - 18 * scale : (y + h) * H + 2 * scale;
@@ -235,7 +303,10 @@ function draw() {
     ctx.fillStyle = COLOURS[cls] || "#ffffff";
     ctx.fillText(label, x * W + 4 * scale, ty + 12 * scale);
     view.box = [x, y, w, h];
+    view.boxColour = COLOURS[cls] || "#ffffff";
+    view.boxLabel = label;
     view.framesWithBox += 1;
+    if (cls === "low") view.lowConfidenceFrames += 1;
   }
   if (drag) {
     ctx.strokeStyle = "#4ea1ff";
@@ -293,6 +364,7 @@ window.addEventListener("keydown", (event) => {
 
 function stop() {
   if (!view.prefix) { addMessage("pick a drone first", "warn"); return; }
+  if (el("stop").disabled) { addMessage("no track to stop", ""); return; }
   command({ type: "stop" });
 }
 

@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from jsar.redetect.colour_check import ColourModel, bhattacharyya, histogram, region_pixels, target_colours
+from jsar.redetect.colour_check import (GREYS, HUES, SATURATIONS, AnchorColours, ColourModel, bhattacharyya, histogram,
+                                      hue_histogram, inner_box, region_pixels, target_colours)
 from jsar.redetect.params import RedetectParams
 
 RED, BLUE, GREY, BROWN = (0, 0, 220), (220, 0, 0), (128, 128, 128), (30, 60, 100)  # BGR
@@ -109,3 +110,74 @@ def test_the_model_blends_a_new_look_in_at_its_rate():
 def test_colour_parameters_are_validated_with_the_key_named(key, value):
     with pytest.raises(ValueError, match=f"redetect.colour.{key}"):
         RedetectParams.from_mapping({"colour": {key: value}})
+
+
+# ---------------------------------------------------------------- the drift check's colours (AnchorColours)
+
+def _loose_box_scene() -> np.ndarray:
+    """A 120 x 160 green frame with a 20 x 20 red target at (70, 50) on a 40 x 40 grey patch at (60, 40)
+    (the road under it); a green patch at (10, 10) and a red one at (120, 80)."""
+    green, road = (40, 160, 40), (128, 128, 128)
+    frame = np.full((120, 160, 3), green, np.uint8)
+    frame[40:80, 60:100] = road
+    frame[50:70, 70:90] = RED
+    frame[80:100, 120:140] = RED
+    return frame
+
+
+LOOSE = (60.0, 40.0, 40.0, 40.0)  # a loose box: the target in its centre, road in its corners
+
+
+def _anchor(frame: np.ndarray, box=LOOSE, min_reference: float = 0.3) -> AnchorColours:
+    return AnchorColours(frame, box, surround_scale=2.0, inner=0.6, min_reference=min_reference)
+
+
+def test_inner_box_keeps_the_centre_and_scales_the_sides():
+    assert inner_box((10.0, 20.0, 40.0, 20.0), 0.5) == (20.0, 25.0, 20.0, 10.0)
+
+
+def test_the_anchor_takes_the_centres_colours_not_a_loose_boxs_corners():
+    frame = _loose_box_scene()
+    anchor = _anchor(frame)
+    assert anchor.usable
+    assert anchor.share(frame, LOOSE) == pytest.approx(1.0)
+    assert anchor.share(frame, (120.0, 80.0, 20.0, 20.0)) > 1.0  # the red patch: all target colours
+    # The road in the box's corners is not the target's: a box of road and grass holds none of its colours.
+    assert anchor.share(frame, (0.0, 0.0, 40.0, 40.0)) == 0.0
+    assert anchor.share(frame, (62.0, 42.0, 8.0, 36.0)) == 0.0  # the road strip left of the target
+    assert anchor.share(frame, (400.0, 400.0, 10.0, 10.0)) == 0.0  # outside the frame
+
+
+def test_a_target_without_colours_of_its_own_has_no_anchor():
+    frame = np.full((120, 160, 3), GREY, np.uint8)
+    frame[50:70, 70:90] = (140, 140, 140)  # grey on grey: the same histogram bin
+    anchor = _anchor(frame, (65.0, 45.0, 30.0, 30.0))
+    assert not anchor.usable and anchor.share(frame, (0.0, 0.0, 20.0, 20.0)) == math.inf
+    frame = _loose_box_scene()
+    assert not _anchor(frame, min_reference=1.01).usable  # its own colours must cover min_reference of it
+
+
+@pytest.mark.parametrize("key, value", [("drift_share", 1.0), ("drift_frames", 0), ("anchor_inner", 0.0),
+                                        ("clear_share", 0.05), ("checkpoint_frames", 0), ("clear_bar_fraction", 0.0),
+                                        ("anchor_min_share", 1.5)])
+def test_drift_check_parameters_are_validated_by_name(key, value):
+    with pytest.raises(ValueError, match=rf"redetect\.colour\.{key}"):
+        RedetectParams.from_mapping({"colour": {key: value}})
+
+
+def test_hue_histogram_bins_by_hue_and_saturation_and_puts_greys_apart():
+    red, dark_red, grey, pale = (0, 0, 220), (0, 0, 110), (128, 128, 128), (200, 200, 220)
+    counts = hue_histogram(np.array([red, dark_red, grey, pale], np.uint8))
+    assert counts.shape == (HUES * SATURATIONS + GREYS,) and counts.sum() == pytest.approx(1.0)
+    assert counts[SATURATIONS - 1] == pytest.approx(0.5)  # red, bright or in shade: hue 0, saturated
+    assert counts[HUES * SATURATIONS:].sum() == pytest.approx(0.5)  # grey and a pale tint: no hue
+    assert hue_histogram(np.array([0, 255], np.uint8)).tolist() == [0.5, 0.0, 0.0, 0.5]  # grey frames: levels
+    assert hue_histogram(np.empty((0, 3), np.uint8)) is None
+
+
+def test_the_anchor_keeps_a_target_in_shade():
+    frame = _loose_box_scene()
+    anchor = _anchor(frame)
+    shaded = frame.copy()
+    shaded[40:80, 60:100] = (shaded[40:80, 60:100] * 0.5).astype(np.uint8)  # the target and its road at half light
+    assert anchor.share(shaded, LOOSE) == pytest.approx(1.0)

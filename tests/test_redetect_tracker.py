@@ -711,8 +711,9 @@ def test_the_core_confident_again_on_a_single_lost_frame_does_not_end_the_loss()
 
 def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_target_is_hidden():
     ungated = {"gate_base_sides": math.inf}
-    # Without the colour check (and the gate) the decision filter's score takes the look-alike.
-    unchecked = _run_with_static_look_alike(_redetect(accept=ungated, colour={"min_match": 0.0, "core_min_match": 0.0}), _distractor())
+    # Without the colour checks (and the gate) the decision filter's score takes the look-alike.
+    unchecked = _run_with_static_look_alike(
+        _redetect(accept=ungated, colour={"min_match": 0.0, "core_min_match": 0.0, "drift_share": 0.0}), _distractor())
     taken = [i for i in range(35, 60) if unchecked[i][0] == "recovered"]
     assert taken and math.dist(_centre(unchecked[taken[0]][1]), (262.0, 112.0)) < 6, taken
     # With it the look-alike's colours refuse it; the target, back where it was, is taken up again.
@@ -726,15 +727,21 @@ def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target
     where it was (the core and the decision filter both respond to it), and on frame 60 the target is back."""
     frame = _hidden_target_scene(_distractor(), (100, 100), range(45, 60))
 
-    def run(core_min_match: float) -> dict[int, tuple[str, Box]]:
-        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(colour={"core_min_match": core_min_match}))
+    def run(core_min_match: float, drift_share: float) -> dict[int, tuple[str, Box]]:
+        colour = {"core_min_match": core_min_match, "drift_share": drift_share}
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(colour=colour))
         tracker.init(frame(0), _target_box((100, 100)))
         return _run(tracker, [frame(i) for i in range(1, 70)])
 
-    unchecked = run(0.0)  # the search's candidates are still checked: the core's own way out ends the loss
+    # Without the core's colour test and the selection's colours (the search's candidates are still checked)
+    # the core's own way out ends the loss on the object.
+    unchecked = run(0.0, 0.0)
     assert any(unchecked[i][0] == "recovered" for i in range(45, 60)), [unchecked[i][0] for i in range(35, 60)]
-    checked = run(RedetectParams().colour.core_min_match)
+    defaults = RedetectParams().colour
+    # The core's colour test alone refuses it (the selection's hues do not: its main colour is the target's).
+    checked = run(defaults.core_min_match, 0.0)
     assert all(checked[i][0] == "lost" for i in range(36, 60)), [checked[i][0] for i in range(35, 60)]
+    checked = run(defaults.core_min_match, defaults.drift_share)
     assert checked[61][0] == "recovered" and all(checked[i][0] == "tracking" for i in range(62, 70))
 
 
@@ -821,6 +828,67 @@ def test_a_target_that_changed_for_good_is_followed_but_the_loss_ends_only_throu
 
 
 # ---------------------------------------------------------------- a real sequence
+
+def _greyed(patch: np.ndarray) -> np.ndarray:
+    """The patch's luminance pattern in the background's grey range (80..140): its layout, none of its colours."""
+    grey = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    grey = 80.0 + 60.0 * (grey - grey.min()) / max(float(grey.max() - grey.min()), 1.0)
+    return np.repeat(grey[..., None], 3, axis=2).astype(np.uint8)
+
+
+def _run_with_a_target_losing_its_colours(back_at: int | None) -> tuple[dict[int, tuple[str, Box]], list[str | None]]:
+    """The target drifting right; from frame 30 to 90 it turns slowly into its own grey pattern (the gradients
+    the core knows, the colours gone: what a box that slid onto background shows the drift check while the
+    core, learning as it goes, stays confident), and from `back_at` on it has its colours again."""
+    background = _background()
+    frames = []
+    for index in range(150):
+        fade = min(max((index - 30) / 60.0, 0.0), 1.0) if back_at is None or index < back_at else 0.0
+        patch = ((1.0 - fade) * _target() + fade * _greyed(_target())).astype(np.uint8)
+        frame = background.copy()
+        _paste(frame, patch, (100 + index // 3, 100))
+        frames.append(frame)
+    tracker = JsarReTracker()
+    tracker.init(frames[0], _target_box((100, 100)))
+    results, causes = {}, []
+    for index, frame in enumerate(frames[1:], start=1):
+        result = tracker.update(frame)
+        results[index] = (result.state, result.box)
+        causes.append(tracker.loss_cause)
+    return results, causes
+
+
+def test_a_confident_track_that_lost_the_targets_colours_is_reported_lost_as_a_drift():
+    results, causes = _run_with_a_target_losing_its_colours(back_at=None)
+    drift_frames = RedetectParams().colour.drift_frames
+    # The core stays confident on the grey pattern (no loss by the peak), but its colours are not the target's.
+    first_lost = min(i for i, (state, _) in results.items() if state == "lost")
+    assert 40 <= first_lost <= 90 + drift_frames, first_lost
+    assert causes[first_lost - 1] == "drift"
+    assert all(state == "lost" for i, (state, _) in results.items() if i >= first_lost)  # no way out without them
+
+
+def test_a_drift_loss_ends_when_the_targets_colours_are_back():
+    results, causes = _run_with_a_target_losing_its_colours(back_at=120)
+    assert causes[109] == "drift" and results[110][0] == "lost"
+    recovered = [i for i, (state, _) in results.items() if state == "recovered"]
+    assert recovered and 120 <= recovered[0] <= 130, recovered
+    assert all(state == "tracking" for i, (state, _) in results.items() if i > recovered[0])
+    x, y, w, h = results[149][1]
+    assert abs(x + w / 2 - (100 + 149 // 3 + TARGET / 2)) < TARGET / 2 and abs(y + h / 2 - (100 + TARGET / 2)) < TARGET / 2
+
+
+def test_the_drift_check_is_off_with_drift_share_zero():
+    tracker = jsar.create("jsar-re", redetect={"colour": {"drift_share": 0.0}})
+    background = _background()
+    frames = [background.copy() for _ in range(80)]
+    for index, frame in enumerate(frames):
+        _paste(frame, _target() if index < 30 else _greyed(_target()), (100, 100))
+    tracker.init(frames[0], _target_box((100, 100)))
+    assert all(tracker.update(frame).state == "tracking" for frame in frames[1:30])
+    states = [tracker.update(frame).state for frame in frames[30:]]
+    assert tracker.loss_cause != "drift" and "drift" not in states
+
 
 def _load_real(root, name: str, count: int) -> tuple[list[np.ndarray], np.ndarray]:
     sequence = real_sequence(root, name)

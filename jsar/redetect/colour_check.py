@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from jsar.redetect.monitor import updated_reference
@@ -128,3 +129,69 @@ class ColourModel:
     def _target_colours(self) -> np.ndarray:
         assert self.object_hist is not None and self.surround_hist is not None
         return target_colours(self.object_hist, self.surround_hist, self.surround_prior)
+
+
+HUES, SATURATIONS, GREYS = 12, 2, 4  # the drift check's colour bins: hue x saturation, and grey levels
+MIN_SATURATION, MIN_VALUE = 48, 40  # below either (0..255) a pixel's hue is noise: it counts as a grey
+
+
+def hue_histogram(pixels: np.ndarray) -> np.ndarray | None:
+    """Histogram (HUES * SATURATIONS + GREYS,) of BGR uint8 pixels (N, 3) over hue x saturation, greys apart
+    by value, summing to 1; grey pixels (N,) by level in GREYS bins (None for no pixels). Hue ignores
+    brightness: a target driving into shade keeps its bins, which fixed RGB levels do not."""
+    if len(pixels) == 0:
+        return None
+    if pixels.ndim == 1:
+        index = (pixels.astype(np.int32) * GREYS) >> 8
+        return np.bincount(index, minlength=GREYS).astype(np.float64) / len(pixels)
+    hsv = cv2.cvtColor(np.ascontiguousarray(pixels, dtype=np.uint8).reshape(-1, 1, 3), cv2.COLOR_BGR2HSV)
+    hue, sat, val = (hsv[:, 0, k].astype(np.int32) for k in range(3))
+    chromatic = (sat >= MIN_SATURATION) & (val >= MIN_VALUE)
+    sat_bin = np.minimum((sat - MIN_SATURATION) * SATURATIONS // (256 - MIN_SATURATION), SATURATIONS - 1)
+    index = np.where(chromatic, (hue * HUES // 180) * SATURATIONS + sat_bin,
+                     HUES * SATURATIONS + ((val * GREYS) >> 8))
+    counts = np.bincount(index, minlength=HUES * SATURATIONS + GREYS).astype(np.float64)
+    return counts / counts.sum()
+
+
+def inner_box(box: Box, fraction: float) -> Box:
+    """The central part of `box` (x, y, w, h px): `fraction` of its width and height, same centre."""
+    x, y, w, h = box
+    return x + w * (1.0 - fraction) / 2.0, y + h * (1.0 - fraction) / 2.0, w * fraction, h * fraction
+
+
+class AnchorColours:
+    """The target's colours as the operator selected it, never updated: the drift check.
+
+    The colours (hue_histogram's bins) where P(target | colour) > 1/2 between the selected box's central part (`inner`
+    of its width and height) and everything else out to the box enlarged `surround_scale` times per
+    side, the box's own corners included: a loose box's background is in its corners, so its colours
+    are the surround's, not the target's. `share(frame, box)` is the
+    fraction of a box's central part in those colours over the same fraction in the selected box
+    (1: as at selection). A target whose own colours covered less than `min_reference` of its
+    central part at selection (a grey car on grey road) has no colours to check: `usable` is False
+    and every share is inf. The running model (ColourModel) learns what the tracker follows, a
+    background it slid onto included; this one cannot."""
+
+    def __init__(self, frame: np.ndarray, box: Box, surround_scale: float, inner: float, min_reference: float) -> None:
+        self.inner = inner
+        scale = surround_scale / inner  # the central part enlarged out to the box's surround
+        pixels, central = region_pixels(frame, inner_box(box, inner), scale)
+        object_hist, surround_hist = hue_histogram(pixels[central]), hue_histogram(pixels[~central])
+        self.colours: np.ndarray | None = None
+        self.reference = 0.0
+        if object_hist is not None and surround_hist is not None:
+            # P(target | c) > 1/2 with the areas as priors: the surround's area over the central part's.
+            self.colours = target_colours(object_hist, surround_hist, scale ** 2 - 1.0)
+            self.reference = float(object_hist[self.colours].sum())
+        self.usable = self.colours is not None and self.reference >= min_reference
+
+    def share(self, frame: np.ndarray, box: Box) -> float:
+        """The share of box's central part in the target's selected colours over the selected box's
+        (0 for a box outside the frame; inf when not usable)."""
+        if not self.usable:
+            return math.inf
+        assert self.colours is not None
+        pixels, _ = region_pixels(frame, inner_box(box, self.inner))
+        observed = hue_histogram(pixels)
+        return 0.0 if observed is None else float(observed[self.colours].sum()) / self.reference

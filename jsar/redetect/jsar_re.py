@@ -44,7 +44,7 @@ import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
-from jsar.redetect.colour_check import ColourModel
+from jsar.redetect.colour_check import AnchorColours, ColourModel
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
@@ -91,6 +91,13 @@ class JsarReTracker:
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.memory: DecisionMemory | None = None
         self.colour = self._new_colour_model()
+        self.anchor: AnchorColours | None = None  # the target's colours at selection (the drift check)
+        self.drift_frames = 0  # tracked frames in a row whose box holds too few of them
+        self.share = math.inf  # the last tracked frame's share of them (AnchorColours.share)
+        # (frame index, core, decision filter, colour model) on the last checkpoint: a tracked frame whose
+        # box clearly held the target's colours. A drift loss rolls back to it (what slid learnt the background).
+        self.checkpoint: tuple[int, JsarTracker, DecisionMemory, ColourModel] | None = None
+        self.loss_cause: str | None = None  # why the current loss began: "peak" (the monitor) or "drift"
         self.search: LossSearch | None = None  # the loss being searched
         self.lost = False
         self.frame_index = -1
@@ -109,6 +116,13 @@ class JsarReTracker:
         self.memory = DecisionMemory(self.params, self.core)
         self.colour = self._new_colour_model()
         self.colour.learn(frame, self.core.box)
+        colour = self.redetect.colour
+        self.anchor = AnchorColours(frame, self.core.box, colour.surround_scale, colour.anchor_inner,
+                                    colour.anchor_min_share)
+        self.drift_frames = 0
+        self.share = math.inf
+        self.checkpoint = None
+        self.loss_cause = None
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.search = None
         self.lost = False
@@ -141,21 +155,69 @@ class JsarReTracker:
             return self._lost_frame(frame)
         loc = self.core.locate(frame)
         verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
-        if verdict.lost:
+        # Not the monitor's size limits: a box that grew onto background past max_area is what this catches.
+        drifted = self._drifted(frame, loc) and self.frame_index >= self.redetect.monitor.warmup_frames
+        if verdict.lost or drifted:
             self.lost = True
+            self.loss_cause = "drift" if drifted and not verdict.lost else "peak"
             if self.probation is not None:
                 self._refute()  # the re-acquisition did not hold: resume the search it ended
                 return self._lost_frame(frame)
+            if self.loss_cause == "drift" and self.checkpoint is not None:
+                loc, verdict = self._roll_back(frame, loc)
             self.search = self._new_search()
             self.before_loss = copy.deepcopy(self.core)
             return self._search_lost(frame, loc, verdict, self._own(loc))
         # The decision filter's score on the core's sample is needed only where the filter learns the frame.
         self._commit(frame, loc, verdict.reliable, self._own(loc) if verdict.reliable else None)
+        self._keep_checkpoint()
         if self.probation is not None:
             self.probation.frames_left -= 1
             if self.probation.frames_left <= 0:
                 self.probation = None
         return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
+
+    def _drifted(self, frame: np.ndarray, loc: Localisation) -> bool:
+        """Whether the box at the core's detection has held too few of the target's colours at selection
+        (colour.drift_share) on colour.drift_frames tracked frames in a row: the track slid off the target
+        onto background while its peak stayed confident (the core learnt the background as it slid)."""
+        assert self.anchor is not None
+        minimum = self.redetect.colour.drift_share
+        if minimum <= 0 or not self.anchor.usable:
+            return False
+        w, h = self.core.size_wh
+        box = (loc.center_xy[0] - w / 2.0, loc.center_xy[1] - h / 2.0, w, h)
+        self.share = self.anchor.share(frame, box)
+        self.drift_frames = self.drift_frames + 1 if self.share < minimum else 0
+        return self.drift_frames >= self.redetect.colour.drift_frames
+
+    def _keep_checkpoint(self) -> None:
+        """After a committed tracked frame: the core, decision filter and colour model become the checkpoint
+        when the box clearly held the target's colours at selection (colour.clear_share) and the last
+        checkpoint is colour.checkpoint_frames old (one copy, so the filters they share stay shared)."""
+        colour = self.redetect.colour
+        if self.share < colour.clear_share:
+            return
+        if self.checkpoint is not None and self.frame_index - self.checkpoint[0] < colour.checkpoint_frames:
+            return
+        assert self.memory is not None
+        core, memory, model = copy.deepcopy((self.core, self.memory, self.colour))
+        self.checkpoint = (self.frame_index, core, memory, model)
+
+    def _roll_back(self, frame: np.ndarray, loc: Localisation) -> tuple[Localisation, Verdict]:
+        """A drift loss: the core, decision filter and colour model as at the checkpoint (their size and
+        look before the slide), the core moved to where the drifted one found its detection; its own
+        detection there, judged against the monitor's reference (nothing is updated)."""
+        assert self.checkpoint is not None
+        _, core, memory, model = copy.deepcopy(self.checkpoint)
+        self.core, self.memory, self.colour = core, memory, model
+        self.core.relocate(loc.center_xy)
+        loc = self.core.locate(frame)
+        confident, reliable = self.monitor.judge(loc.peak)
+        last = self._track[-1]
+        self._track.clear()  # the drifted track's motion is the background's: keep its last place only
+        self._track.append(last)
+        return loc, Verdict(confident, reliable, True, self.monitor.reference)
 
     def _lost_frame(self, frame: np.ndarray) -> TrackResult:
         """A frame while lost: the core locates around where it is (where it coasted, or waited at the
@@ -272,7 +334,8 @@ class JsarReTracker:
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
         minimum = self.redetect.colour.min_match
-        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum))
+        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum),
+                              lambda c: self._candidate_bar(frame, c, bar))
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
@@ -291,18 +354,34 @@ class JsarReTracker:
         self.probation = kept
         return result
 
+    def _candidate_bar(self, frame: np.ndarray, candidate: Candidate, bar: float) -> float:
+        """The bar a candidate must pass: colour.clear_bar_fraction x `bar` where its box clearly holds the
+        target's colours at selection (colour.clear_share; a car that came back turned scores low on the
+        decision filter's gradients but keeps its colours), else `bar`."""
+        assert self.anchor is not None
+        colour = self.redetect.colour
+        lower = colour.clear_bar_fraction * bar
+        if not lower <= candidate.score < bar or not self.anchor.usable:
+            return bar  # only a candidate between the two bars needs its colours looked at
+        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
+        box = (candidate.x - w / 2.0, candidate.y - h / 2.0, w, h)
+        return lower if self.anchor.share(frame, box) >= colour.clear_share else bar
+
     def _new_colour_model(self) -> ColourModel:
         colour = self.redetect.colour
         return ColourModel(colour.bins, colour.rate, colour.reference_rate, colour.surround_scale)
 
     def _colour_passes(self, frame: np.ndarray, centre_xy: tuple[float, float], minimum: float) -> bool:
         """Whether a box of the target's size at the loss, centred on centre_xy px, matches the target's
-        colours at least `minimum` x as well as the tracked target did (colour_check.py; 0: always)."""
-        if minimum <= 0:
-            return True
+        colours at least `minimum` x as well as the tracked target did (colour_check.py; 0: always), and
+        holds at least colour.drift_share x the share of the target's colours at selection (the drift
+        check's test: a place the track would slide off again at once is no way out)."""
+        assert self.anchor is not None
         w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
         box = (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
-        return self.colour.relative_match(frame, box) >= minimum
+        if self.anchor.share(frame, box) < self.redetect.colour.drift_share:
+            return False
+        return minimum <= 0 or self.colour.relative_match(frame, box) >= minimum
 
     def _reacquire(self, frame: np.ndarray, at: Candidate) -> None:
         """Move the track to `at`: the core (as before the loss, or as it coasted) that responds more
@@ -317,11 +396,15 @@ class JsarReTracker:
         options.append(self.core)
         best: tuple[JsarTracker, Localisation] | None = None
         if self.redetect.accept.reacquire == "relocate":
+            side = math.sqrt(options[0].size_wh[0] * options[0].size_wh[1])
             for option in options:
                 moved = copy.deepcopy(option)
                 moved.relocate(centre)
                 loc = moved.locate(frame)
-                if loc.peak > self.redetect.monitor.enable_peak and (best is None or loc.peak > best[1].peak):
+                # A core whose detection leaves the taken place follows what it learnt elsewhere (a coasting
+                # core, the occluder it coasted on): moving it there would end the loss off the target.
+                stays = math.hypot(loc.center_xy[0] - centre[0], loc.center_xy[1] - centre[1]) <= side
+                if stays and loc.peak > self.redetect.monitor.enable_peak and (best is None or loc.peak > best[1].peak):
                     best = (moved, loc)
         if best is not None:
             self.core = best[0]
@@ -349,6 +432,8 @@ class JsarReTracker:
         """End a loss: back to tracking from the next frame."""
         self.lost = False
         self.search = None
+        self.drift_frames = 0
+        self.loss_cause = None
         return TrackResult(box=self.core.box, score=score, state="recovered")
 
 

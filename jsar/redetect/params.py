@@ -204,6 +204,13 @@ class ColourParams:
     surround_scale: float = 2.0
     rate: float = 0.05
     reference_rate: float = 0.1
+    anchor_inner: float = 0.6  # the drift check's colours: the central this fraction of the selected box's width and height
+    anchor_min_share: float = 0.3  # ... used only if its own colours cover this share of it at selection (else no check)
+    drift_share: float = 0.1  # tracking with the box's share of them below this x at selection ... (0: no drift check)
+    drift_frames: int = 10  # ... on this many frames in a row is a loss; a way out of a loss needs the share >= drift_share
+    clear_share: float = 0.5  # a box with the share >= this clearly shows the target: a tracked one is a checkpoint ...
+    checkpoint_frames: int = 10  # ... (a drift loss rolls back to the last; one per this many frames) ...
+    clear_bar_fraction: float = 0.7  # ... and a candidate's bar while lost is this x the acceptance bar (1: no change)
 
     def validate(self, prefix: str = "colour") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
@@ -211,9 +218,18 @@ class ColourParams:
         _require(prefix, "core_min_match", 0 <= self.core_min_match <= 1, f"0 <= value <= 1, got {self.core_min_match}")
         _require(prefix, "bins", 2 <= self.bins <= 32, f"2 <= value <= 32, got {self.bins}")
         _require(prefix, "surround_scale", self.surround_scale > 1, f"> 1, got {self.surround_scale}")
-        for key in ("rate", "reference_rate"):
+        for key in ("rate", "reference_rate", "anchor_inner"):
             value = getattr(self, key)
             _require(prefix, key, 0 < value <= 1, f"0 < value <= 1, got {value}")
+        _require(prefix, "anchor_min_share", 0 <= self.anchor_min_share <= 1,
+                 f"0 <= value <= 1, got {self.anchor_min_share}")
+        _require(prefix, "drift_share", 0 <= self.drift_share < 1, f"0 <= value < 1, got {self.drift_share}")
+        _require(prefix, "drift_frames", self.drift_frames >= 1, f">= 1, got {self.drift_frames}")
+        _require(prefix, "clear_share", self.clear_share >= self.drift_share,
+                 f">= drift_share, got {self.clear_share} < {self.drift_share}")
+        _require(prefix, "checkpoint_frames", self.checkpoint_frames >= 1, f">= 1, got {self.checkpoint_frames}")
+        _require(prefix, "clear_bar_fraction", 0 < self.clear_bar_fraction <= 1,
+                 f"0 < value <= 1, got {self.clear_bar_fraction}")
 
 
 @dataclass(frozen=True)

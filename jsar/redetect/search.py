@@ -163,8 +163,8 @@ class LossSearch:
                 if candidate.distance_sides((r.x, r.y), self.side_px) <= self.accept.confirm_radius_sides]
         return self.accept.refute_margin * max(near) if near else 0.0
 
-    def decide(self, candidates: list[Candidate], bar: float,
-               check: Callable[[Candidate], bool] | None = None) -> Candidate | None:
+    def decide(self, candidates: list[Candidate], bar: float, check: Callable[[Candidate], bool] | None = None,
+               bar_for: Callable[[Candidate], float] | None = None) -> Candidate | None:
         """The candidate taken on this frame, or None; the best candidate found at least RECENTRE_SIDES
         off its window's centre becomes the lead (a lattice window rarely centres the target, and scores
         it lower the farther off: the next frame looks again centred on it, at its angle).
@@ -174,13 +174,13 @@ class LossSearch:
         taken in the first holdoff_frames lost frames, nor beyond reach_sides of anchor_xy, nor near a
         refuted re-acquisition unless it beats refute_margin x that one's score. `check` (optional) is a
         further test a candidate must pass to count as above the bar; it is asked only of candidates
-        that passed the others."""
+        that passed the others. `bar_for` (optional) gives a candidate a bar of its own in place of `bar`."""
         # The lead is the best candidate found off its window's centre: a window scores a target off its
         # centre low (the cosine window), one centred on it tells its real score. A candidate already
         # centred is known; re-centring on it again would let one look-alike hold the lead for good.
         off_centre = [c for c in candidates if c.off_centre_sides(self.side_px) >= RECENTRE_SIDES]
         self.lead = max(off_centre, key=lambda c: c.score) if off_centre else None
-        above = [c for c in candidates if c.score >= max(bar, self.refuted_bar(c))
+        above = [c for c in candidates if c.score >= max(bar if bar_for is None else bar_for(c), self.refuted_bar(c))
                  and c.distance_sides(self.anchor_xy, self.side_px) <= self.reach_sides
                  and (check is None or check(c))]
         if self.pending is not None:

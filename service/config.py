@@ -80,12 +80,23 @@ class TrackerConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """Optics and identity of the tracking camera, and how a clicked point becomes a box."""
+    """Optics and identity of the tracking camera, and how a clicked point or a dragged rectangle becomes a box."""
 
     hfov_deg: float = _checked(70.0, _in_range(1.0, 179.0))  # horizontal field of view
     default_point_radius: float = _checked(0.04, _in_range(0.001, 0.5))  # fraction of width when radius = 0
-    min_box_px: float = _checked(12.0, _positive)  # smallest initial box side from a point
+    min_box_px: float = _checked(12.0, _positive)  # smallest box side (pixels) of a point or a fitted rectangle
     point_proposal: bool = True  # a point's box: the EdgeBoxes proposal around the object under it (else the square)
+    # TRACK_RECTANGLE: a loose rectangle is replaced by the EdgeBoxes proposal of the object inside it
+    # (service.selection.fitted_rectangle_box); else the rectangle as dragged.
+    rectangle_fit: bool = True
+    # "loose": rectangle area >= this * the fitted box's area (ratio of areas); a tighter rectangle is kept
+    rectangle_loose_area_ratio: float = _checked(1.5, lambda v: None if v >= 1 else f"must be >= 1, got {v}")
+    # "fits": the proposal covers at least this fraction of the rectangle's area (smaller ones are parts) ...
+    rectangle_fit_min_area_fraction: float = _checked(0.0625, _in_range(0.001, 1.0))
+    # ... and at least this fraction of the proposal's area lies inside the rectangle
+    rectangle_fit_min_inside: float = _checked(0.9, _in_range(0.5, 1.0))
+    # ... and its colours differ from its surround's by at least this (chi-square histogram distance, 0..1)
+    rectangle_fit_min_contrast: float = _checked(0.02, _in_range(0.0, 1.0))
     vendor_name: str = "JSAR"
     model_name: str = "jsar-tracker"
 

@@ -5,11 +5,26 @@ image size. A point becomes a square of side 2 * radius * image width centred on
 camera.default_point_radius), at least camera.min_box_px, kept inside the image. With
 camera.point_proposal (the default) the box is instead the EdgeBoxes object proposal
 (jsar.redetect.proposals) around the object under the click: proposals are generated for object
-sides of 1/4, 1/2 and 1 x the square's (a click says where the object is, not how big), those
-containing the point are scored by EdgeBoxes score x exp(-d^2), d the point's offset from the box
-centre in half-sizes (an operator clicks on an object's middle), and the best wins; when no proposal
-contains the point the square is used (and the caller logs which one was chosen). Either box always
-contains the clicked point. Measured against the square on the shared sequences: `python -m bench.click`.
+sides of 1/4, 1/2 and 1 x the square's (a click says where the object is, not how big; never below
+camera.min_box_px, which a smaller box would be grown to anyway), each in a search square of
+PROPOSAL_SEARCH_FACTOR = 5 x that side around the point (3 x cut off a tall object clicked away from
+its middle) keeping SELECTION_MAX_BOXES = 300 boxes (of the 30 the re-detection keeps, few held the
+point). Those containing the point are scored by EdgeBoxes score x exp(-d^2)^2, d the point's offset
+from the box centre in half-sizes (an operator clicks near an object's middle), and the best wins;
+when none contains the point, object sides of 2 and then 4 x the square's are tried, then the square
+is used (and the caller logs which one was chosen). Either box always contains the clicked point.
+
+A dragged rectangle (camera.rectangle_fit, the default) is fitted to the object inside it: EdgeBoxes
+proposals for object sides of RECTANGLE_SIDE_FRACTIONS x sqrt(its area) in a square of 1.2 x its longer
+side around its centre; a proposal fits when at least camera.rectangle_fit_min_inside of its area lies in
+the rectangle and it covers at least camera.rectangle_fit_min_area_fraction of the rectangle; the best
+fitting one by EdgeBoxes score x exp(-d^2) (d: the rectangle's centre from the proposal's, in
+half-sizes), clipped to the rectangle and grown to camera.min_box_px inside it, replaces the rectangle
+when the rectangle is loose: its area is at least camera.rectangle_loose_area_ratio x the box's, and no
+proposal that is the rectangle itself (IoU >= RECTANGLE_SAME_IOU) scores as well; and the box's colours
+stand out from its surround (colour_contrast >= camera.rectangle_fit_min_contrast; a rectangle on plain
+ground finds proposals in the noise). Otherwise the operator's rectangle is kept. Measured on the
+shared sequences: `python -m bench.click` (clicks and drags).
 """
 from __future__ import annotations
 
@@ -21,8 +36,17 @@ from service.config import CameraConfig
 from service.domain import TrackPoint, TrackRectangle
 
 Box = tuple[float, float, float, float]
-PROPOSAL_SEARCH_FACTOR = 3.0  # search square side = this * the object side hypothesis
+PROPOSAL_SEARCH_FACTOR = 5.0  # a click's search square side = this * the object side hypothesis
 PROPOSAL_SIDE_FRACTIONS = (0.25, 0.5, 1.0)  # object side hypotheses, fractions of the point's square side
+PROPOSAL_LARGER_FRACTIONS = (2.0, 4.0)  # tried in turn only while no proposal holds the point
+CENTREDNESS_POWER = 2.0  # a click's proposal merit: EdgeBoxes score * centredness ** this
+SELECTION_MAX_BOXES = 300  # EdgeBoxes boxes kept per search (the re-detection keeps 30)
+RECTANGLE_SIDE_FRACTIONS = (0.35, 0.5, 0.7)  # object side hypotheses, fractions of sqrt(rectangle area)
+RECTANGLE_SEARCH_FACTOR = 1.2  # a rectangle's search square side = this * its longer side
+RECTANGLE_CENTREDNESS_POWER = 1.0  # a rectangle's proposal merit: score * centredness on its centre ** this
+RECTANGLE_SAME_IOU = 0.7  # a proposal with at least this IoU with the rectangle is the rectangle itself
+CONTRAST_BINS = 4  # colour levels per channel of colour_contrast's histograms
+CONTRAST_SURROUND = 2.0  # colour_contrast's surround: the box's width and height times this
 
 
 def rectangle_box(selection: TrackRectangle, image_size: tuple[int, int]) -> Box:
@@ -60,12 +84,25 @@ def centredness(box: Box, point: tuple[float, float]) -> float:
 def grow_to_min_side(box: Box, min_side: float, image_size: tuple[int, int]) -> Box:
     """Widen / heighten a box below min_side about its centre, then shift it back inside the image; the
     grown box holds the original, so a point inside stays inside."""
-    width, height = image_size
+    return grow_within(box, min_side, (0.0, 0.0, float(image_size[0]), float(image_size[1])))
+
+
+def grow_within(box: Box, min_side: float, outer: Box) -> Box:
+    """grow_to_min_side inside the box `outer` (x, y, w, h) instead of the image: no side grows beyond
+    outer's, and the grown box is shifted back inside it; it holds the original (inside outer)."""
+    ox, oy, ow, oh = outer
     x, y, w, h = box
-    new_w, new_h = min(max(w, min_side), float(width)), min(max(h, min_side), float(height))
-    nx = min(max(x + w / 2.0 - new_w / 2.0, 0.0), width - new_w)
-    ny = min(max(y + h / 2.0 - new_h / 2.0, 0.0), height - new_h)
+    new_w, new_h = min(max(w, min_side), ow), min(max(h, min_side), oh)
+    nx = min(max(x + w / 2.0 - new_w / 2.0, ox), ox + ow - new_w)
+    ny = min(max(y + h / 2.0 - new_h / 2.0, oy), oy + oh - new_h)
     return (nx, ny, new_w, new_h)
+
+
+def _edge_boxes_settings():
+    """EdgeBoxes settings for a selection: the re-detection's, with SELECTION_MAX_BOXES boxes kept."""
+    from jsar.redetect.proposals import EdgeBoxesSettings  # heavy import, only when enabled
+
+    return EdgeBoxesSettings(max_boxes=SELECTION_MAX_BOXES)
 
 
 def proposal_box(frame: np.ndarray, selection: TrackPoint, square: Box, min_side: float = 1.0) -> Box | None:
@@ -76,23 +113,132 @@ def proposal_box(frame: np.ndarray, selection: TrackPoint, square: Box, min_side
 
     height, width = frame.shape[:2]
     point = (selection.x * width, selection.y * height)
+    settings = _edge_boxes_settings()
     best: tuple[float, Box] | None = None
-    for fraction in PROPOSAL_SIDE_FRACTIONS:
-        side = max(fraction * square[2], 4.0)
+    for fraction in PROPOSAL_SIDE_FRACTIONS + PROPOSAL_LARGER_FRACTIONS:
+        if best is not None and fraction in PROPOSAL_LARGER_FRACTIONS:
+            break  # larger objects are only hypothesised when no proposal of the expected sizes holds the point
+        side = max(fraction * square[2], min_side, 4.0)  # a smaller object would be grown to min_side anyway
         try:
-            proposals = generate_proposals(frame, point, (side, side), omega=PROPOSAL_SEARCH_FACTOR)
+            proposals = generate_proposals(frame, point, (side, side), omega=PROPOSAL_SEARCH_FACTOR, settings=settings)
         except ValueError:  # search region outside the image (cannot happen for a point inside it)
             continue
         for box, score in zip(proposals.boxes, proposals.scores):
             candidate = (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
             if not contains_point(candidate, point):
                 continue
-            merit = float(score) * centredness(candidate, point)
+            merit = float(score) * centredness(candidate, point) ** CENTREDNESS_POWER
             if best is None or merit > best[0]:
                 best = (merit, candidate)
     if best is None:
         return None
     return grow_to_min_side(best[1], min_side, (width, height))
+
+
+def inside_fraction(box: Box, outer: Box) -> float:
+    """Fraction of box's area that lies inside outer."""
+    x0, y0 = max(box[0], outer[0]), max(box[1], outer[1])
+    x1, y1 = min(box[0] + box[2], outer[0] + outer[2]), min(box[1] + box[3], outer[1] + outer[3])
+    return max(0.0, x1 - x0) * max(0.0, y1 - y0) / (box[2] * box[3])
+
+
+def box_iou(a: Box, b: Box) -> float:
+    """Intersection over union of two boxes."""
+    inter = inside_fraction(a, b) * a[2] * a[3]
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+
+
+def clip_box(box: Box, outer: Box) -> Box:
+    """The part of box inside outer (box assumed to overlap it)."""
+    x0, y0 = max(box[0], outer[0]), max(box[1], outer[1])
+    x1, y1 = min(box[0] + box[2], outer[0] + outer[2]), min(box[1] + box[3], outer[1] + outer[3])
+    return (x0, y0, x1 - x0, y1 - y0)
+
+
+def colour_contrast(frame: np.ndarray, box: Box) -> float:
+    """Chi-square distance (0 same colours .. 1 disjoint) between the colour histograms (CONTRAST_BINS levels
+    per channel) of the box and of the band around it out to CONTRAST_SURROUND x its width and height, both
+    clipped to the image; 0 when either is empty."""
+    height, width = frame.shape[:2]
+    x, y, w, h = box
+    ex, ey = (CONTRAST_SURROUND - 1.0) * w / 2.0, (CONTRAST_SURROUND - 1.0) * h / 2.0
+    inner = _pixel_bounds((x, y, w, h), width, height)
+    outer = _pixel_bounds((x - ex, y - ey, w + 2 * ex, h + 2 * ey), width, height)
+    levels = CONTRAST_BINS
+    shift = 8 - int(math.log2(levels))
+    patch = frame[outer[1]:outer[3], outer[0]:outer[2]]
+    if patch.ndim == 2:
+        patch = np.repeat(patch[:, :, None], 3, axis=2)
+    codes = patch[:, :, :3].astype(np.int32) >> shift
+    codes = (codes[:, :, 0] * levels + codes[:, :, 1]) * levels + codes[:, :, 2]
+    inside = np.zeros(codes.shape, bool)
+    inside[inner[1] - outer[1]:inner[3] - outer[1], inner[0] - outer[0]:inner[2] - outer[0]] = True
+    bins = levels ** 3
+    hist_in = np.bincount(codes[inside], minlength=bins).astype(np.float64)
+    hist_out = np.bincount(codes[~inside], minlength=bins).astype(np.float64)
+    if hist_in.sum() == 0 or hist_out.sum() == 0:
+        return 0.0
+    a, b = hist_in / hist_in.sum(), hist_out / hist_out.sum()
+    total = a + b
+    used = total > 0
+    return float(0.5 * np.sum((a[used] - b[used]) ** 2 / total[used]))
+
+
+def _pixel_bounds(box: Box, width: int, height: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) integer pixels of a box, clipped to the image, at least one pixel."""
+    x0 = min(max(int(round(box[0])), 0), width - 1)
+    y0 = min(max(int(round(box[1])), 0), height - 1)
+    x1 = min(max(int(round(box[0] + box[2])), x0 + 1), width)
+    y1 = min(max(int(round(box[1] + box[3])), y0 + 1), height)
+    return x0, y0, x1, y1
+
+
+def fitted_rectangle_box(frame: np.ndarray, rectangle: Box, camera: CameraConfig) -> tuple[Box | None, str]:
+    """The object's box inside the operator's rectangle (pixels), or None to keep the rectangle, with the
+    outcome: "fitted"; "no_proposal_fits" (no proposal lies inside the rectangle and covers at least
+    camera.rectangle_fit_min_area_fraction of it); "not_loose" (a proposal that is the rectangle itself
+    scores at least as well, or the fitted box's area is more than 1 / camera.rectangle_loose_area_ratio of
+    the rectangle's: the rectangle already is the object's box); "low_contrast" (the fitted box's colours
+    differ from its surround's by less than camera.rectangle_fit_min_contrast: nothing stands out). See
+    the module docstring."""
+    from jsar.redetect.proposals import generate_proposals  # heavy import, only when enabled
+
+    x, y, w, h = rectangle
+    if w < 2.0 or h < 2.0:
+        return None, "no_proposal_fits"
+    centre = (x + w / 2.0, y + h / 2.0)
+    area = w * h
+    settings = _edge_boxes_settings()
+    best: tuple[float, Box] | None = None
+    rectangle_like = 0.0  # best merit of a proposal that is the rectangle itself (IoU >= RECTANGLE_SAME_IOU)
+    for fraction in RECTANGLE_SIDE_FRACTIONS:
+        side = max(fraction * math.sqrt(area), camera.min_box_px, 4.0)
+        omega = RECTANGLE_SEARCH_FACTOR * max(w, h) / side
+        try:
+            proposals = generate_proposals(frame, centre, (side, side), omega=omega, settings=settings)
+        except ValueError:  # rectangle outside the image
+            continue
+        for box, score in zip(proposals.boxes, proposals.scores):
+            candidate = (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
+            merit = float(score) * centredness(candidate, centre) ** RECTANGLE_CENTREDNESS_POWER
+            if box_iou(candidate, rectangle) >= RECTANGLE_SAME_IOU:
+                rectangle_like = max(rectangle_like, merit)
+            inside = inside_fraction(candidate, rectangle)
+            if (inside < camera.rectangle_fit_min_inside  # the part inside the rectangle is the box fitted
+                    or inside * candidate[2] * candidate[3] < camera.rectangle_fit_min_area_fraction * area):
+                continue
+            if best is None or merit > best[0]:
+                best = (merit, candidate)
+    if best is None:
+        return None, "no_proposal_fits"
+    if rectangle_like >= best[0]:
+        return None, "not_loose"
+    box = grow_within(clip_box(best[1], rectangle), camera.min_box_px, rectangle)
+    if area < camera.rectangle_loose_area_ratio * box[2] * box[3]:
+        return None, "not_loose"
+    if colour_contrast(frame, box) < camera.rectangle_fit_min_contrast:
+        return None, "low_contrast"
+    return box, "fitted"
 
 
 def rescale_box(box: Box, old_size: tuple[int, int], new_size: tuple[int, int]) -> Box:

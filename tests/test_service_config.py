@@ -64,6 +64,8 @@ def test_documented_default_config_loads_and_matches_dataclass_defaults() -> Non
     ({"tracker": {"name": "magic"}}, "tracker.name: unknown tracker 'magic'"),
     ({"guidance": {"rate_hz": 1.0}}, "guidance.rate_hz: must be in [2.5, 50.0], got 1.0"),
     ({"camera": {"hfov_deg": 0}}, "camera.hfov_deg: must be in [1.0, 179.0], got 0"),
+    ({"camera": {"rectangle_loose_area_ratio": 0.5}}, "camera.rectangle_loose_area_ratio: must be >= 1, got 0.5"),
+    ({"camera": {"rectangle_fit_min_inside": 0.2}}, "camera.rectangle_fit_min_inside: must be in [0.5, 1.0], got 0.2"),
     ({"logging": {"level": "LOUD"}}, "logging.level: must be one of DEBUG, INFO, WARNING, ERROR"),
     ([1, 2], "config: must be a mapping"),
 ])

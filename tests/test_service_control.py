@@ -570,14 +570,17 @@ class _NullOutputs:
 
 
 def test_a_click_boxes_the_object_better_than_the_square_on_real_sequences(data_root) -> None:
-    """Clicks at the true centre on 3 frames of each shared sequence (bench.click): every box holds the
-    point, and the proposal's mean IoU with the true box beats the square's by a margin (measured with
-    `python -m bench.click`: 0.53 against 0.28 over 70 clicks)."""
+    """Clicks at the true centre and loose drags (1.5-2.5x the true box per side) on 3 frames of each shared
+    sequence (bench.click): every click box holds the point and every fitted box lies in its rectangle; the
+    proposal's mean IoU with the true box beats the square's and the fitted box's beats the rectangle's by a
+    margin (measured with `python -m bench.click` over 70 clicks and drags: proposal 0.605 against square
+    0.280, fitted 0.574 against rectangle 0.266)."""
     from bench.click import run, summary_rows
     clicks = run(data_root, frames=3, jitter=0.0)
     assert clicks and all(click.contains for click in clicks)
-    overall = {method: mean for name, method, _, mean, _, _ in summary_rows(clicks) if name == "all"}
-    assert overall["proposal"] > overall["square"] + 0.15, overall
+    overall = {method: mean for name, method, _, mean, _, _, _ in summary_rows(clicks) if name == "all"}
+    assert overall["proposal"] > overall["square"] + 0.25, overall
+    assert overall["fitted"] > overall["rectangle"] + 0.2, overall
 
 
 def test_configured_system_id_is_commanded_before_any_heartbeat() -> None:

@@ -29,7 +29,8 @@ from service.control.gimbal import GimbalState, PidGains, angular_error, focal_l
 from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
 from service.domain import (AutopilotState, ControlCommand, LoopState, SelectionKind, StopTracking, TrackPoint,
                             TrackRectangle, TrackSnapshot)
-from service.selection import normalised_box, point_box, proposal_box, rectangle_box, rescale_box
+from service.selection import (fitted_rectangle_box, normalised_box, point_box, proposal_box, rectangle_box,
+                               rescale_box)
 from service.sources.base import Frame, LatestSlot
 
 log = logging.getLogger("service.loop")
@@ -187,6 +188,10 @@ class TrackingLoop:
         self.counters["selections"] += 1
         if isinstance(selection, TrackRectangle):
             box, mode, how = rectangle_box(selection, size), SelectionKind.RECTANGLE, "rectangle"
+            if self.config.camera.rectangle_fit:
+                fitted, outcome = fitted_rectangle_box(image, box, self.config.camera)
+                how = "rectangle+fitted" if fitted is not None else f"rectangle,{outcome}"
+                box = fitted or box
         elif isinstance(selection, TrackPoint):
             box, mode, how = point_box(selection, size, self.config.camera), SelectionKind.POINT, "point"
             if self.config.camera.point_proposal:

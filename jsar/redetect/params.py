@@ -205,7 +205,7 @@ class ColourParams:
     rate: float = 0.05
     reference_rate: float = 0.1
     anchor_inner: float = 0.6  # the drift check's colours: the central this fraction of the selected box's width and height
-    anchor_min_share: float = 0.3  # ... used only if its own colours cover this share of it at selection (else no check)
+    anchor_min_share: float = 0.6  # ... used only if its own colours cover this share of it at selection (else no check)
     drift_share: float = 0.1  # tracking with the box's share of them below this x at selection ... (0: no drift check)
     drift_frames: int = 10  # ... on this many frames in a row is a loss; a way out of a loss needs the share >= drift_share
     clear_share: float = 0.5  # a box with the share >= this clearly shows the target: a tracked one is a checkpoint ...

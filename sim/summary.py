@@ -74,6 +74,7 @@ COUNTER_MEANINGS = {
     "dropped_frames": "frames skipped for a newer one",
     "selections": "target selections applied",
     "lost": "track losses",
+    "lost_drift": "of them: the box had left the target's colours while the tracker was confident (a slide caught)",
     "recovered": "recoveries after a loss",
     "tracker_errors": "tracker failures (each stops the track)",
     "resized": "frame size changes followed",

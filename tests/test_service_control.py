@@ -761,3 +761,39 @@ def test_the_loop_reads_the_autopilot_once_per_frame() -> None:
         loop.step(Frame(image, frame_id, frame_id * 0.1, 0.0))
         assert len(reads) == frame_id + 1
     assert loop.counters["size_bounded_frames"] == 25 and loop.counters["coast_frames"] >= 1
+
+
+def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(caplog):
+    """JSAR-Re says why a loss began (`loss_cause`): a drift (the box left the target's colours while the
+    tracker was confident) is counted apart and named in the track_state log line."""
+    from jsar.api import TrackResult
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"range_size_band": 0}, "camera": {"rectangle_fit": False}})
+    script = [("tracking", None)] * 3 + [("lost", "drift")] * 2 + [("recovered", None)] + [("lost", "peak")]
+
+    class Scripted:
+        loss_cause: str | None = None
+
+        def init(self, image, box):
+            self.box = box
+
+        def update(self, image):
+            state, self.loss_cause = script.pop(0)
+            return TrackResult(self.box, 1.0, state)
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            pass
+
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Scripted, Record(), AutopilotView)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))
+    image = np.zeros((200, 200, 3), np.uint8)
+    with caplog.at_level("INFO", logger="service.loop"):
+        for frame_id in range(8):
+            loop.step(Frame(image, frame_id, frame_id * 0.1, 0.0))
+    assert loop.counters["lost"] == 2 and loop.counters["lost_drift"] == 1 and loop.counters["recovered"] == 1
+    lines = [r.getMessage() for r in caplog.records if "event=track_state" in r.getMessage()]
+    assert any("to=lost cause=drift" in line for line in lines) and any("to=lost cause=peak" in line for line in lines)

@@ -131,6 +131,7 @@ class ColourModel:
         return target_colours(self.object_hist, self.surround_hist, self.surround_prior)
 
 
+ANCHOR_ODDS = 2.0  # a colour is the target's if twice as frequent in its central part as around it
 HUES, SATURATIONS, GREYS = 12, 2, 4  # the drift check's colour bins: hue x saturation, and grey levels
 MIN_SATURATION, MIN_VALUE = 48, 40  # below either (0..255) a pixel's hue is noise: it counts as a grey
 
@@ -163,10 +164,10 @@ def inner_box(box: Box, fraction: float) -> Box:
 class AnchorColours:
     """The target's colours as the operator selected it, never updated: the drift check.
 
-    The colours (hue_histogram's bins) where P(target | colour) > 1/2 between the selected box's central part (`inner`
-    of its width and height) and everything else out to the box enlarged `surround_scale` times per
-    side, the box's own corners included: a loose box's background is in its corners, so its colours
-    are the surround's, not the target's. `share(frame, box)` is the
+    The colours (hue_histogram's bins) at least ANCHOR_ODDS times as frequent in the selected box's
+    central part (`inner` of its width and height) as in everything else out to the box enlarged
+    `surround_scale` times per side, the box's own corners included: a loose box's background is in its
+    corners, so its colours are the surround's, not the target's. `share(frame, box)` is the
     fraction of a box's central part in those colours over the same fraction in the selected box
     (1: as at selection). A target whose own colours covered less than `min_reference` of its
     central part at selection (a grey car on grey road) has no colours to check: `usable` is False
@@ -181,8 +182,10 @@ class AnchorColours:
         self.colours: np.ndarray | None = None
         self.reference = 0.0
         if object_hist is not None and surround_hist is not None:
-            # P(target | c) > 1/2 with the areas as priors: the surround's area over the central part's.
-            self.colours = target_colours(object_hist, surround_hist, scale ** 2 - 1.0)
+            # Twice as frequent in the central part as around it, not P(target | c) > 1/2 with the areas as
+            # priors: that refuses the target's own colour when the box is a part of it (a car's middle)
+            # and the rest of it lies in the surround.
+            self.colours = target_colours(object_hist, surround_hist, ANCHOR_ODDS)
             self.reference = float(object_hist[self.colours].sum())
         self.usable = self.colours is not None and self.reference >= min_reference
 

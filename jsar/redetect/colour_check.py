@@ -134,6 +134,8 @@ class ColourModel:
 ANCHOR_ODDS = 2.0  # a colour is the target's if twice as frequent in its central part as around it
 HUES, SATURATIONS, GREYS = 12, 2, 4  # the drift check's colour bins: hue x saturation, and grey levels
 MIN_SATURATION, MIN_VALUE = 48, 40  # below either (0..255) a pixel's hue is noise: it counts as a grey
+DARK_BIN = HUES * SATURATIONS  # the darkest grey level (value < 64): shadow, never a colour of the target's
+MIN_LIT = 0.05  # a box with fewer pixels outside DARK_BIN shows no colours
 
 
 def hue_histogram(pixels: np.ndarray) -> np.ndarray | None:
@@ -155,6 +157,12 @@ def hue_histogram(pixels: np.ndarray) -> np.ndarray | None:
     return counts / counts.sum()
 
 
+def lit_share(hist: np.ndarray, colours: np.ndarray) -> float:
+    """The share of `colours` among a hue_histogram's pixels outside DARK_BIN (0 with under MIN_LIT of them)."""
+    lit = 1.0 - float(hist[DARK_BIN])
+    return float(hist[colours].sum()) / lit if lit >= MIN_LIT else 0.0
+
+
 def inner_box(box: Box, fraction: float) -> Box:
     """The central part of `box` (x, y, w, h px): `fraction` of its width and height, same centre."""
     x, y, w, h = box
@@ -169,7 +177,9 @@ class AnchorColours:
     `surround_scale` times per side, the box's own corners included: a loose box's background is in its
     corners, so its colours are the surround's, not the target's. `share(frame, box)` is the
     fraction of a box's central part in those colours over the same fraction in the selected box
-    (1: as at selection). A target whose own colours covered less than `min_reference` of its
+    (1: as at selection), both among the pixels bright enough to show a colour: the darkest grey bin
+    (shadow, a car's windows, dark grass alike) is never the target's and counts on neither side (a box
+    with under MIN_LIT of such pixels has no colours: share 0). A target whose own colours covered less than `min_reference` of its
     central part at selection (a grey car on grey road) has no colours to check: `usable` is False
     and every share is inf. The running model (ColourModel) learns what the tracker follows, a
     background it slid onto included; this one cannot."""
@@ -186,7 +196,8 @@ class AnchorColours:
             # priors: that refuses the target's own colour when the box is a part of it (a car's middle)
             # and the rest of it lies in the surround.
             self.colours = target_colours(object_hist, surround_hist, ANCHOR_ODDS)
-            self.reference = float(object_hist[self.colours].sum())
+            self.colours[DARK_BIN] = False
+            self.reference = lit_share(object_hist, self.colours)
         self.usable = self.colours is not None and self.reference >= min_reference
 
     def share(self, frame: np.ndarray, box: Box) -> float:
@@ -197,4 +208,4 @@ class AnchorColours:
         assert self.colours is not None
         pixels, _ = region_pixels(frame, inner_box(box, self.inner))
         observed = hue_histogram(pixels)
-        return 0.0 if observed is None else float(observed[self.colours].sum()) / self.reference
+        return 0.0 if observed is None else lit_share(observed, self.colours) / self.reference

@@ -18,8 +18,10 @@ $(STAMP): pyproject.toml jsar/features/_kernels.c
 	$(PY) -m pip install --quiet -e '.[test,gcs]'
 	touch $(STAMP)
 
+# ARGS: the demo's options, e.g. make run ARGS="--flavour px4 --duration 60" (python -m sim.demo --help lists them)
+ARGS ?=
 run: $(STAMP)
-	$(PY) -m sim.demo
+	$(PY) -m sim.demo $(ARGS)
 
 # JSAR-Re's closed-loop and headline tests check outcomes of a chain of threshold decisions, which the
 # rounding of OpenBLAS's CPU kernels can change (docs/results-tracker.md, "Reproducibility"): on x86-64 the

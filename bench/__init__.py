@@ -6,5 +6,6 @@
 - `redetect`: the cost of a JSAR-Re lost frame (the search) against a tracking frame (`python -m bench.redetect DATA_ROOT`);
 - `service`: the daemon's frame-to-command latency and CPU against a recorded video (`python -m bench.service`);
 - `scene`: the closed-loop synthetic scene's render cost (`python -m bench.scene`);
-- `click`: a click's initial box (square or object proposal) against the true box (`python -m bench.click DATA_ROOT`).
+- `click`: a click's initial box (square or object proposal) and a loose drag's (fitted to the object or as dragged)
+  against the true box (`python -m bench.click DATA_ROOT`).
 """

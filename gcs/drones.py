@@ -90,11 +90,12 @@ def autopilot_summary(status: dict[str, Any]) -> dict[str, Any] | None:
     """What a daemon's status answer says about its autopilot and gimbal: {"state": waiting_for_heartbeat /
     connected / heartbeat_lost, "system_id": the autopilot's (None until heard), "configured_system_id":
     config.mavlink.system_id (0: learnt from the heartbeat), "gimbal_backend": ardupilot / px4 / none,
-    "gimbal_commands": "sent" / "held" / "none"}; None if the answer has no `autopilot` part (an older daemon).
+    "gimbal_commands": "sent" / "held" / "none", "gimbal_attitude": True once a gimbal device reported its attitude
+    to the daemon, False before, None from a daemon that does not say}; None if the answer has no `autopilot`
+    part (an older daemon).
 
     The daemon sends gimbal commands once it knows a system id to send them to (heard, or configured), whether
-    or not the heartbeat is still fresh; with none, they are held. Whether a gimbal is actually attached and
-    moving is not in the status answer."""
+    or not the heartbeat is still fresh; with none, they are held."""
     autopilot = status.get("autopilot")
     if not isinstance(autopilot, dict):
         return None
@@ -105,8 +106,10 @@ def autopilot_summary(status: dict[str, Any]) -> dict[str, Any] | None:
     configured = mavlink.get("system_id") or 0
     backend = gimbal.get("backend")
     commands = "none" if backend == "none" else "sent" if (system_id or configured) else "held"
+    heard = autopilot.get("gimbal_attitude_heard")
     return {"state": autopilot.get("state"), "system_id": system_id, "configured_system_id": configured,
-            "gimbal_backend": backend, "gimbal_commands": commands}
+            "gimbal_backend": backend, "gimbal_commands": commands,
+            "gimbal_attitude": heard if isinstance(heard, bool) else None}
 
 
 @dataclass

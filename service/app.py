@@ -121,7 +121,9 @@ class Service:
             "video": {"preview": self.preview.status() if self.preview is not None else None,
                       "stream": self.stream.status() if self.stream is not None else None},
             "autopilot": {"system_id": view.system_id, "alive": self.camera.autopilot_alive(),
-                          "state": self.camera.autopilot_state(), "custom_mode": view.custom_mode},
+                          "state": self.camera.autopilot_state(), "custom_mode": view.custom_mode,
+                          # a gimbal device reported its attitude (GIMBAL_DEVICE_ATTITUDE_STATUS) since start
+                          "gimbal_attitude_heard": view.gimbal is not None},
             "mavlink_refusals": self.camera.refusals(),
             "mavlink_system_id": self.link.system_id,
             "config": as_plain(self.config),

@@ -157,13 +157,19 @@ def test_confidence_is_the_score_against_the_best_of_the_lock() -> None:
 
 
 def test_autopilot_and_gimbal_from_the_daemons_status() -> None:
-    def status(state: str, heard: int | None, configured: int = 0, backend: str = "ardupilot") -> dict:
-        return {"autopilot": {"system_id": heard, "alive": state == "connected", "state": state, "custom_mode": None},
-                "config": {"mavlink": {"system_id": configured}, "gimbal": {"backend": backend}}}
+    def status(state: str, heard: int | None, configured: int = 0, backend: str = "ardupilot",
+               gimbal_heard: bool | None = True) -> dict:
+        autopilot = {"system_id": heard, "alive": state == "connected", "state": state, "custom_mode": None}
+        if gimbal_heard is not None:
+            autopilot["gimbal_attitude_heard"] = gimbal_heard
+        return {"autopilot": autopilot, "config": {"mavlink": {"system_id": configured}, "gimbal": {"backend": backend}}}
 
     assert autopilot_summary(status("connected", 1)) == {
         "state": "connected", "system_id": 1, "configured_system_id": 0, "gimbal_backend": "ardupilot",
-        "gimbal_commands": "sent"}
+        "gimbal_commands": "sent", "gimbal_attitude": True}
+    # a gimbal that never reported its attitude; a daemon that does not say (older): unknown, not "absent"
+    assert autopilot_summary(status("connected", 1, gimbal_heard=False))["gimbal_attitude"] is False
+    assert autopilot_summary(status("connected", 1, gimbal_heard=None))["gimbal_attitude"] is None
     # never heard, nothing configured: the daemon holds its gimbal commands (nobody to send them to)
     none = autopilot_summary(status("waiting_for_heartbeat", None))
     assert (none["state"], none["system_id"], none["gimbal_commands"]) == ("waiting_for_heartbeat", None, "held")

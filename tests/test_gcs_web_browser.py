@@ -509,6 +509,9 @@ def test_a_loose_drag_around_the_car_still_tracks_it_10_s_later_with_confidence_
                 assert "good" in (page.locator("#autopilot").get_attribute("class") or "")
                 assert (view(page)["autopilot"]["state"], view(page)["autopilot"]["system_id"]) == ("connected", 1)
                 assert page.locator("#video-warning").inner_text() == ""
+                # the gimbal row: the mock's gimbal device reports its attitude (GIMBAL_DEVICE_ATTITUDE_STATUS)
+                wait_page(page, "document.getElementById('gimbal').textContent.endsWith('attitude reported')", 10,
+                          "the gimbal shown reporting its attitude", station)
                 page.screenshot(path=str(tmp_path / "loose-drag-10s.png"))
                 assert page.errors == [], page.errors
         finally:

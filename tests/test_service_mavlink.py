@@ -285,6 +285,7 @@ def test_waiting_for_the_autopilots_heartbeat_is_logged_and_reported(frames_dir:
     try:
         assert service.worker.health.wait_for(lambda h: h.frames >= 3, 5.0)
         assert service.status()["autopilot"]["state"] == "waiting_for_heartbeat"
+        assert service.status()["autopilot"]["gimbal_attitude_heard"] is False  # this peer has no gimbal device
         waiting = [r for r in caplog.records if "waiting for the autopilot's heartbeat" in r.getMessage()]
         assert len(waiting) == 1 and "gimbal and guidance commands are held" in waiting[0].getMessage()
         autopilot.heartbeats_on = True

@@ -90,6 +90,19 @@ def click_point(page, x_px: float, y_px: float) -> tuple[float, float]:
     return box["x"] + x_px / WIDTH * box["width"], box["y"] + y_px / HEIGHT * box["height"]
 
 
+def drag(page, station, corner0: tuple[float, float], corner1: tuple[float, float], system_id: int, steps: int) -> None:
+    """Drag a rectangle on the video from image pixel corner0 to corner1, as a mouse does, and wait for the
+    ground station's ACK: TRACK_RECTANGLE ACCEPTED by `system_id`."""
+    page.mouse.move(*click_point(page, *corner0))
+    page.mouse.down()
+    page.mouse.move(*click_point(page, (corner0[0] + corner1[0]) / 2, (corner0[1] + corner1[1]) / 2), steps=steps)
+    page.mouse.move(*click_point(page, *corner1), steps=steps)
+    page.mouse.up()
+    wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the drag", station)
+    ack = view(page)["lastAck"]
+    assert (ack["command"], ack["result_name"], ack["system_id"]) == ("TRACK_RECTANGLE", "ACCEPTED", system_id)
+
+
 def overlap(drawn_norm: list[float], truth: GroundTruth) -> tuple[float, bool]:
     """(fraction of the drawn box inside the car's true box, drawn centre inside the true box)."""
     x, y, w, h = drawn_norm[0] * WIDTH, drawn_norm[1] * HEIGHT, drawn_norm[2] * WIDTH, drawn_norm[3] * HEIGHT
@@ -176,7 +189,8 @@ def test_click_track_centre_lose_and_stop_in_a_browser(data_root, tmp_path: Path
                 wait_page(page, "document.getElementById('autopilot').textContent === 'connected (system 1)'", 15,
                           "the autopilot shown connected", station)
                 assert page.locator("#video-warning").inner_text() == ""
-                assert page.locator("#gimbal").inner_text() == "ardupilot gimbal manager, through the autopilot"
+                assert page.locator("#gimbal").inner_text() == ("ardupilot gimbal manager, through the autopilot"
+                                                                    " · attitude reported")
                 assert page.locator("#stop").is_disabled()  # nothing to stop yet
 
                 page.mouse.click(*click_point(page, *truth.centre))
@@ -292,14 +306,7 @@ def test_two_drones_through_one_router_select_the_second(data_root, tmp_path: Pa
                 truth = runs[1].truth(view(page)["frameId"])
                 assert truth is not None and truth.visible
                 x, y, w, h = truth.box
-                page.mouse.move(*click_point(page, x - 4, y - 4))
-                page.mouse.down()
-                page.mouse.move(*click_point(page, x + w / 2, y + h / 2), steps=4)
-                page.mouse.move(*click_point(page, x + w + 4, y + h + 4), steps=4)
-                page.mouse.up()
-                wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the drag", station)
-                ack = view(page)["lastAck"]
-                assert (ack["command"], ack["result_name"], ack["system_id"]) == ("TRACK_RECTANGLE", "ACCEPTED", 2)
+                drag(page, station, (x - 4, y - 4), (x + w + 4, y + h + 4), 2, steps=4)
                 wait_page(page, "document.getElementById('status275').textContent.startsWith('ACTIVE · RECTANGLE')",
                           10, "drone2's 275 ACTIVE, rectangle", station)
                 assert runs[1].wait_for(lambda: (loops[1].camera.telemetry.last or {}).get("state") == "tracking", 10)
@@ -456,14 +463,7 @@ def test_a_loose_drag_around_the_car_still_tracks_it_10_s_later_with_confidence_
                 x1, y1 = min(WIDTH - 1.0, cx + LOOSE_SCALE * w / 2), min(HEIGHT - 1.0, cy + LOOSE_SCALE * h / 2)
                 dragged = (x0, y0, x1 - x0, y1 - y0)
                 assert dragged[2] * dragged[3] >= 6.0 * w * h  # loose: the car is a sixth of it at most
-                page.mouse.move(*click_point(page, x0, y0))
-                page.mouse.down()
-                page.mouse.move(*click_point(page, (x0 + x1) / 2, (y0 + y1) / 2), steps=5)
-                page.mouse.move(*click_point(page, x1, y1), steps=5)
-                page.mouse.up()
-                wait_page(page, "window.gcsView.lastAck !== null", 15, "the ACK of the drag", station)
-                ack = view(page)["lastAck"]
-                assert (ack["command"], ack["result_name"], ack["system_id"]) == ("TRACK_RECTANGLE", "ACCEPTED", 1)
+                drag(page, station, (x0, y0), (x1, y1), 1, steps=5)
                 wait_page(page, "document.getElementById('status275').textContent.startsWith('ACTIVE · RECTANGLE')",
                           10, "275 ACTIVE, rectangle", station)
                 assert run.wait_for(lambda: run.selected, 15.0), "the daemon never reported a track"

@@ -198,8 +198,8 @@ function showAutopilot(ap) {
     else if (ap.gimbal_commands === "held") { gimbal = `${ap.gimbal_backend} — commands held (no autopilot)`; gimbalCls = "bad"; }
     else { gimbal = `${ap.gimbal_backend} gimbal manager, through the autopilot`; gimbalCls = ap.state === "connected" ? "" : "warn"; }
     // whether a gimbal device has reported its attitude: commands to a gimbal that never answered move nothing
-    if (ap.gimbal_commands !== "none" && ap.gimbal_attitude === true) gimbal += " · attitude reported";
-    else if (ap.gimbal_commands !== "none" && ap.gimbal_attitude === false) {
+    if (ap.gimbal_commands === "sent" && ap.gimbal_attitude === true) gimbal += " · attitude reported";
+    else if (ap.gimbal_commands === "sent" && ap.gimbal_attitude === false) {
       gimbal += " · no gimbal attitude heard"; if (!gimbalCls) gimbalCls = "warn";
     }
   }

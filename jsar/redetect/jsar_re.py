@@ -24,6 +24,10 @@ frames it learns and while lost.
   target that changed for good is followed (the box on it) but reported lost until the decision
   filter recognises it, since a coasting core learns whatever it follows (an occluder too).
 - A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
+- Tracking, confident, but the box has held too few of the target's colours at selection on
+  colour.drift_frames frames in a row (colour_check.AnchorColours): a drift loss. The core, decision
+  filter and colour model roll back to the last checkpoint (a frame whose box clearly held them) and the
+  frame is searched as above; every way out of a loss needs those colours too.
 - Every way out of a loss through the decision filter (the core confident again, a candidate taken)
   also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
   score alone took occluders and look-alikes of other colours.
@@ -196,8 +200,8 @@ class JsarReTracker:
         when the box clearly held the target's colours at selection (colour.clear_share) and the last
         checkpoint is colour.checkpoint_frames old (one copy, so the filters they share stay shared)."""
         colour = self.redetect.colour
-        if self.share < colour.clear_share:
-            return
+        if self.anchor is None or not self.anchor.usable or colour.drift_share <= 0 or self.share < colour.clear_share:
+            return  # no drift check, nothing to roll back for; or the box did not clearly hold the colours
         if self.checkpoint is not None and self.frame_index - self.checkpoint[0] < colour.checkpoint_frames:
             return
         assert self.memory is not None

@@ -249,6 +249,19 @@ def test_decide_takes_a_candidate_confirmed_on_the_next_frame_within_the_radius(
     assert [twice.decide([Candidate(190.0, 120.0, 0.05)], 0.03) is None for _ in range(3)] == [True, True, False]
 
 
+def test_decide_holds_a_candidate_to_its_own_bar_where_one_is_given():
+    """JSAR-Re gives a candidate whose box clearly shows the target's selected colours a lower bar (bar_for)."""
+    coloured, plain = Candidate(190.0, 120.0, 0.025), Candidate(100.0, 100.0, 0.028)
+
+    def bar_for(candidate: Candidate) -> float:
+        return 0.02 if candidate.x == 190.0 else 0.03
+
+    search = _search(confirm_frames=0)
+    assert search.decide([coloured, plain], 0.03, bar_for=bar_for) == coloured  # 0.025 passes its own 0.02
+    assert _search(confirm_frames=0).decide([coloured, plain], 0.03) is None  # both under the shared 0.03
+    assert _search(confirm_frames=0).decide([plain], 0.03, bar_for=bar_for) is None
+
+
 def test_decide_holds_off_on_the_first_lost_frames():
     search = _search(holdoff_frames=3, confirm_frames=0)
     taken = []

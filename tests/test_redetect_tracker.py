@@ -849,7 +849,8 @@ def _greyed(patch: np.ndarray) -> np.ndarray:
     return np.repeat(grey[..., None], 3, axis=2).astype(np.uint8)
 
 
-def _run_with_a_target_losing_its_colours(back_at: int | None) -> tuple[dict[int, tuple[str, Box]], list[str | None]]:
+def _run_with_a_target_losing_its_colours(back_at: int | None, redetect: RedetectParams | None = None
+                                          ) -> tuple[dict[int, tuple[str, Box]], list[str | None]]:
     """The target drifting right; from frame 30 to 90 it turns slowly into its own grey pattern (the gradients
     the core knows, the colours gone: what a box that slid onto background shows the drift check while the
     core, learning as it goes, stays confident), and from `back_at` on it has its colours again."""
@@ -861,7 +862,7 @@ def _run_with_a_target_losing_its_colours(back_at: int | None) -> tuple[dict[int
         frame = background.copy()
         _paste(frame, patch, (100 + index // 3, 100))
         frames.append(frame)
-    tracker = JsarReTracker()
+    tracker = JsarReTracker(JsarParams.jsar_re(), redetect)
     tracker.init(frames[0], _target_box((100, 100)))
     results, causes = {}, []
     for index, frame in enumerate(frames[1:], start=1):
@@ -892,15 +893,9 @@ def test_a_drift_loss_ends_when_the_targets_colours_are_back():
 
 
 def test_the_drift_check_is_off_with_drift_share_zero():
-    tracker = jsar.create("jsar-re", redetect={"colour": {"drift_share": 0.0}})
-    background = _background()
-    frames = [background.copy() for _ in range(80)]
-    for index, frame in enumerate(frames):
-        _paste(frame, _target() if index < 30 else _greyed(_target()), (100, 100))
-    tracker.init(frames[0], _target_box((100, 100)))
-    assert all(tracker.update(frame).state == "tracking" for frame in frames[1:30])
-    states = [tracker.update(frame).state for frame in frames[30:]]
-    assert tracker.loss_cause != "drift" and "drift" not in states
+    # The scene the default reports as a drift (the test above) is never a drift loss with the check off.
+    _, causes = _run_with_a_target_losing_its_colours(back_at=None, redetect=_redetect(colour={"drift_share": 0.0}))
+    assert "drift" not in causes
 
 
 def _load_real(root, name: str, count: int) -> tuple[list[np.ndarray], np.ndarray]:

@@ -170,19 +170,15 @@ def inner_box(box: Box, fraction: float) -> Box:
 
 
 class AnchorColours:
-    """The target's colours as the operator selected it, never updated: the drift check.
+    """The target's colours as the operator selected it, never updated: the drift check (docs/method.md).
 
-    The colours (hue_histogram's bins) at least ANCHOR_ODDS times as frequent in the selected box's
-    central part (`inner` of its width and height) as in everything else out to the box enlarged
-    `surround_scale` times per side, the box's own corners included: a loose box's background is in its
-    corners, so its colours are the surround's, not the target's. `share(frame, box)` is the
-    fraction of a box's central part in those colours over the same fraction in the selected box
-    (1: as at selection), both among the pixels bright enough to show a colour: the darkest grey bin
-    (shadow, a car's windows, dark grass alike) is never the target's and counts on neither side (a box
-    with under MIN_LIT of such pixels has no colours: share 0). A target whose own colours covered less than `min_reference` of its
-    central part at selection (a grey car on grey road) has no colours to check: `usable` is False
-    and every share is inf. The running model (ColourModel) learns what the tracker follows, a
-    background it slid onto included; this one cannot."""
+    Colours (hue_histogram's bins) at least ANCHOR_ODDS times as frequent in the selected box's central
+    part (`inner` of its width and height) as in everything else out to the box enlarged `surround_scale`
+    times per side, the box's corners included (a loose box's background is there). DARK_BIN is never one.
+    `share(frame, box)`: the share of a box's central part in them, among its pixels outside DARK_BIN, over
+    the selected box's (1: as at selection). Under `min_reference` at selection the target has no colours
+    of its own: `usable` is False and every share is inf. ColourModel learns what the track follows, a
+    background it slid onto included; this model cannot."""
 
     def __init__(self, frame: np.ndarray, box: Box, surround_scale: float, inner: float, min_reference: float) -> None:
         self.inner = inner

@@ -32,6 +32,7 @@ import math
 
 import numpy as np
 
+from jsar.eval.metrics import ious
 from service.config import CameraConfig
 from service.domain import TrackPoint, TrackRectangle
 
@@ -143,9 +144,8 @@ def inside_fraction(box: Box, outer: Box) -> float:
 
 
 def box_iou(a: Box, b: Box) -> float:
-    """Intersection over union of two boxes."""
-    inter = inside_fraction(a, b) * a[2] * a[3]
-    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+    """Intersection over union of two boxes (the evaluation's jsar.eval.metrics.ious, for one pair)."""
+    return float(ious(np.array([a], dtype=np.float64), np.array([b], dtype=np.float64))[0])
 
 
 def clip_box(box: Box, outer: Box) -> Box:

@@ -66,6 +66,7 @@ class Service:
                 frame_size=lambda: health.last_frame_size,
                 source_ok=lambda: health.state == "ok",
                 source_reason=lambda: f"source {health.state}: {health.reason}" if health.reason else f"source {health.state}",
+                source_state=lambda: health.state,
                 video_stream=(lambda: stream.describe(health.last_frame_size)) if stream is not None else None)
             self.outputs = MavlinkOutputs(config, self.link, self.camera.autopilot, self.camera.time_boot_ms)
             self.telemetry = Telemetry(self._session, config.zenoh.prefix, self.status) if self._session else None

@@ -418,3 +418,47 @@ def test_a_polled_unsupported_request_is_answered_every_time_but_warned_once(
     (polled,) = [r for r in rig.service.status()["mavlink_refusals"] if r["message"] == 260]
     assert (polled["result"], polled["command"], polled["count"]) == ("UNSUPPORTED", REQUEST, 3)
     assert "does not provide message 260" in polled["reason"]
+
+
+def test_a_different_refusal_from_the_same_sender_is_not_hidden_as_a_repeat() -> None:
+    from service.mavlink.camera import RepeatedRefusals
+
+    refusals = RepeatedRefusals()
+    nan_reason = "top_left_x must be a finite number, got nan"
+    assert refusals.first(2005, NAN, (255, 190), DENIED, nan_reason)
+    assert not refusals.first(2005, NAN, (255, 190), DENIED, nan_reason)  # the same command, same reason
+    inverted = "rectangle (0.5, 0.5)-(0.2, 0.6) is inverted or has zero size"
+    assert refusals.first(2005, 0.5, (255, 190), DENIED, inverted)  # same sender and result, another reason
+    assert not refusals.first(2005, 0.5, (255, 190), DENIED, inverted)
+    for index in range(RepeatedRefusals.MAX_SEEN + 10):  # a junk flood: memory stays bounded ...
+        refusals.first(2005, 0.5, (255, 190), DENIED, f"junk {index}")
+    assert refusals.first(2005, 0.5, (255, 190), DENIED, "junk 1030")  # ... and past it, each is warned
+
+
+def test_selection_without_a_frame_yet_is_temporarily_rejected_and_a_failing_source_fails() -> None:
+    from service.mavlink.camera import selection_refusal
+
+    assert selection_refusal("ok", True, "source ok") is None
+    waiting = selection_refusal("starting", False, "source starting: opened, waiting for the first frame")
+    assert waiting.result == 1 and "no camera frame yet" in waiting.reason  # TEMPORARILY_REJECTED
+    assert selection_refusal("starting", False, "reopened").result == 1  # reopened after a fault: no frame yet
+    assert selection_refusal("error", False, "source error: cannot open").result == FAILED
+    assert selection_refusal("error", False, "source error: no frame for 2.0 s").result == FAILED
+    assert selection_refusal("ended", False, "source ended: end of stream").result == FAILED
+
+
+def test_refusals_are_logged_with_the_message_they_came_in_and_each_new_reason_is_warned(
+        rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
+    assert rig.service.worker.health.wait_for(lambda h: h.state == "ok", 5.0)
+    caplog.set_level("DEBUG", logger="service.mavlink")
+    rig.gcs.command_long(TRACK_RECT, [NAN, 0.2, 0.3, 0.4, 0, 0, 0], target=CAM)
+    assert rig.gcs.wait_ack(TRACK_RECT, 0).result == DENIED
+    rig.gcs.command_long(TRACK_RECT, [0.5, 0.5, 0.2, 0.6, 0, 0, 0], target=CAM)  # inverted, same sender
+    assert rig.gcs.wait_ack(TRACK_RECT, 1).result == DENIED
+    rig.gcs.command_int(TRACK_RECT, 0.5, 0.5, 0.2, 0.6, 0, 0, 0, target=CAM)  # the same refusal again
+    assert rig.gcs.wait_ack(TRACK_RECT, 2).result == DENIED
+    # The camera logs a command before it sends the ACK: all three are in by now.
+    refused = [r for r in caplog.records if "event=command command=2005" in r.getMessage()]
+    assert [(r.levelname, r.getMessage().split(" via=")[1].split()[0]) for r in refused] == [
+        ("WARNING", "COMMAND_LONG"), ("WARNING", "COMMAND_LONG"), ("DEBUG", "COMMAND_INT")]
+    assert "finite number" in refused[0].getMessage() and "inverted" in refused[1].getMessage()

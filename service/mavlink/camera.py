@@ -49,21 +49,25 @@ class RepeatedRefusals:
     """Which refused commands were already logged at WARNING, so a ground station that polls for what this
     camera does not offer (mavsdk's camera plugin re-requests CAMERA_SETTINGS, STORAGE_INFORMATION,
     CAMERA_CAPTURE_STATUS, VIDEO_STREAM_INFORMATION and command 527 every few seconds) logs each kind once,
-    not five warnings every few seconds for the whole flight. Keyed by (command, requested message id for
-    511 / 512, source system, source component, result)."""
+    not five warnings every few seconds for the whole flight. A repeat is the same command (command,
+    requested message id for 511 / 512) from the same source (system, component) refused with the same
+    result and reason: another reason is news (an inverted rectangle after a NaN one is warned too)."""
 
     MAX_KINDS = 64  # counted kinds (result, command, message); a peer sending junk cannot grow it further
+    MAX_SEEN = 1024  # remembered repeats; past it every refusal is warned (a junk flood cannot grow memory)
 
     def __init__(self) -> None:
-        self._seen: set[tuple[int, int | None, int, int, int]] = set()
+        self._seen: set[tuple[int, int | None, int, int, int, str]] = set()
         self._counts: dict[tuple[int, int, int | None], list] = {}  # kind -> [count, first reason]
 
-    def first(self, command: int, param1: float, source: tuple[int, int], result: int) -> bool:
-        """True the first time this kind of refusal is seen (log it loudly), False for repeats."""
-        key = (command, _requested_message(command, param1), source[0], source[1], result)
+    def first(self, command: int, param1: float, source: tuple[int, int], result: int, reason: str = "") -> bool:
+        """True the first time this refusal (command, message, source, result, reason) is seen (log it
+        loudly), False for repeats."""
+        key = (command, _requested_message(command, param1), source[0], source[1], result, reason)
         if key in self._seen:
             return False
-        self._seen.add(key)
+        if len(self._seen) < self.MAX_SEEN:
+            self._seen.add(key)
         return True
 
     def count(self, command: int, param1: float, result: int, reason: str) -> None:
@@ -83,6 +87,17 @@ class RepeatedRefusals:
         return sorted(rows, key=lambda row: -row["count"])
 
 
+def selection_refusal(source_state: str, has_frame: bool, reason: str) -> Decision | None:
+    """Why a valid selection cannot be taken now, or None: TEMPORARILY_REJECTED while the source has not
+    delivered its first frame (starting: a ground station that selects as soon as the camera's heartbeat
+    arrives may retry), FAILED while it fails or has ended (fixing the camera is not a matter of waiting)."""
+    if source_state == "ok" and has_frame:
+        return None
+    if source_state == "starting":
+        return Decision(MAV_RESULT_TEMPORARILY_REJECTED, f"no camera frame yet ({reason}): retry shortly")
+    return Decision(MAV_RESULT_FAILED, f"no camera frames: {reason}")
+
+
 def _requested_message(command: int, param1: float) -> int | None:
     """The message id a MAV_CMD_SET_MESSAGE_INTERVAL (511) / MAV_CMD_REQUEST_MESSAGE (512) is about."""
     asks_for_message = command in (MAV_CMD_SET_MESSAGE_INTERVAL, MAV_CMD_REQUEST_MESSAGE)
@@ -95,14 +110,17 @@ class CameraComponent:
     def __init__(self, config: ServiceConfig, link: MavlinkLink, selections: LatestSlot,
                  frame_size: Callable[[], tuple[int, int] | None], source_ok: Callable[[], bool],
                  source_reason: Callable[[], str],
-                 video_stream: Callable[[], VideoStreamDescription | None] | None = None) -> None:
-        """video_stream: the RTP stream's description (None until frames arrive); None = no stream."""
+                 video_stream: Callable[[], VideoStreamDescription | None] | None = None,
+                 source_state: Callable[[], str] = lambda: "ok") -> None:
+        """video_stream: the RTP stream's description (None until frames arrive); None = no stream.
+        source_state: the source's health state (starting / ok / error / ended: SourceHealth.state)."""
         self.config = config
         self.link = link
         self.selections = selections
         self._frame_size = frame_size
         self._source_ok = source_ok
         self._source_reason = source_reason
+        self._source_state = source_state
         self._video_stream = video_stream
         self._lock = threading.Lock()
         self._view = AutopilotView()
@@ -211,12 +229,13 @@ class CameraComponent:
         self.counters["accepted" if decision.result == MAV_RESULT_ACCEPTED else "rejected"] += 1
         source = (msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[attr-defined]
         if decision.result != MAV_RESULT_ACCEPTED:
-            kind = REJECTED_COUNTERS.get(decision.result, "rejected_failed")
-            self.counters[kind] += 1
+            # its own name: `kind` is the message type the log's via= reports
+            counter = REJECTED_COUNTERS.get(decision.result, "rejected_failed")
+            self.counters[counter] += 1
             self._refusals.count(msg.command, params[0], decision.result, decision.reason)  # type: ignore[attr-defined]
         if decision.result == MAV_RESULT_ACCEPTED:
             level, note = logging.INFO, ""
-        elif self._refusals.first(msg.command, params[0], source, decision.result):  # type: ignore[attr-defined]
+        elif self._refusals.first(msg.command, params[0], source, decision.result, decision.reason):  # type: ignore[attr-defined]
             level, note = logging.WARNING, " (repeats of this refusal are logged at DEBUG)"
         else:
             level, note = logging.DEBUG, ""
@@ -240,8 +259,10 @@ class CameraComponent:
         if decision.result != MAV_RESULT_ACCEPTED or intent is None:
             return decision
         if isinstance(intent, (TrackPoint, TrackRectangle)):
-            if not self._source_ok() or self._frame_size() is None:
-                return Decision(MAV_RESULT_FAILED, f"no camera frames: {self._source_reason()}")
+            refusal = selection_refusal(self._source_state(), self._source_ok() and self._frame_size() is not None,
+                                        self._source_reason())
+            if refusal is not None:
+                return refusal
             self.selections.put(intent)
         elif isinstance(intent, RequestMessage) and intent.message_id == MAVLINK_MSG_ID_CAMERA_INFORMATION:
             if self._frame_size() is None:

@@ -30,7 +30,13 @@ def configuration_error(exc: ConfigError) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Load and validate the config, run until SIGTERM / SIGINT; exit 2 on a config error."""
+    """Load and validate the config, run until SIGTERM / SIGINT; exit 2 on a config error.
+    `jsar-service keygen ...` makes a MAVLink signing key instead (service.keygen)."""
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["keygen"]:
+        from service.keygen import main as keygen
+
+        return keygen(argv[1:])
     args = parse_args(argv)
     try:
         config = load_config(args.config, args.source, args.mavlink)

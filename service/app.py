@@ -117,6 +117,8 @@ class Service:
                          **{f"out_{k}": v for k, v in self.outputs.counters.items()},
                          "mavlink_sent": self.link.sent, "mavlink_send_errors": self.link.send_errors,
                          "mavlink_bad_packets": self.link.bad_packets, "telemetry_errors": self.telemetry_errors,
+                         "mavlink_signing_refused_unsigned": self.link.signing.refused_unsigned,
+                         "mavlink_signing_refused_bad_signature": self.link.signing.refused_bad_signature,
                          **{f"{output.worker.name}_{k}": v for output in self.video_outputs
                             for k, v in output.worker.counters().items()}},
             "video": {"preview": self.preview.status() if self.preview is not None else None,
@@ -126,6 +128,7 @@ class Service:
                           # a gimbal device reported its attitude (GIMBAL_DEVICE_ATTITUDE_STATUS) since start
                           "gimbal_attitude_heard": view.gimbal is not None},
             "mavlink_refusals": self.camera.refusals(),
+            "mavlink_signing": self.link.signing_status(),
             "mavlink_system_id": self.link.system_id,
             "config": as_plain(self.config),
         }

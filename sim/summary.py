@@ -92,6 +92,8 @@ COUNTER_MEANINGS = {
     "mavlink_sent": "MAVLink messages sent",
     "mavlink_send_errors": "sends the operating system refused",
     "mavlink_bad_packets": "packets received that were undecodable or failed signing",
+    "mavlink_signing_refused_unsigned": "unsigned packets refused (signing on, mavlink.signing.allow_unsigned false)",
+    "mavlink_signing_refused_bad_signature": "signed packets refused: wrong key, or a replayed or too old timestamp",
     "mavlink_status_sent": "tracking status messages (275) sent",
     "telemetry_errors": "telemetry samples that could not be published",
 }

@@ -131,3 +131,146 @@ def test_a_selection_before_the_first_frame_is_temporarily_rejected_then_accepte
         log = daemon.stop()
     assert "Traceback" not in log
     assert "result=TEMPORARILY_REJECTED" in log and "via=COMMAND_LONG" in log
+
+
+# --- signing ----------------------------------------------------------------------------------------
+def keygen(out: Path, *extra: str) -> subprocess.CompletedProcess:
+    """`python -m service keygen --out OUT ...` (what `jsar-service keygen` runs)."""
+    return subprocess.run([sys.executable, "-m", "service", "keygen", "--out", str(out), *extra], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_keygen_writes_a_0600_key_of_a_printed_passphrase_and_refuses_to_overwrite(tmp_path: Path) -> None:
+    import hashlib
+
+    key_file = tmp_path / "mavlink.key"
+    made = keygen(key_file)
+    assert made.returncode == 0, made.stderr
+    passphrase = made.stdout.split("signing key): ")[1].strip()
+    assert len(passphrase) == 43 and passphrase.isascii() and " " not in passphrase  # 32 random bytes, base64
+    assert key_file.stat().st_mode & 0o777 == 0o600
+    key = bytes.fromhex(key_file.read_text().strip())
+    assert key == hashlib.sha256(passphrase.encode("ascii")).digest()  # what MAVProxy / QGroundControl derive
+    again = keygen(key_file)
+    assert again.returncode == 1 and "exists; --force replaces it" in again.stderr
+    assert bytes.fromhex(key_file.read_text().strip()) == key  # untouched
+    key_file.chmod(0o644)
+    forced = keygen(key_file, "--force")
+    assert forced.returncode == 0 and forced.stdout.split("signing key): ")[1].strip() != passphrase
+    assert bytes.fromhex(key_file.read_text().strip()) != key and key_file.stat().st_mode & 0o777 == 0o600
+    phrase_file = tmp_path / "fleet.passphrase"
+    phrase_file.write_text("fleet-passphrase-1\n")
+    derived = keygen(tmp_path / "fleet.key", "--passphrase-file", str(phrase_file))
+    assert derived.returncode == 0 and "passphrase for" not in derived.stdout  # nothing new to hand out
+    assert bytes.fromhex((tmp_path / "fleet.key").read_text()) == hashlib.sha256(b"fleet-passphrase-1").digest()
+
+
+@pytest.fixture(scope="module")
+def frames_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    import cv2
+
+    folder = tmp_path_factory.mktemp("signing_frames")
+    for i in range(20):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (100 - i, 50), 20))
+    return folder
+
+
+class SigningRig:
+    """A daemon (process) with signing on and unsigned packets refused, behind the autopilot peer; its key
+    from keygen; the status query over Zenoh."""
+
+    def __init__(self, tmp_path: Path, frames_dir: Path, peers: tuple[AutopilotPeer, int, int]) -> None:
+        import hashlib
+
+        _, service_port, self.gcs_port = peers
+        made = keygen(tmp_path / "mavlink.key")
+        assert made.returncode == 0, made.stderr
+        self.passphrase = made.stdout.split("signing key): ")[1].strip()
+        self.key = hashlib.sha256(self.passphrase.encode("ascii")).digest()
+        zenoh_port = free_tcp_port()
+        self.daemon = Daemon(tmp_path, daemon_config(
+            service_port, zenoh_port, {"kind": "file", "path": str(frames_dir), "loop": True},
+            {"signing": {"key_file": str(tmp_path / "mavlink.key")}}))
+        self.session = zenoh_peer(zenoh_port)
+        self.stations: list[GroundStation] = []
+
+    def station(self, key: bytes | None) -> GroundStation:
+        station = GroundStation(self.gcs_port, key=key).start()
+        self.stations.append(station)
+        return station
+
+    def status(self) -> dict:
+        return query_status(self.session)
+
+    def wait_status(self, predicate, timeout_s: float = 10.0) -> dict:
+        """The first status answer that satisfies predicate (asked again on each answer that does not)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            status = self.status()
+            if predicate(status):
+                return status
+        raise AssertionError(f"status never satisfied the condition; last: {status}")
+
+    def close(self) -> str:
+        for station in self.stations:
+            station.close()
+        self.session.close()
+        return self.daemon.stop()
+
+
+def refused(status: dict, message: str = "COMMAND_LONG") -> int:
+    return status["mavlink_signing"]["refused_by_message"].get(message, 0)
+
+
+def test_signing_accepts_signed_commands_and_refuses_unsigned_wrong_key_and_replayed_ones(
+        tmp_path: Path, frames_dir: Path, peers: tuple[AutopilotPeer, int, int]) -> None:
+    rig = SigningRig(tmp_path, frames_dir, peers)
+    try:
+        signed = rig.station(rig.key)
+        assert camera_heartbeat(signed, 60.0), "no camera heartbeat"
+        status = rig.wait_status(lambda s: s["source"]["state"] == "ok")
+        assert status["mavlink_signing"]["enabled"] and not status["mavlink_signing"]["allow_unsigned"]
+        # the camera signs what it sends: its heartbeats carry a signature (incompat flag 0x01)
+        beat = [r.msg for r in signed.received.of("HEARTBEAT") if r.msg.get_srcComponent() == 100][-1]
+        assert beat.get_msgbuf()[2] & 0x01 and signed.conn.mav.signing.goodsig_count > 0
+
+        unsigned = rig.station(None)
+        before = rig.status()
+        unsigned.command_long(TRACK_RECT, [0.55, 0.3, 0.8, 0.6, 0, 0, 0], target=CAM)
+        after = rig.wait_status(lambda s: refused(s) > refused(before))
+        assert after["track"]["state"] == "idle"  # changed nothing ...
+        assert after["counters"]["mavlink_commands"] == before["counters"]["mavlink_commands"]  # ... not even answered
+        assert after["counters"]["mavlink_signing_refused_unsigned"] > before["counters"]["mavlink_signing_refused_unsigned"]
+        assert unsigned.ack_count(TRACK_RECT) == 0
+
+        wrong = rig.station(bytes(32))
+        # posing as the signed station's stream (link id, system, component) with a timestamp hours ahead:
+        # refused, and it must not move that stream's timestamp (the real station's next packets still pass)
+        with wrong._send_lock:
+            wrong.conn.mav.signing.link_id = signed.conn.mav.signing.link_id
+            wrong.conn.mav.signing.timestamp = signed.conn.mav.signing.timestamp + 10 ** 9
+        before = rig.status()
+        wrong.command_long(TRACK_RECT, [0.55, 0.3, 0.8, 0.6, 0, 0, 0], target=CAM)
+        after = rig.wait_status(lambda s: refused(s) > refused(before))
+        assert after["counters"]["mavlink_signing_refused_bad_signature"] > \
+            before["counters"]["mavlink_signing_refused_bad_signature"]
+        assert after["track"]["state"] == "idle" and wrong.ack_count(TRACK_RECT) == 0
+
+        track = signed.conn.mav.command_long_encode(*CAM, TRACK_RECT, 0, 0.55, 0.3, 0.8, 0.6, 0, 0, 0)
+        signed.send(track)  # packed and signed now: its bytes are what an eavesdropper could record
+        ack = signed.wait_ack(TRACK_RECT, 0)
+        assert ack is not None and ack.result == ACCEPTED, ack
+        rig.wait_status(lambda s: s["track"]["state"] != "idle")
+        signed.command_long(STOP, [0, 0, 0, 0, 0, 0, 0], target=CAM)
+        assert signed.wait_ack(STOP, 0).result == ACCEPTED
+        before = rig.wait_status(lambda s: s["track"]["state"] == "idle")
+        with signed._send_lock:
+            signed.conn.write(track.get_msgbuf())  # the recorded packet again: signature valid, timestamp old
+        after = rig.wait_status(lambda s: s["counters"]["mavlink_signing_refused_bad_signature"] >
+                                before["counters"]["mavlink_signing_refused_bad_signature"])
+        assert after["track"]["state"] == "idle" and refused(after) > refused(before)
+        assert after["counters"]["mavlink_commands"] == before["counters"]["mavlink_commands"]
+        assert signed.ack_count(TRACK_RECT) == 1
+    finally:
+        log = rig.close()
+    assert "Traceback" not in log and "event=signing_enabled allow_unsigned=False" in log

@@ -58,6 +58,52 @@ def check_destination(url: str) -> None:
                 raise ConnectionError(f"mavlink.url: {url} is unreachable: {exc.strerror}") from exc
 
 
+def keep_stream_on_refusal(mav: object) -> None:
+    """Make a refused packet leave its stream's timestamp as it was.
+
+    pymavlink 2.4.50's check_signature records a packet's timestamp for its stream (link id, system,
+    component) before it checks the signature, so one forged packet with a far-future timestamp made
+    every later packet of the real ground station "old" and refused (measured: tests/
+    test_service_mavlink_process.py). The check itself stays pymavlink's; only its bookkeeping is undone.
+    """
+    check = mav.check_signature  # type: ignore[attr-defined]
+    streams = mav.signing.stream_timestamps  # type: ignore[attr-defined]
+
+    def checked(msgbuf: bytearray, system: int, component: int) -> bool:
+        key = (msgbuf[-13], system, component)
+        previous = streams.get(key)
+        if check(msgbuf, system, component):
+            return True
+        if previous is None:
+            streams.pop(key, None)
+        else:
+            streams[key] = previous
+        return False
+    mav.check_signature = checked  # type: ignore[attr-defined]
+
+
+class SigningCounts:
+    """Packets refused by signing: unsigned ones, badly signed ones, and both by message name."""
+
+    def __init__(self) -> None:
+        self.refused_unsigned = 0
+        self.refused_bad_signature = 0
+        self.by_message: dict[str, int] = {}  # at most one key per message of the dialect: bounded
+        self._bad_signatures_seen = 0
+
+    def refused(self, msg_id: int, bad_signatures: int) -> None:
+        """Count one refusal; bad_signatures is pymavlink's running count, which it raises before asking
+        about a badly signed packet (and leaves alone for an unsigned one)."""
+        if bad_signatures != self._bad_signatures_seen:
+            self._bad_signatures_seen = bad_signatures
+            self.refused_bad_signature += 1
+        else:
+            self.refused_unsigned += 1
+        entry = mavutil.mavlink.mavlink_map.get(msg_id)
+        name = entry.msgname if entry is not None else str(msg_id)
+        self.by_message[name] = self.by_message.get(name, 0) + 1
+
+
 class MavlinkLink:
     """A pymavlink connection with a send lock; `recv` is called from one receive thread only."""
 
@@ -67,6 +113,7 @@ class MavlinkLink:
         self.send_errors = 0
         self.sent = 0
         self.bad_packets = 0  # undecodable, or rejected by signing
+        self.signing = SigningCounts()
         self._sending_fails = False  # the last send failed (the first failure of a run is a warning)
         check_destination(config.url)
         try:
@@ -132,11 +179,29 @@ class MavlinkLink:
         except OSError:
             pass
 
+    def signing_status(self) -> dict[str, object]:
+        """Signing for the status query: on / off, whether unsigned packets pass, packets by verdict
+        (accepted signed; refused unsigned; refused with a bad signature: wrong key, replayed or too old a
+        timestamp) and the refused ones by message name."""
+        signing = self._conn.mav.signing
+        return {"enabled": signing.secret_key is not None, "allow_unsigned": self.config.signing.allow_unsigned,
+                "accepted_signed": signing.goodsig_count, "refused_unsigned": self.signing.refused_unsigned,
+                "refused_bad_signature": self.signing.refused_bad_signature,
+                "refused_by_message": dict(self.signing.by_message)}
+
     def _setup_signing(self, signing: SigningConfig) -> None:
         key = read_signing_key(signing.key_file)
         allow = signing.allow_unsigned
+        counts = self.signing
+
+        def allow_unsigned(mav: object, msg_id: int) -> bool:
+            """pymavlink asks this for each unsigned or badly signed packet (receive thread only)."""
+            if not allow:
+                counts.refused(msg_id, mav.signing.badsig_count)  # type: ignore[attr-defined]
+            return allow
         # timestamp must only move forward; start at the current time like MAVLink's reference code
         stamp = int((time.time() - SIGNING_EPOCH_S) * 1e5)
-        self._conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda mav, msg_id: allow,
+        self._conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=allow_unsigned,
                                  initial_timestamp=stamp, link_id=signing.link_id)
+        keep_stream_on_refusal(self._conn.mav)
         log.info("event=signing_enabled allow_unsigned=%s link_id=%d pid=%d", allow, signing.link_id, os.getpid())

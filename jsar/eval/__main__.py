@@ -1,5 +1,22 @@
 """python -m jsar.eval DATA_ROOT --trackers jsar,strcf,csrt,kcf [--json F] [--plots D] [--published D]
 [--sequences a,b] [--longterm [--kinds ...] [--lengths 5,15,40] [--seed 0]] [--max-frames N] [--params JSON]
+[--starts exact|sre|sre:I,J,...] [--jobs N]
+
+--starts runs each sequence from perturbed initial boxes as well (OTB's spatial robustness evaluation,
+jsar.eval.sre), one pass or --longterm (the same injected events for every start), always scored against
+the unperturbed ground truth. `exact` (default): the ground truth's first box only. `sre`: all 11 starts,
+by index 0 exact; 1-4 shift2_+x+y, shift2_+x-y, shift2_-x+y, shift2_-x-y (2 px diagonal shifts); 5-8
+shift10_-x, shift10_+x, shift10_-y, shift10_+y (10 % of the box's width / height); 9 scale0.9, 10 scale1.1
+(about the centre); perturbed boxes clipped to the frame. `sre:I,J,...`: those starts, 0 among them (for
+exploring, e.g. sre:0,2,5,9). The tables and "sequences" / "summary" in the JSON stay the exact start's;
+then per sequence and per set the mean, standard deviation and min / max over the starts of AUC,
+precision and (--longterm) re-acquired within 15 frames, false re-initialisations per absent frame and
+absent frames reported lost, beside the exact start's value; the JSON's "sre" holds them and every
+start's per-sequence figures and boxes.
+
+--jobs N runs the (sequence, start) or (sequence, kind, start) runs in N forked worker processes, each
+single-threaded like the main one (default 1: in this process); results are the same as with 1, but the
+speeds are measured with N runs sharing the machine.
 
 --params sets a tracker's parameters as jsar.create takes them, e.g. JSAR-Re with four windows a lost
 frame: --params '{"jsar-re": {"redetect": {"search": {"windows_per_frame": 4}}}}' (an ablation of one
@@ -23,7 +40,9 @@ limit_threads_env()  # before the trackers' modules (scipy, ...) are imported be
 
 from tqdm import tqdm  # noqa: E402
 
-from jsar.eval import dataset, evaluate, longterm, report  # noqa: E402
+from jsar.eval import dataset, evaluate, longterm, report, sre  # noqa: E402
+
+tqdm.monitor_interval = 0  # no tqdm monitor thread: --jobs forks worker processes from this one
 
 
 def _csv(text: str) -> list[str]:
@@ -44,6 +63,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--lengths", default=",".join(map(str, longterm.DEFAULT_LENGTHS)),
                         help="event lengths in frames (--longterm)")
     parser.add_argument("--seed", type=int, default=0, help="event placement seed (--longterm)")
+    parser.add_argument("--starts", default="exact",
+                        help=f"initial boxes per sequence (OTB's SRE): {sre.STARTS_SYNTAX}, e.g. sre:0,2,5,9; "
+                             "the starts: " + ", ".join(f"{s.index} {s.name}" for s in sre.SRE_STARTS)
+                             + " (shift2 = 2 px, shift10 = 10 %% of w / h, scale about the centre; clipped to the "
+                             "frame); scored against the unperturbed ground truth (default exact)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="(sequence, start) runs in this many single-threaded worker processes (default 1); "
+                             "same results, speeds measured with the runs sharing the machine")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--params", default="",
                         help='JSON {tracker: {jsar.create keyword: value}}, e.g. '
@@ -81,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.max_frames is not None and args.max_frames < 2:
             raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
         params = parse_params(args.params, trackers)
+        starts = sre.parse_starts(args.starts)
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
         factories = evaluate.tracker_factories(trackers, params)
     except ValueError as exc:
         raise SystemExit(f"error: {exc}") from exc
@@ -95,28 +125,35 @@ def main(argv: list[str] | None = None) -> int:
         print(f"params: {json.dumps(params, sort_keys=True)}", file=sys.stderr)
     kinds = _csv(args.kinds)
     lengths = tuple(int(v) for v in _csv(args.lengths))
-    total = sum(min(len(s), args.max_frames or len(s)) for s in sequences) * (len(kinds) if args.longterm else 1)
+    total = (sum(min(len(s), args.max_frames or len(s)) for s in sequences) * (len(kinds) if args.longterm else 1)
+             * len(starts))
     with tqdm(total=total, unit="frame", disable=args.no_progress, file=sys.stderr) as bar:
         try:
             if args.longterm:
                 result = evaluate.evaluate_longterm(sequences, trackers, kinds, lengths, args.seed,
                                                     progress=bar.update, max_frames=args.max_frames,
-                                                    factories=factories)
+                                                    factories=factories, starts=starts, jobs=args.jobs)
             else:
                 result = evaluate.evaluate(sequences, trackers, args.published, progress=bar.update,
-                                           max_frames=args.max_frames, factories=factories)
+                                           max_frames=args.max_frames, factories=factories, starts=starts,
+                                           jobs=args.jobs)
         except ValueError as exc:
             raise SystemExit(f"error: {exc}") from exc
     result["threads"] = threads
     result["data_root"] = str(args.data_root)
     result["max_frames"] = args.max_frames
     result["params"] = params
+    result["starts"] = args.starts
+    result["jobs"] = args.jobs
     if args.longterm:
         print(report.format_longterm_table(result))
     else:
         print(report.format_sequence_table(result))
         print()
         print(report.format_summary_table(result))
+    if "sre" in result:
+        print()
+        print(report.format_sre_tables(result))
     if args.json:
         report.write_json(result, args.json)
         print(f"json: {args.json}")

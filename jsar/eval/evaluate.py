@@ -2,7 +2,7 @@
 
 Result layout (also what --json writes):
   {"sequences": {seq: {"frames": N, "groundtruth": (N, 4), "trackers": {name: entry}}},
-   "summary": {name: {...}}}
+   "summary": {name: {...}}, ["sre": jsar.eval.sre.section(...) when run from several initial boxes]}
 where an entry holds precision (at 20 px), auc, the two curves, boxes (N x 4, 0-based x,y,w,h) and,
 for trackers run here, fps, seconds, scores and states; published entries have "published": true.
 """
@@ -15,8 +15,8 @@ import numpy as np
 
 import jsar
 from jsar.api import Tracker
-from jsar.eval import dataset, longterm, metrics
-from jsar.eval.runner import TrackerRun, track_lockstep
+from jsar.eval import dataset, longterm, metrics, sre
+from jsar.eval.runner import TrackerRun, run_indexed, track_lockstep
 
 CSRT = "csrt"
 
@@ -84,39 +84,75 @@ def run_entry(run: TrackerRun, groundtruth: np.ndarray) -> dict[str, object]:
     return entry
 
 
+def frame_shape(sequence: dataset.Sequence) -> tuple[int, ...]:
+    """(height, width, channels) of the sequence's first frame (to clip perturbed initial boxes)."""
+    return sequence.read_frame(0).shape
+
+
+def start_boxes(first_box: np.ndarray, starts: tuple[sre.Start, ...], sequence: dataset.Sequence
+                ) -> dict[str, np.ndarray]:
+    """{start name: initial box (x, y, w, h px)}; the first frame is decoded only for perturbed starts."""
+    if starts == (sre.EXACT,):
+        return {sre.EXACT.name: np.array(first_box, dtype=np.float64)}
+    shape = frame_shape(sequence)
+    try:
+        return {s.name: sre.start_box(first_box, s, shape) for s in starts}
+    except ValueError as exc:
+        raise ValueError(f"{sequence.name}: {exc}") from exc
+
+
 def evaluate(sequences: list[dataset.Sequence], tracker_names: list[str],
              published_dir: Path | None = None,
              progress: Callable[[int], None] | None = None,
              max_frames: int | None = None,
-             factories: dict[str, Callable[[], Tracker]] | None = None) -> dict[str, object]:
+             factories: dict[str, Callable[[], Tracker]] | None = None,
+             starts: tuple[sre.Start, ...] = (sre.EXACT,), jobs: int = 1) -> dict[str, object]:
     """One-pass evaluation of every tracker (and published result) on every sequence.
 
     max_frames: score only the first N frames (published files are checked against the full
     sequence, then cut to the same N frames). factories: name -> zero-argument factory for trackers
     that are not jsar.create's defaults (e.g. bench.ablation's variants); names as tracker_names.
+    starts: initial boxes (jsar.eval.sre; must hold the exact one): "sequences" and "summary" are the exact
+    start's, and with more starts "sre" holds every start's figures and their spread. jobs: (sequence,
+    start) runs in that many single-threaded processes (runner.run_indexed).
     """
     factories = chosen_factories(tracker_names, factories)
+    sre.check_starts(starts)
     published = dataset.published_trackers(published_dir) if published_dir else []
     clash = set(published) & set(tracker_names)
     if clash:
         raise ValueError(f"published tracker names clash with run trackers: {sorted(clash)}")
-    per_sequence: dict[str, object] = {}
-    for full in sequences:
-        seq = truncated(full, max_frames)
+    seqs = [truncated(full, max_frames) for full in sequences]
+    boxes = {seq.name: start_boxes(seq.groundtruth[0], starts, seq) for seq in seqs}
+    units = [(seq, start) for seq in seqs for start in starts]
+
+    def task(index: int, on_frame: Callable[[], None] | None) -> dict[str, dict[str, object]]:
+        seq, start = units[index]
         runs = track_lockstep((seq.read_frame(i) for i in range(len(seq))), len(seq),
-                              seq.groundtruth[0], factories, seq.name,
-                              on_frame=(lambda: progress(1)) if progress else None)
-        entries: dict[str, object] = {name: run_entry(run, seq.groundtruth) for name, run in runs.items()}
+                              boxes[seq.name][start.name], factories, seq.name, on_frame=on_frame)
+        return {name: run_entry(run, seq.groundtruth) for name, run in runs.items()}
+
+    done = run_indexed(task, [len(seq) for seq, _ in units], jobs, progress)
+    by_start: dict[str, dict[str, dict[str, dict[str, object]]]] = {seq.name: {} for seq in seqs}
+    for (seq, start), entries in zip(units, done):
+        by_start[seq.name][start.name] = entries
+    per_sequence: dict[str, object] = {}
+    for full, seq in zip(sequences, seqs):
+        entries: dict[str, object] = dict(by_start[seq.name][sre.EXACT.name])
         for name in published:
-            boxes = dataset.load_published(published_dir, name, full.name, len(full))  # type: ignore[arg-type]
-            if boxes is None:
+            boxes_published = dataset.load_published(published_dir,  # type: ignore[arg-type]
+                                                     name, full.name, len(full))
+            if boxes_published is None:
                 continue
-            boxes = boxes[:len(seq)]
-            entry = metrics.score(boxes, seq.groundtruth)
-            entry.update({"published": True, "boxes": boxes})
+            boxes_published = boxes_published[:len(seq)]
+            entry = metrics.score(boxes_published, seq.groundtruth)
+            entry.update({"published": True, "boxes": boxes_published})
             entries[name] = entry
         per_sequence[seq.name] = {"frames": len(seq), "groundtruth": seq.groundtruth, "trackers": entries}
-    return {"sequences": per_sequence, "summary": summarise(per_sequence)}
+    result: dict[str, object] = {"sequences": per_sequence, "summary": summarise(per_sequence)}
+    if len(starts) > 1:
+        result["sre"] = sre.section(starts, boxes, by_start)
+    return result
 
 
 def summarise(per_sequence: dict[str, object]) -> dict[str, dict[str, object]]:
@@ -169,37 +205,56 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
                       config: longterm.InjectionConfig | None = None,
                       progress: Callable[[int], None] | None = None,
                       max_frames: int | None = None,
-                      factories: dict[str, Callable[[], Tracker]] | None = None) -> dict[str, object]:
+                      factories: dict[str, Callable[[], Tracker]] | None = None,
+                      starts: tuple[sre.Start, ...] = (sre.EXACT,), jobs: int = 1) -> dict[str, object]:
     """Long-term evaluation: every tracker on every (sequence, event kind) with injected events
     (events placed within the first max_frames frames when given) or, for kind "real", on the
     sequence as it is, scored on its own absent runs (sequences without one are skipped).
-    factories: as in evaluate()."""
+    factories, starts, jobs: as in evaluate(); every start of a (sequence, kind) sees the same events."""
     factories = chosen_factories(tracker_names, factories)
+    sre.check_starts(starts)
     criteria = criteria or longterm.LongTermCriteria()
-    per_sequence: dict[str, object] = {}
-    lt_runs: dict[str, list[dict[str, object]]] = {n: [] for n in tracker_names}
+    runs_lt: list[longterm.EventSequence] = []
+    boxes: dict[str, dict[str, np.ndarray]] = {}
     for seq in (truncated(full, max_frames) for full in sequences):
         for kind in kinds:
             events = longterm.inject_events(seq, kind, lengths, seed, config)
             if kind == "real" and not events.events:
                 continue
-            runs = track_lockstep(events.frames(), len(events), events.groundtruth[0], factories,
-                                  events.name, on_frame=(lambda: progress(1)) if progress else None)
-            entries: dict[str, object] = {}
-            for name, run in runs.items():
-                entry = run_entry(run, events.groundtruth)
-                lt = longterm.longterm_scores(run.boxes, run.states, events.groundtruth, criteria,
-                                              events.scored_spans)
-                for event in lt["events"]:  # type: ignore[union-attr]
-                    event["kind"] = kind
-                entry["longterm"] = lt
-                lt_runs[name].append(lt)
-                entries[name] = entry
-            per_sequence[events.name] = {
-                "frames": len(events), "groundtruth": events.groundtruth, "base": seq.name, "kind": kind,
-                "events": [{"start": e.start, "length": e.length} for e in events.events],
-                "dropped_lengths": list(events.dropped_lengths), "trackers": entries,
-            }
+            runs_lt.append(events)
+            # Frame 0 is never inside an injected event (first_start), so the base frame's size is the run's.
+            boxes[events.name] = start_boxes(events.groundtruth[0], starts, seq)
+    units = [(events, start) for events in runs_lt for start in starts]
+
+    def task(index: int, on_frame: Callable[[], None] | None) -> dict[str, dict[str, object]]:
+        events, start = units[index]
+        runs = track_lockstep(events.frames(), len(events), boxes[events.name][start.name], factories,
+                              events.name, on_frame=on_frame)
+        entries: dict[str, dict[str, object]] = {}
+        for name, run in runs.items():
+            entry = run_entry(run, events.groundtruth)
+            lt = longterm.longterm_scores(run.boxes, run.states, events.groundtruth, criteria, events.scored_spans)
+            for event in lt["events"]:  # type: ignore[union-attr]
+                event["kind"] = events.kind
+            entry["longterm"] = lt
+            entries[name] = entry
+        return entries
+
+    done = run_indexed(task, [len(events) for events, _ in units], jobs, progress)
+    by_start: dict[str, dict[str, dict[str, dict[str, object]]]] = {events.name: {} for events in runs_lt}
+    for (events, start), entries in zip(units, done):
+        by_start[events.name][start.name] = entries
+    per_sequence: dict[str, object] = {}
+    lt_runs: dict[str, list[dict[str, object]]] = {n: [] for n in tracker_names}
+    for events in runs_lt:
+        exact = by_start[events.name][sre.EXACT.name]
+        for name, entry in exact.items():
+            lt_runs[name].append(entry["longterm"])  # type: ignore[arg-type]
+        per_sequence[events.name] = {
+            "frames": len(events), "groundtruth": events.groundtruth, "base": events.base.name, "kind": events.kind,
+            "events": [{"start": e.start, "length": e.length} for e in events.events],
+            "dropped_lengths": list(events.dropped_lengths), "trackers": dict(exact),
+        }
     summary = summarise(per_sequence)
     for name in tracker_names:
         row = summary[name]
@@ -207,8 +262,11 @@ def evaluate_longterm(sequences: list[dataset.Sequence], tracker_names: list[str
         all_events = [e for lt in lt_runs[name] for e in lt["events"]]  # type: ignore[union-attr]
         row["reacquisition_by_length"] = _rate_by(all_events, "length")
         row["reacquisition_by_kind"] = _rate_by(all_events, "kind")
-    return {"sequences": per_sequence, "summary": summary, "seed": seed,
-            "criteria": criteria.__dict__, "lengths": list(lengths), "kinds": kinds}
+    result: dict[str, object] = {"sequences": per_sequence, "summary": summary, "seed": seed,
+                                 "criteria": criteria.__dict__, "lengths": list(lengths), "kinds": kinds}
+    if len(starts) > 1:
+        result["sre"] = sre.section(starts, boxes, by_start)
+    return result
 
 
 def _rate_by(events: list[dict[str, object]], key: str) -> dict[str, dict[str, float | int]]:

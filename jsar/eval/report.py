@@ -97,6 +97,42 @@ def format_longterm_table(result: dict[str, object]) -> str:
     return text + _errors(summary)  # type: ignore[arg-type]
 
 
+SRE_COLUMNS = {"auc": ("AUC", ".3f"), "precision": ("prec@20", ".3f"),
+               "reacquisition_rate": ("re-acquired", ".2f"), "false_reinit_rate": ("false re-init", ".3f"),
+               "absent_reported_lost_rate": ("absent: lost", ".2f")}
+
+
+def _spread_cell(figure: dict[str, object], spec: str) -> str:
+    """"mean ±std [min, max] exact" of one figure over the starts, e.g. "0.550 ±0.020 [0.510, 0.570] 0.560"."""
+    return (f"{_fmt(figure['mean'], spec)} ±{_fmt(figure['std'], spec)} "
+            f"[{_fmt(figure['min'], spec)}, {_fmt(figure['max'], spec)}] {_fmt(figure['exact'], spec)}")
+
+
+def format_sre_tables(result: dict[str, object]) -> str:
+    """The spatial robustness part (jsar.eval.sre): per sequence (run) and tracker, then per tracker over the
+    set, each figure as mean ±std [min, max] over the starts and the exact start's value; then each start's
+    set figures; '' without it."""
+    section = result.get("sre")
+    if not section:
+        return ""
+    metrics_ = section["metrics"]  # type: ignore[index]
+    header = [f"{SRE_COLUMNS[m][0]}: mean ±sd [min, max] exact" for m in metrics_]
+    rows = [[run, name] + [_spread_cell(figures[m], SRE_COLUMNS[m][1]) for m in metrics_]
+            for run, seq in section["sequences"].items()  # type: ignore[index]
+            for name, figures in seq["trackers"].items()]
+    set_rows = [[name] + [_spread_cell(figures[m], SRE_COLUMNS[m][1]) for m in metrics_]
+                for name, figures in section["summary"].items()]  # type: ignore[index]
+    per_start_rows = [[name, start] + [_fmt(row[m], SRE_COLUMNS[m][1]) for m in metrics_]
+                      for name, figures in section["summary"].items()  # type: ignore[index]
+                      for start, row in figures["per_start"].items()]
+    starts = ", ".join(f"{s['index']} {s['name']}" for s in section["starts"])  # type: ignore[index]
+    return (f"Spatial robustness: {len(section['starts'])} initial boxes ({starts}); "  # type: ignore[arg-type]
+            f"scored against the unperturbed ground truth; sd = population standard deviation over the starts\n\n"
+            + _table(["sequence", "tracker"] + header, rows) + "\n\n"
+            + _table(["tracker (set)"] + header, set_rows) + "\n\n"
+            + _table(["tracker (set)", "start"] + [SRE_COLUMNS[m][0] for m in metrics_], per_start_rows))
+
+
 def _errors(summary: dict[str, dict[str, object]]) -> str:
     """Trackers that raised, one line each ('' if none)."""
     errors = [f"  {name}: {msg}" for name, row in summary.items() for msg in row.get("errors", [])]  # type: ignore[attr-defined]

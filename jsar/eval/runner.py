@@ -2,21 +2,25 @@
 
 Every frame is decoded once (outside the timed region) and handed to every tracker in turn, so all
 trackers see identical pixels and decoding never counts toward anyone's speed. A tracker's time is
-its init on frame 0 plus its updates, measured with time.perf_counter around each call.
+its init on frame 0 plus its updates, measured with time.perf_counter around each call. Independent runs
+(sequences, initial boxes) can go to forked single-threaded worker processes (run_indexed).
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
-from typing import Callable, Iterable
+from typing import Callable, Iterable, TypeVar
 
 import cv2
 import numpy as np
 
 from jsar.api import Tracker
 
+R = TypeVar("R")
 THREAD_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 
@@ -141,3 +145,52 @@ def track_lockstep(frames: Iterable[np.ndarray], n_frames: int, init_box: np.nda
     if index + 1 != n_frames:
         raise ValueError(f"{sequence}: got {index + 1} frames, expected {n_frames}")
     return {name: item.run for name, item in live.items()}
+
+
+# The task of the pool in progress: forked workers inherit it, so tasks that close over tracker factories
+# (lambdas, bench.ablation's variants) need no pickling; only the task index and its result cross processes.
+_POOL_TASK: Callable[[int, Callable[[], None] | None], object] | None = None
+
+
+def _pool_worker_init() -> None:
+    """Each worker single-threaded, as the parent: the caps are inherited through fork, set again to be sure."""
+    limit_threads_env()
+    cap_loaded_pools()
+
+
+def _pool_call(index: int) -> object:
+    assert _POOL_TASK is not None
+    return _POOL_TASK(index, None)
+
+
+def run_indexed(task: Callable[[int, Callable[[], None] | None], R], sizes: list[int], jobs: int = 1,
+                progress: Callable[[int], None] | None = None) -> list[R]:
+    """[task(i, on_frame) for i in range(len(sizes))], in this process (jobs 1: on_frame reports each frame
+    to `progress`) or in `jobs` forked single-threaded worker processes (on_frame None; `progress` gets
+    sizes[i] frames when task i ends). Results in index order; a task's exception is raised here."""
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if jobs == 1 or len(sizes) <= 1:
+        on_frame = (lambda: progress(1)) if progress else None
+        return [task(i, on_frame) for i in range(len(sizes))]
+    if "fork" not in multiprocessing.get_all_start_methods():
+        raise ValueError("jobs > 1 needs the fork start method (Linux)")
+    global _POOL_TASK
+    _POOL_TASK = task  # type: ignore[assignment]
+    results: list[R | None] = [None] * len(sizes)
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(sizes)), mp_context=multiprocessing.get_context("fork"),
+                               initializer=_pool_worker_init)
+    try:
+        futures = {pool.submit(_pool_call, i): i for i in range(len(sizes))}
+        for future in as_completed(futures):
+            index = futures[future]
+            results[index] = future.result()  # type: ignore[assignment]
+            if progress:
+                progress(sizes[index])
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+        _POOL_TASK = None
+    return results  # type: ignore[return-value]

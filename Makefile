@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm ablation bench instructions instructions-arm64 image check-arm64 check-systemd clean
+.PHONY: run test eval longterm ablation bench instructions instructions-arm64 image check-arm64 check-systemd clean mavproxy
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml jsar/features/_kernels.c
@@ -32,6 +32,15 @@ test: export OPENBLAS_CORETYPE ?= Haswell
 endif
 test: $(STAMP)
 	$(PY) -m pytest -q -rs  # -rs: say why tests were skipped (e.g. no JSAR_DATA_ROOT)
+
+# MAVProxy, a ground station the tests run against (MAVLink signing), in its own environment: its
+# dependencies stay out of the project's. Tests that need it skip and say so without it.
+MAVPROXY_VENV := .venv-mavproxy
+mavproxy: $(MAVPROXY_VENV)/.installed
+$(MAVPROXY_VENV)/.installed:
+	$(PYTHON) -m venv $(MAVPROXY_VENV)
+	$(MAVPROXY_VENV)/bin/python -m pip install --quiet mavproxy==1.8.75
+	touch $@
 
 # Research: the tracker on the shared real sequences (DATA defaults to the shared data beside the repo).
 DATA ?= ../shared/data/uav
@@ -78,4 +87,4 @@ check-systemd: $(STAMP)
 	PYTHON=$(PY) deploy/check-systemd.sh
 
 clean:
-	rm -rf $(VENV) out
+	rm -rf $(VENV) $(MAVPROXY_VENV) out

@@ -274,3 +274,75 @@ def test_signing_accepts_signed_commands_and_refuses_unsigned_wrong_key_and_repl
     finally:
         log = rig.close()
     assert "Traceback" not in log and "event=signing_enabled allow_unsigned=False" in log
+
+
+MAVPROXY = Path(os.environ.get("JSAR_MAVPROXY", REPO / ".venv-mavproxy" / "bin" / "mavproxy.py"))
+
+
+class MavProxy:
+    """MAVProxy (its own environment, `make mavproxy`) as a ground station on the autopilot peer's ground port,
+    commanding the camera (target system AP_SYSID, component 100); commands piped to its standard input."""
+
+    def __init__(self, gcs_port: int, workdir: Path) -> None:
+        self.proc = subprocess.Popen(
+            [str(MAVPROXY), f"--master=udpout:127.0.0.1:{gcs_port}", "--mav20", "--nowait",
+             f"--target-system={AP_SYSID}", "--target-component=100", "--source-system=254",
+             "--default-modules=signing,cmdlong", f"--state-basedir={workdir}"],
+            cwd=workdir, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            env={**os.environ, "MAVLINK20": "1", "HOME": str(workdir)})
+
+    def command(self, line: str) -> None:
+        assert self.proc.poll() is None, "MAVProxy exited"
+        self.proc.stdin.write(line + "\n")
+        self.proc.stdin.flush()
+
+    def close(self) -> str:
+        """Stop it (end of input, then SIGTERM) and return what it printed."""
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+        except (subprocess.TimeoutExpired, BrokenPipeError):
+            self.proc.kill()
+            self.proc.wait()
+        return self.proc.stdout.read() if self.proc.stdout else ""
+
+
+@pytest.mark.skipif(not MAVPROXY.exists(), reason=f"MAVProxy is not installed at {MAVPROXY} "
+                    "(`make mavproxy` installs mavproxy==1.8.75 in .venv-mavproxy; JSAR_MAVPROXY names another)")
+def test_mavproxy_signing_key_from_the_keygen_passphrase_commands_the_camera(
+        tmp_path: Path, frames_dir: Path, peers: tuple[AutopilotPeer, int, int]) -> None:
+    """MAVProxy's own signing: unsigned, its command changes nothing; after `signing key PASSPHRASE` (the
+    passphrase keygen printed) the same command is accepted; `signing setup OTHER` (SETUP_SIGNING to the
+    camera) does not change the camera's key: MAVProxy, now on OTHER, is refused."""
+    rig = SigningRig(tmp_path, frames_dir, peers)
+    workdir = tmp_path / "mavproxy"
+    workdir.mkdir()
+    mavproxy = MavProxy(rig.gcs_port, workdir)
+    output = ""
+    try:
+        rig.wait_status(lambda s: s["source"]["state"] == "ok", 60.0)
+        select = "long MAV_CMD_CAMERA_TRACK_RECTANGLE 0.55 0.3 0.8 0.6"
+        before = rig.status()
+        mavproxy.command(select)
+        after = rig.wait_status(lambda s: refused(s) > refused(before), 30.0)
+        assert after["track"]["state"] == "idle"
+        assert after["counters"]["mavlink_commands"] == before["counters"]["mavlink_commands"]
+
+        mavproxy.command(f"signing key {rig.passphrase}")
+        mavproxy.command(select)
+        after = rig.wait_status(lambda s: s["track"]["state"] != "idle", 30.0)
+        assert after["counters"]["mavlink_accepted"] == before["counters"]["mavlink_accepted"] + 1
+
+        before = rig.status()
+        mavproxy.command("signing setup another-passphrase")  # SETUP_SIGNING to the camera, then its own key
+        mavproxy.command("long MAV_CMD_CAMERA_STOP_TRACKING")
+        after = rig.wait_status(lambda s: s["counters"]["mavlink_signing_refused_bad_signature"] >
+                                before["counters"]["mavlink_signing_refused_bad_signature"], 30.0)
+        assert after["track"]["state"] != "idle" and after["counters"]["mavlink_commands"] == \
+            before["counters"]["mavlink_commands"]
+        assert refused(after, "SETUP_SIGNING") == 0  # it came signed with the old key: passed, and ignored
+    finally:
+        output = mavproxy.close()
+        log = rig.close()
+    assert "Got COMMAND_ACK: CAMERA_TRACK_RECTANGLE: ACCEPTED" in output and "Sent secret_key" in output, output[-3000:]
+    assert "Traceback" not in log

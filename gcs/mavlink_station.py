@@ -135,16 +135,41 @@ class StatusTextAssembler:
         return [text for at, _sev, text in self.texts if at >= start_s]
 
 
-class Link:
-    """One pymavlink connection with a send lock (sends come from several threads)."""
+SIGNING_EPOCH_S = 1420070400  # MAVLink 2 signing timestamps count 10-us units from 2015-01-01 UTC
 
-    def __init__(self, url: str, system_id: int, component_id: int) -> None:
+
+def read_signing_key(path: str) -> bytes:
+    """The 32-byte MAVLink 2 signing key in a key file (`jsar-service keygen`'s 64 hex characters, or 32 raw
+    bytes); ValueError naming the file otherwise."""
+    try:
+        data = open(path, "rb").read()
+    except OSError as exc:
+        raise ValueError(f"--signing-key: cannot read {path}: {exc.strerror}") from exc
+    try:
+        key = bytes.fromhex(data.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        key = data
+    if len(key) != 32:
+        raise ValueError(f"--signing-key: {path} must hold 64 hex characters or 32 raw bytes")
+    return key
+
+
+class Link:
+    """One pymavlink connection with a send lock (sends come from several threads); with signing_key, every
+    message it sends is signed (MAVLink 2 signing, link id link_id). What it receives may be unsigned: the
+    drone's autopilot may not sign its telemetry."""
+
+    def __init__(self, url: str, system_id: int, component_id: int, signing_key: bytes | None = None,
+                 link_id: int = 0) -> None:
         self.url = url
         try:
             self.conn = mavutil.mavlink_connection(url, source_system=system_id, source_component=component_id,
                                                    autoreconnect=True)
         except Exception as exc:  # pymavlink raises OSError, ValueError, serial errors...
             raise ConnectionError(f"MAVLink: cannot open {url}: {exc}") from exc
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True, allow_unsigned_callback=lambda mav, msg_id: True,
+                                    initial_timestamp=int((time.time() - SIGNING_EPOCH_S) * 1e5), link_id=link_id)
         self.lock = threading.Lock()
         self.send_errors = 0
 
@@ -164,7 +189,8 @@ class MavlinkStation:
     def __init__(self, urls: list[str], system_id: int = 255, component_id: int = 190,
                  on_status: Callable[[ImageStatus], None] = lambda status: None,
                  on_text: Callable[[int, int, int, str], None] = lambda s, c, sev, text: None,
-                 ack_timeout_s: float = 1.5, attempts: int = 3) -> None:
+                 ack_timeout_s: float = 1.5, attempts: int = 3, signing_key: bytes | None = None) -> None:
+        """signing_key: sign every message sent (the drone's 32-byte MAVLink 2 key); None = unsigned."""
         if not urls:
             raise ValueError("at least one MAVLink URL is needed")
         if not (ack_timeout_s > 0 and attempts >= 1):
@@ -176,8 +202,8 @@ class MavlinkStation:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         try:
-            for url in urls:
-                self.links.append(Link(url, system_id, component_id))
+            for index, url in enumerate(urls):
+                self.links.append(Link(url, system_id, component_id, signing_key, link_id=index))
         except ConnectionError:
             self.close()
             raise

@@ -29,6 +29,7 @@ from typing import Any, AsyncIterator
 from urllib.parse import urlsplit
 
 from starlette.applications import Starlette
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
@@ -39,6 +40,7 @@ from gcs.confidence import ConfidenceGauge
 from gcs.drones import DroneDirectory, ZenohSettings
 from gcs.mavlink_station import CommandOutcome, ImageStatus, MavlinkStation
 from gcs.preview import PreviewFrame
+from gcs.web.auth import TokenAuth
 
 log = logging.getLogger("gcs.web")
 STATIC = resources.files("gcs.web") / "static"
@@ -217,8 +219,9 @@ async def ask_status(hub: Hub, prefix: str) -> None:
     await asyncio.to_thread(hub.station.request_status, system_id, component_id)
 
 
-def create_app(hub: Hub) -> Starlette:
-    """The Starlette app serving `hub` (built with build_hub; closed by its owner after the server stops)."""
+def create_app(hub: Hub, token: str | None = None) -> Starlette:
+    """The Starlette app serving `hub` (built with build_hub; closed by its owner after the server stops);
+    with a token, every request and the WebSocket need it (gcs.web.auth)."""
     state: dict[str, Any] = {"hub": hub}
     background: set[asyncio.Task] = set()  # referenced until done (the loop keeps only weak references)
 
@@ -310,14 +313,17 @@ def create_app(hub: Hub) -> Starlette:
 
     routes = [Route("/", index), Route("/api/drones", drones), WebSocketRoute("/ws", socket),
               Mount("/static", StaticFiles(directory=str(STATIC)), name="static")]
-    return Starlette(routes=routes, lifespan=lifespan)
+    middleware = [Middleware(TokenAuth, token=token)] if token is not None else []
+    return Starlette(routes=routes, lifespan=lifespan, middleware=middleware)
 
 
 def build_hub(zenoh_settings: ZenohSettings, mavlink_urls: list[str], system_id: int = 255,
-              component_id: int = 190) -> Hub:
-    """The Hub with its MAVLink station and Zenoh directory open; ConnectionError naming what failed."""
+              component_id: int = 190, signing_key: bytes | None = None) -> Hub:
+    """The Hub with its MAVLink station (signing what it sends with signing_key, if given) and Zenoh directory
+    open; ConnectionError naming what failed."""
     hub = Hub()
-    hub.station = MavlinkStation(mavlink_urls, system_id, component_id, on_status=hub.on_status, on_text=hub.on_text)
+    hub.station = MavlinkStation(mavlink_urls, system_id, component_id, on_status=hub.on_status, on_text=hub.on_text,
+                                 signing_key=signing_key)
     try:
         hub.directory = DroneDirectory(zenoh_settings, on_track=hub.on_track, on_preview=hub.on_preview)
     except BaseException:

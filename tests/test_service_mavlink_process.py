@@ -346,3 +346,28 @@ def test_mavproxy_signing_key_from_the_keygen_passphrase_commands_the_camera(
         log = rig.close()
     assert "Got COMMAND_ACK: CAMERA_TRACK_RECTANGLE: ACCEPTED" in output and "Sent secret_key" in output, output[-3000:]
     assert "Traceback" not in log
+
+
+def test_the_web_stations_mavlink_side_signs_with_the_keygen_key(
+        tmp_path: Path, frames_dir: Path, peers: tuple[AutopilotPeer, int, int]) -> None:
+    """gcs.mavlink_station (jsar-gcs-web --signing-key FILE) with the daemon's key file: its selection is
+    accepted; the same station without the key is not answered (NO_ACK after its retries)."""
+    from gcs.mavlink_station import MavlinkStation, read_signing_key
+
+    rig = SigningRig(tmp_path, frames_dir, peers)
+    url = f"udpout:127.0.0.1:{rig.gcs_port}"
+    signed = MavlinkStation([url], signing_key=read_signing_key(str(tmp_path / "mavlink.key")), ack_timeout_s=1.0)
+    unsigned = MavlinkStation([url], system_id=254, ack_timeout_s=0.5, attempts=2)
+    try:
+        rig.wait_status(lambda s: s["source"]["state"] == "ok", 60.0)
+        refused_outcome = unsigned.track_rectangle(AP_SYSID, 100, 0.55, 0.3, 0.8, 0.6)
+        assert refused_outcome.result_name == "NO_ACK" and refused_outcome.attempts == 2
+        outcome = signed.track_rectangle(AP_SYSID, 100, 0.55, 0.3, 0.8, 0.6)
+        assert outcome.result_name == "ACCEPTED", outcome
+        status = rig.wait_status(lambda s: s["track"]["state"] != "idle")
+        assert refused(status) >= 2  # the unsigned station's two attempts
+    finally:
+        signed.close()
+        unsigned.close()
+        log = rig.close()
+    assert "Traceback" not in log

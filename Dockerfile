@@ -20,7 +20,7 @@ RUN set -eu; \
     apt-get install -y --no-install-recommends $packages; \
     rm -rf /var/lib/apt/lists/*
 WORKDIR /src
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md requirements-no-deps.txt ./
 COPY jsar ./jsar
 COPY service ./service
 COPY sim ./sim
@@ -29,8 +29,9 @@ COPY gcs ./gcs
 RUN python3 -m venv /opt/jsar/.venv \
     && /opt/jsar/.venv/bin/pip install --no-cache-dir --upgrade pip \
     && /opt/jsar/.venv/bin/pip install --no-cache-dir . \
+    && /opt/jsar/.venv/bin/pip install --no-cache-dir --no-deps -r requirements-no-deps.txt \
     && cd / \
-    && /opt/jsar/.venv/bin/python -c "import cv2; cv2.TrackerCSRT_create(); import jsar.features._native; import jsar.registry as r; print(r.available())"
+    && /opt/jsar/.venv/bin/python -c "import cv2; cv2.TrackerCSRT_create(); import jsar.features._native; import jsar.registry as r; print(r.available()); from jsar.learnt.mobilenet import FeatureNet; FeatureNet(8)"
 
 FROM ${BASE_IMAGE}
 # non-root user in the groups that own cameras (video) and serial links to the autopilot (dialout)

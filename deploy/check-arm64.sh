@@ -84,6 +84,10 @@ start=$(date +%s)
 if [ "${JSAR_ARM64_REUSE_VENV:-}" = 1 ] && [ -x /opt/jsar/.venv/bin/python ]; then
     echo "== reusing the venv; pip install --no-deps --force-reinstall . (from the working tree)"
     (cd /src && $pip install --no-deps --force-reinstall . 2>&1 | grep -E "^(Building|Created wheel|Successfully|ERROR|error)" | cut -c1-240)
+    # dependencies added since the venv was made (pyproject's pins; installed ones are left as they are)
+    /opt/jsar/.venv/bin/python -c 'import tomllib; p = tomllib.load(open("/src/pyproject.toml", "rb"))["project"]
+print("\n".join(p["dependencies"] + p["optional-dependencies"]["test"]))' > /tmp/pinned.txt
+    $pip install -q -r /tmp/pinned.txt
     $pip install -q --no-deps -r /src/requirements-no-deps.txt
 else
     rm -rf /opt/jsar/.venv

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from jsar.learnt import weights
-from jsar.learnt.embedding import (best_peak, crop_resized, embed, feature_map, match_map, peak_to_frame,
-                                   target_template)
+from jsar.learnt.embedding import (best_peak, crop_resized, embed, embedding_size, feature_map, match_map,
+                                   peak_to_frame, target_template)
 from jsar.learnt.mobilenet import FeatureNet
 from jsar.learnt.weights import WeightsFormatError, bundled_weights_path, load_state_dict, read_state_dict
 
@@ -207,6 +207,19 @@ def test_match_map_peak_maps_back_to_the_box_centre(net8: FeatureNet) -> None:
         assert value > 0.7 and value == pytest.approx(score.max(), abs=1e-6)  # < 1: the cell grid lies off by a part of a cell
         assert abs(cx - (box[0] + box[2] / 2)) < 0.5 * net8.stride / scale
         assert abs(cy - (box[1] + box[3] / 2)) < 0.5 * net8.stride / scale
+
+
+def test_embeddings_are_unit_vectors_of_the_stated_size(net16: FeatureNet) -> None:
+    rng = np.random.default_rng(8)
+    frame = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    boxes = np.array([[10, 10, 30, 20], [-20, 90, 40, 40], [100, 5, 8, 60]], dtype=float)  # one partly outside
+    for pooling, size in (("mean", 96), ("grid", 4 * 96), ("mean+grid", 5 * 96)):
+        e = embed(net16, frame, boxes, pooling=pooling)
+        assert e.shape == (3, size) == (3, embedding_size(net16, pooling)) and e.dtype == np.float32
+        assert np.allclose(np.linalg.norm(e, axis=1), 1, atol=1e-5)
+        assert embed(net16, frame, np.zeros((0, 4)), pooling=pooling).shape == (0, size)
+    single = embed(net16, frame, boxes[1:2])
+    assert np.allclose(single[0], embed(net16, frame, boxes)[1], atol=1e-5)  # batching does not change it
 
 
 def test_match_map_is_a_cosine() -> None:

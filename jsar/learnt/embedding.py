@@ -87,6 +87,12 @@ def pool(fmaps: np.ndarray, pooling: str = "mean+grid", grid: int = 2) -> np.nda
     return vec / np.maximum(np.linalg.norm(vec, axis=1, keepdims=True), 1e-12)
 
 
+def embedding_size(net: FeatureNet, pooling: str = "mean", grid: int = 2) -> int:
+    """D of `embed`'s vectors: C for the mean, grid^2 C for the grid, (1 + grid^2) C for both."""
+    parts = pooling.split("+")
+    return net.channels * (("mean" in parts) + ("grid" in parts) * grid * grid)
+
+
 def embed(net: FeatureNet, frame_bgr: np.ndarray, boxes_xywh: np.ndarray, *, context: float = 0.5,
           size: int = 64, pooling: str = "mean", grid: int = 2) -> np.ndarray:
     """(N, D) float32 L2-normalised embeddings of boxes (N, 4) x, y, w, h px: one batched forward pass."""
@@ -94,7 +100,7 @@ def embed(net: FeatureNet, frame_bgr: np.ndarray, boxes_xywh: np.ndarray, *, con
     # features"); a grid keeps layout, which a turning target changes more than it tells look-alikes apart
     boxes = np.asarray(boxes_xywh, dtype=np.float64).reshape(-1, 4)
     if len(boxes) == 0:
-        return np.zeros((0, 0), dtype=np.float32)
+        return np.zeros((0, embedding_size(net, pooling, grid)), dtype=np.float32)
     fmaps = net.features_batch(crop_windows(frame_bgr, boxes, context, size))
     r0, r1 = box_cells(fmaps.shape[2], context)
     c0, c1 = box_cells(fmaps.shape[3], context)

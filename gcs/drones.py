@@ -26,6 +26,7 @@ from typing import Any, Callable
 import zenoh
 
 from gcs.preview import PREVIEW_SUFFIX, PreviewFrame, decode_preview, drone_prefix
+from gcs.zenoh_tls import ZenohTls, check_endpoints
 
 log = logging.getLogger("gcs.drones")
 TRACK_SUFFIX = "track"
@@ -35,14 +36,17 @@ STATUS_SUFFIX = "status"
 @dataclass(frozen=True)
 class ZenohSettings:
     """How the station joins the Zenoh network: mode (peer / client), endpoints to connect to (a daemon's
-    listen endpoint, or a router's), endpoints to listen on, multicast scouting (off: explicit endpoints)."""
+    listen endpoint, or a router's), endpoints to listen on, multicast scouting (off: explicit endpoints),
+    mutual TLS for tls/HOST:PORT endpoints (gcs.zenoh_tls)."""
 
     connect: tuple[str, ...] = ()
     listen: tuple[str, ...] = ()
     mode: str = "peer"
     multicast_scouting: bool = False
+    tls: ZenohTls | None = None
 
     def __post_init__(self) -> None:
+        self.unencrypted()  # ValueError for a tls/ endpoint without certificates
         if self.mode not in ("peer", "client"):
             raise ValueError(f"zenoh mode must be peer or client, got {self.mode!r}")
         if not (self.connect or self.listen or self.multicast_scouting):
@@ -51,12 +55,19 @@ class ZenohSettings:
         if self.mode == "client" and not self.connect:
             raise ValueError("zenoh client mode needs an endpoint to connect to (a router or a peer)")
 
+    def unencrypted(self) -> list[str]:
+        """Warnings for endpoints that reach beyond loopback without TLS (ValueError: tls/ without certificates)."""
+        return check_endpoints(self.connect + self.listen, self.tls,
+                               self.tls.option if self.tls is not None else "--zenoh-tls")
+
     def to_zenoh(self) -> zenoh.Config:
         config = zenoh.Config()
         config.insert_json5("mode", json.dumps(self.mode))
         config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        if self.tls is not None:
+            self.tls.insert_into(config)
         return config
 
 

@@ -157,6 +157,66 @@ class GuidanceConfig:
     follow_distance_m: float = _checked(15.0, _positive)  # desired ground range to the target
 
 
+# the message kinds of Zenoh 1.x access-control rules (access_control.rules[].messages)
+ZENOH_ACL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+                      "liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
+ZENOH_ACL_FLOWS = ("ingress", "egress")
+
+
+@dataclass(frozen=True)
+class ZenohTlsConfig:
+    """Zenoh's own TLS link (transport.link.tls) for `tls/HOST:PORT` endpoints: PEM file paths (docs/security.md)."""
+
+    enabled: bool = False
+    root_ca_certificate: str = ""  # the CA that signed every peer's certificate
+    certificate: str = ""  # this node's certificate, shown when listening and when connecting
+    private_key: str = ""  # its private key (unencrypted PEM)
+    enable_mtls: bool = True  # a peer must show a certificate signed by root_ca_certificate to connect
+    verify_name_on_connect: bool = True  # a connect endpoint's host must be named in the peer's certificate (SAN)
+
+
+@dataclass(frozen=True)
+class ZenohAclRule:
+    """One access-control rule (Zenoh access_control.rules[]): allow or deny `messages` on `key_exprs`."""
+
+    id: str = ""
+    permission: Literal["allow", "deny"] = "allow"
+    messages: tuple[str, ...] = ()  # of ZENOH_ACL_MESSAGES
+    flows: tuple[str, ...] = ZENOH_ACL_FLOWS  # ingress: from the peer to this node; egress: from this node to it
+    key_exprs: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ZenohAclSubject:
+    """Peers a policy applies to (access_control.subjects[]): a peer matches when it matches one value of
+    every list given (certificate common name of an mTLS peer, network interface, link protocol)."""
+
+    id: str = ""
+    cert_common_names: tuple[str, ...] = ()
+    interfaces: tuple[str, ...] = ()
+    link_protocols: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ZenohAclPolicy:
+    """Rules (by id) applied to subjects (by id) (access_control.policies[])."""
+
+    id: str = ""
+    rules: tuple[str, ...] = ()
+    subjects: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ZenohAccessConfig:
+    """Zenoh's access control (access_control): what each peer may send to / receive from this node."""
+
+    enabled: bool = False
+    default_permission: Literal["allow", "deny"] = "deny"  # for messages no policy matches
+    rules: tuple[ZenohAclRule, ...] = ()
+    subjects: tuple[ZenohAclSubject, ...] = ()
+    policies: tuple[ZenohAclPolicy, ...] = ()
+
+
 @dataclass(frozen=True)
 class ZenohConfig:
     """Telemetry / frames over Zenoh; keys under `prefix`."""
@@ -167,6 +227,8 @@ class ZenohConfig:
     connect: tuple[str, ...] = ()
     multicast_scouting: bool = False
     prefix: str = "jsar"
+    tls: ZenohTlsConfig = field(default_factory=ZenohTlsConfig)
+    access: ZenohAccessConfig = field(default_factory=ZenohAccessConfig)
 
 
 @dataclass(frozen=True)
@@ -326,6 +388,7 @@ def _check_cross_fields(config: ServiceConfig) -> None:
         raise ConfigError(f"zenoh.prefix: must be non-empty without leading/trailing '/', got {config.zenoh.prefix!r}")
     if src.kind == "zenoh" and not config.zenoh.enabled:
         raise ConfigError("zenoh.enabled: must be true when source.kind is zenoh")
+    _check_zenoh_security(config.zenoh)
     stream = config.video.stream
     if stream.enabled and not stream.host:
         raise ConfigError("video.stream.host: must name the ground station's address when video.stream.enabled is true")
@@ -337,6 +400,106 @@ def _check_cross_fields(config: ServiceConfig) -> None:
     names = available()
     if config.tracker.name not in names:
         raise ConfigError(f"tracker.name: unknown tracker {config.tracker.name!r}; available: {', '.join(names)}")
+
+
+def endpoint_protocol(endpoint: str) -> str:
+    """`tls/HOST:PORT` -> "tls" (a Zenoh endpoint's protocol; "" when there is no `/`)."""
+    protocol, slash, _ = endpoint.partition("/")
+    return protocol if slash else ""
+
+
+def _check_pem_file(key_path: str, path: str) -> None:
+    """ConfigError naming `key_path` unless `path` names a readable PEM file."""
+    if not path:
+        raise ConfigError(f"{key_path}: must name a PEM file when zenoh.tls.enabled is true")
+    try:
+        head = Path(path).read_bytes()[:65536]
+    except OSError as exc:
+        raise ConfigError(f"{key_path}: cannot read {path}: {exc.strerror}") from exc
+    if b"-----BEGIN " not in head:
+        raise ConfigError(f"{key_path}: {path} is not a PEM file (no -----BEGIN line)")
+
+
+def _check_zenoh_security(zenoh: ZenohConfig) -> None:
+    """zenoh.tls: files readable when on, tls/ endpoints only with it; zenoh.access: known messages and flows,
+    valid key expressions, unique ids, policies naming existing rules and subjects."""
+    tls = zenoh.tls
+    for section in ("listen", "connect"):
+        for i, endpoint in enumerate(getattr(zenoh, section)):
+            if endpoint_protocol(endpoint) == "":
+                raise ConfigError(f"zenoh.{section}[{i}]: must be PROTOCOL/ADDRESS (tcp/HOST:PORT, tls/HOST:PORT), "
+                                  f"got {endpoint!r}")
+            if endpoint_protocol(endpoint) == "tls" and not tls.enabled:
+                raise ConfigError(f"zenoh.{section}[{i}]: {endpoint} is a TLS endpoint: set zenoh.tls.enabled: true "
+                                  "and its certificate files")
+    if tls.enabled:
+        for name in ("root_ca_certificate", "certificate", "private_key"):
+            _check_pem_file(f"zenoh.tls.{name}", getattr(tls, name))
+    access = zenoh.access
+    rule_ids = _unique_ids("zenoh.access.rules", [r.id for r in access.rules])
+    subject_ids = _unique_ids("zenoh.access.subjects", [s.id for s in access.subjects])
+    for i, rule in enumerate(access.rules):
+        where = f"zenoh.access.rules[{i}]"
+        for name, values, known in (("messages", rule.messages, ZENOH_ACL_MESSAGES),
+                                    ("flows", rule.flows, ZENOH_ACL_FLOWS)):
+            if not values:
+                raise ConfigError(f"{where}.{name}: must list at least one of {', '.join(known)}")
+            unknown = [v for v in values if v not in known]
+            if unknown:
+                raise ConfigError(f"{where}.{name}: unknown {unknown[0]!r}; known: {', '.join(known)}")
+        if not rule.key_exprs:
+            raise ConfigError(f"{where}.key_exprs: must list at least one key expression (e.g. jsar/track)")
+        for j, expr in enumerate(rule.key_exprs):
+            problem = _key_expr_problem(expr)
+            if problem:
+                raise ConfigError(f"{where}.key_exprs[{j}]: {problem}")
+    for i, subject in enumerate(access.subjects):
+        where = f"zenoh.access.subjects[{i}]"
+        if not (subject.cert_common_names or subject.interfaces or subject.link_protocols):
+            raise ConfigError(f"{where}: give cert_common_names, interfaces or link_protocols (a subject matching "
+                              "nothing never applies)")
+        if subject.cert_common_names and not (tls.enabled and tls.enable_mtls):
+            raise ConfigError(f"{where}.cert_common_names: peers show certificates only with zenoh.tls.enabled and "
+                              "zenoh.tls.enable_mtls true")
+    for i, policy in enumerate(access.policies):
+        where = f"zenoh.access.policies[{i}]"
+        for name, refs, known in (("rules", policy.rules, rule_ids), ("subjects", policy.subjects, subject_ids)):
+            if not refs:
+                raise ConfigError(f"{where}.{name}: must name at least one id of zenoh.access.{name}")
+            missing = [r for r in refs if r not in known]
+            if missing:
+                raise ConfigError(f"{where}.{name}: no {name[:-1]} with id {missing[0]!r} "
+                                  f"(ids: {', '.join(known) or 'none'})")
+    if access.enabled and not access.policies and access.default_permission == "deny":
+        raise ConfigError("zenoh.access.policies: empty while default_permission is deny: every peer would be "
+                          "refused everything")
+
+
+def _unique_ids(where: str, ids: list[str]) -> list[str]:
+    """The ids, ConfigError naming the entry when one is empty or repeated."""
+    for i, ident in enumerate(ids):
+        if not ident:
+            raise ConfigError(f"{where}[{i}].id: must be a non-empty name")
+        if ident in ids[:i]:
+            raise ConfigError(f"{where}[{i}].id: {ident!r} is used twice")
+    return ids
+
+
+def _key_expr_problem(expr: str) -> str | None:
+    """Why `expr` is not a Zenoh key expression as the access list takes them, or None: `/`-separated
+    non-empty chunks, `*` and `**` only as whole chunks, no `#`, `?` or `$` (the loop's core reaches this
+    module, so Zenoh's own parser is not imported here)."""
+    if not expr:
+        return "must be a non-empty key expression"
+    chunks = expr.split("/")
+    if "" in chunks:
+        return f"{expr!r}: empty chunks, leading and trailing '/' are not allowed"
+    for chunk in chunks:
+        if any(c in chunk for c in "#?$") or any(c.isspace() for c in chunk):
+            return f"{expr!r}: '#', '?', '$' and spaces are not allowed"
+        if "*" in chunk and chunk not in ("*", "**"):
+            return f"{expr!r}: '*' and '**' must be whole chunks (a/*/b, a/**)"
+    return None
 
 
 MAVLINK_URL_FORMS = ("udpout:HOST:PORT (send to HOST)", "udpin:HOST:PORT (listen; answer whoever sent last)",

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from gcs.drones import ZenohSettings
 from gcs.web.auth import TOKEN_ENV, exposure_problem, load_token
+from gcs.zenoh_tls import add_tls_options, tls_from_args
 
 log = logging.getLogger("gcs.web")
 
@@ -38,6 +39,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="client: through a Zenoh router only (default peer)")
     parser.add_argument("--zenoh-scouting", action="store_true",
                         help="find daemons by multicast scouting on the local network (off: explicit endpoints)")
+    add_tls_options(parser, "--zenoh-tls")
     parser.add_argument("--host", default="127.0.0.1",
                         help="address to serve on (default 127.0.0.1: this machine only; see docs/operator.md "
                              "before serving on another)")
@@ -92,7 +94,9 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(problem)
         signing_key = read_signing_key(args.signing_key) if args.signing_key else None
         settings = ZenohSettings(connect=tuple(args.zenoh), listen=tuple(args.zenoh_listen), mode=args.zenoh_mode,
-                                 multicast_scouting=args.zenoh_scouting)
+                                 multicast_scouting=args.zenoh_scouting, tls=tls_from_args(args, "--zenoh-tls"))
+        for warning in settings.unencrypted():
+            log.warning("event=zenoh_unencrypted key=--zenoh %s", warning)
         hub = build_hub(settings, args.mavlink, args.system_id, args.component_id, signing_key)
     except (ValueError, ConnectionError) as exc:
         print(f"jsar-gcs-web: {exc}", file=sys.stderr)

@@ -68,7 +68,7 @@ def box_cells(cells: int, context: float) -> tuple[int, int]:
     return margin, max(margin + 1, cells - margin)
 
 
-def pool(fmaps: np.ndarray, pooling: str = "mean+grid", grid: int = 2) -> np.ndarray:
+def pool(fmaps: np.ndarray, pooling: str = "mean", grid: int = 2) -> np.ndarray:
     """(N, C, h, w) -> (N, D): mean (D = C), grid x grid cell means (D = grid^2 C) or both, L2-normalised."""
     if pooling not in POOLINGS:
         raise ValueError(f"pooling must be one of {POOLINGS}, got {pooling!r}")

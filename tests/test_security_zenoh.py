@@ -19,12 +19,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 import zenoh
 
 from gcs.drones import DroneDirectory, ZenohSettings
 from gcs.router import router_config
 from gcs.zenoh_tls import ZenohTls
-from service.config import ConfigError, ZenohConfig, config_from_mapping
+from service.config import ConfigError, ZenohConfig, ZenohTlsConfig, config_from_mapping
+from service.sources.zenoh_wire import encode_frame
 from service.telemetry import access_control_section, insecure_endpoints, open_session, zenoh_config
 from sim.daemon import Daemon
 from sim.zenoh_link import SimCamera, ZenohEndpoints
@@ -56,30 +58,20 @@ def make_pki(folder: Path, extra: str = "") -> Path:
     return folder / "pki"
 
 
-def rule(ident: str, messages: list[str], flows: list[str], keys: list[str]) -> dict[str, Any]:
-    return {"id": ident, "messages": messages, "flows": flows, "key_exprs": keys}
+def documented_zenoh() -> dict[str, Any]:
+    """The `zenoh:` section of docs/security.md's drone config block (marked `config: zenoh-security`)."""
+    text = (ROOT / "docs" / "security.md").read_text(encoding="utf-8")
+    match = re.search(r"<!-- config: zenoh-security[^>]*-->\s*```yaml\n(.*?)```", text, re.S)
+    assert match, "docs/security.md lost its zenoh-security config block"
+    return yaml.safe_load(match.group(1))["zenoh"]
 
 
 def access_list() -> dict[str, Any]:
-    """The docs' access list: station reads and queries, viewer only reads, loopback tcp may do anything. The
-    web station subscribes `**/track` and queries `**/status` (it finds every drone): a declaration or a query
-    passes when a rule's key expression includes it, so those rules name the wildcard forms."""
-    return {
-        "enabled": True, "default_permission": "deny",
-        "rules": [rule("telemetry_out", ["put"], ["egress"], [f"{PREFIX}/track", f"{PREFIX}/camera/preview"]),
-                  rule("telemetry_subscribe", ["declare_subscriber"], ["ingress"], ["**/track", "**/camera/preview"]),
-                  rule("status_query", ["query"], ["ingress"], ["**/status"]),
-                  rule("status_answer", ["reply", "declare_queryable"], ["egress"], [f"{PREFIX}/status"]),
-                  {"id": "local_all", "messages": ["put", "delete", "declare_subscriber", "query",
-                                                   "declare_queryable", "reply"], "key_exprs": ["**"]}],
-        "subjects": [{"id": "station", "cert_common_names": ["gcs"]},
-                     {"id": "viewer", "cert_common_names": ["viewer"]},
-                     {"id": "local", "interfaces": ["lo"], "link_protocols": ["tcp"]}],
-        "policies": [{"rules": ["telemetry_out", "telemetry_subscribe", "status_query", "status_answer"],
-                      "subjects": ["station"]},
-                     {"rules": ["telemetry_out", "telemetry_subscribe"], "subjects": ["viewer"]},
-                     {"rules": ["local_all"], "subjects": ["local"]}],
-    }
+    """The documented access list: the station reads and queries status, the viewer only reads, loopback tcp
+    (the local camera) may do anything."""
+    access = documented_zenoh()["access"]
+    assert PREFIX == "jsar" and "jsar/track" in access["rules"][0]["key_exprs"]
+    return access
 
 
 class Camera:
@@ -125,9 +117,9 @@ def drone(pki: dict[str, Path], tmp_path_factory: pytest.TempPathFactory):
         "tracker": {"name": "csrt", "params": {}, "range_size_band": 0},
         "zenoh": {"enabled": True, "mode": "peer", "listen": [tls_endpoint, f"tcp/127.0.0.1:{local_port}"],
                   "connect": [], "multicast_scouting": False, "prefix": PREFIX,
-                  "tls": {"enabled": True, "root_ca_certificate": str(ours / "ca.crt"),
-                          "certificate": str(ours / "drone-1.crt"), "private_key": str(ours / "drone-1.key"),
-                          "enable_mtls": True, "verify_name_on_connect": True},
+                  # the documented tls section, its files where the recipe made them
+                  "tls": {k: v.replace("/etc/jsar/zenoh", str(ours)) if isinstance(v, str) else v
+                          for k, v in documented_zenoh()["tls"].items()},
                   "access": access_list()},
         "video": {"preview": {"enabled": True, "max_fps": 15.0}},
     }
@@ -257,7 +249,6 @@ def test_read_only_viewer_cannot_publish_frames_or_query_status(pki, drone) -> N
         # its frames, interleaved with the camera's for 1.5 s (ids from 1e6, another size) ...
         stop = threading.Event()
         publisher = viewer.session.declare_publisher(f"{PREFIX}/camera/frame")
-        from service.sources.zenoh_wire import encode_frame
         for i in range(30):
             publisher.put(encode_frame(intruder_image, 1_000_000 + i, 0.0))
             stop.wait(0.05)  # pacing the intruder like a camera, not synchronisation
@@ -377,7 +368,6 @@ def test_unencrypted_endpoints_beyond_loopback_are_named() -> None:
         ("zenoh.listen[1]", "tcp/0.0.0.0:7447"), ("zenoh.connect[0]", "udp/192.168.1.10:7447")]
     open_tls = ZenohConfig(listen=("tls/0.0.0.0:7447",))
     assert [k for k, _, _ in insecure_endpoints(open_tls)] == []  # mTLS on by default
-    from service.config import ZenohTlsConfig
     no_mtls = ZenohConfig(listen=("tls/0.0.0.0:7447",), tls=ZenohTlsConfig(enable_mtls=False))
     assert [k for k, _, _ in insecure_endpoints(no_mtls)] == ["zenoh.tls.enable_mtls"]
 

@@ -462,3 +462,16 @@ def test_refusals_are_logged_with_the_message_they_came_in_and_each_new_reason_i
     assert [(r.levelname, r.getMessage().split(" via=")[1].split()[0]) for r in refused] == [
         ("WARNING", "COMMAND_LONG"), ("WARNING", "COMMAND_LONG"), ("DEBUG", "COMMAND_INT")]
     assert "finite number" in refused[0].getMessage() and "inverted" in refused[1].getMessage()
+
+
+def test_wanted_autopilot_streams_are_asked_for_when_silent_and_not_more_often_than_the_stale_time() -> None:
+    # ArduPilot streams nothing on a companion port (SRn_ rates 0) until asked, and forgets on reboot
+    from service.mavlink.autopilot import STREAM_STALE_S, WANTED_STREAMS_HZ, streams_to_request
+
+    assert sorted(streams_to_request({}, {}, 100.0)) == sorted(WANTED_STREAMS_HZ)  # never heard: ask for all
+    heard = {msg_id: 99.0 for msg_id in WANTED_STREAMS_HZ}
+    assert streams_to_request(heard, {}, 100.0) == []  # all arriving: ask for nothing
+    heard[285] = 100.0 - STREAM_STALE_S - 0.1  # the gimbal status stopped (a reboot)
+    assert streams_to_request(heard, {}, 100.0) == [285]
+    assert streams_to_request(heard, {285: 99.0}, 100.0) == []  # asked a moment ago: wait
+    assert streams_to_request(heard, {285: 100.0 - STREAM_STALE_S - 0.1}, 100.0) == [285]  # ask again

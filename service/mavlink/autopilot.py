@@ -74,3 +74,20 @@ def observe(view: AutopilotView, msg: object, now_s: float, expected_system: int
     if kind == "GIMBAL_MANAGER_STATUS":
         return replace(view, gimbal_primary=(msg.primary_control_sysid, msg.primary_control_compid))  # type: ignore[attr-defined]
     return view
+
+
+# The autopilot messages the service uses, and the rate it asks for each (Hz). ArduPilot sends nothing
+# but heartbeats on a port whose SRn_ stream rates are 0 (its defaults on SERIAL1 / SERIAL2, where a
+# companion computer sits) until someone asks with MAV_CMD_SET_MESSAGE_INTERVAL on that port; a
+# reboot forgets what was asked. ATTITUDE 30, GLOBAL_POSITION_INT 33, GIMBAL_MANAGER_STATUS 281,
+# GIMBAL_DEVICE_ATTITUDE_STATUS 285.
+WANTED_STREAMS_HZ = {30: 10.0, 33: 5.0, 281: 1.0, 285: 10.0}
+STREAM_STALE_S = 3.0  # a wanted message not heard for this long is asked for (again)
+
+
+def streams_to_request(heard_s: dict[int, float], asked_s: dict[int, float], now_s: float,
+                       stale_s: float = STREAM_STALE_S) -> list[int]:
+    """Ids of WANTED_STREAMS_HZ to ask the autopilot for: not heard (heard_s: id -> last arrival,
+    time.monotonic() s) within stale_s, and not asked for (asked_s, same clock) within stale_s."""
+    return [msg_id for msg_id in WANTED_STREAMS_HZ
+            if now_s - heard_s.get(msg_id, -math.inf) > stale_s and now_s - asked_s.get(msg_id, -math.inf) > stale_s]

@@ -1,5 +1,6 @@
 """The camera component on the link: receive thread (commands, autopilot state) and send scheduler
-(heartbeat 1 Hz, CAMERA_INFORMATION, 275 / 276 at the requested intervals).
+(heartbeat 1 Hz, CAMERA_INFORMATION, 275 / 276 at the requested intervals; once a second it asks the
+autopilot for the messages the service uses that have stopped arriving, WANTED_STREAMS_HZ).
 
 Command validation is pure (commands.decide); this class only applies decisions and answers.
 Tracking intents go to the tracking loop through a one-slot mailbox (a newer selection replaces one
@@ -25,7 +26,7 @@ from pymavlink.dialects.v20.common import (
 from service.config import ServiceConfig
 from service.domain import TrackSnapshot
 from service.mavlink import messages
-from service.mavlink.autopilot import AutopilotView, observe
+from service.mavlink.autopilot import WANTED_STREAMS_HZ, AutopilotView, observe, streams_to_request
 from service.mavlink.commands import (
     Decision, RequestMessage, SetMessageInterval, StopTracking, TrackPoint, TrackRectangle, command_int_params, decide,
     is_for_us,
@@ -133,6 +134,8 @@ class CameraComponent:
         self._started = time.monotonic()
         self._stop = threading.Event()
         self._autopilot_alive = False
+        self._stream_heard_s: dict[int, float] = {}  # wanted autopilot message id -> last arrival (monotonic s)
+        self._stream_asked_s: dict[int, float] = {}  # ... -> last SET_MESSAGE_INTERVAL sent for it
         # rejected = the sum of the rejected_* by result (unsupported: this camera does not have what was
         # asked, as when a ground station polls for every camera feature; denied: bad parameters)
         self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "rejected_unsupported": 0, "rejected_denied": 0,
@@ -204,10 +207,14 @@ class CameraComponent:
         if kind in ("COMMAND_LONG", "COMMAND_INT"):
             self._handle_command(msg, kind)
             return
+        now = time.monotonic()
         with self._lock:
             before = self._view
-            self._view = observe(before, msg, time.monotonic(), expected_system)
+            self._view = observe(before, msg, now, expected_system)
             learned = before.system_id is None and self._view.system_id is not None
+            msg_id = msg.get_msgId()  # type: ignore[attr-defined]
+            if msg_id in WANTED_STREAMS_HZ and msg.get_srcSystem() == self._view.system_id:  # type: ignore[attr-defined]
+                self._stream_heard_s[msg_id] = now
         if learned and self.link.system_id != self._view.system_id:
             log.info("event=system_id_learned system_id=%d", self._view.system_id)
             self.link.set_system_id(self._view.system_id)  # type: ignore[arg-type]
@@ -353,8 +360,25 @@ class CameraComponent:
                 wake = min(wake, due)
             self._stop.wait(max(0.0, min(wake - time.monotonic(), 0.05)))
 
+    def _request_streams(self, now: float) -> None:
+        """Ask the autopilot (MAV_CMD_SET_MESSAGE_INTERVAL) for each wanted message it has not sent lately:
+        a port it streams nothing on, or a reboot that forgot the request (see WANTED_STREAMS_HZ)."""
+        system_id = self.autopilot().system_id
+        if system_id is None:
+            return
+        with self._lock:
+            missing = streams_to_request(self._stream_heard_s, self._stream_asked_s, now)
+            for msg_id in missing:
+                self._stream_asked_s[msg_id] = now
+        for msg_id in missing:
+            log.debug("event=stream_request message=%d rate_hz=%g", msg_id, WANTED_STREAMS_HZ[msg_id])
+            self.link.send(self.link.mav.command_long_encode(  # type: ignore[attr-defined]
+                system_id, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / WANTED_STREAMS_HZ[msg_id], 0, 0, 0, 0, 0))
+
     def _watch_autopilot(self, now: float) -> None:
         alive = self.autopilot_alive(now)
+        if alive:
+            self._request_streams(now)
         if alive != self._autopilot_alive:
             self._autopilot_alive = alive
             if alive:

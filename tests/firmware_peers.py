@@ -1,0 +1,292 @@
+"""Helpers for the tests against real autopilot firmware (no tests here): finding the firmware (skip
+outside CI, fail in CI), a synthetic target held off centre published as camera frames over Zenoh (the
+test decides when it leaves the view), the daemon as a process on a firmware link, a wire tap that
+records what the daemon sends, and a ground station.
+
+The firmware itself is started by sim.firmware (ArduPilotSitl, Px4Sih)."""
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink.dialects.v20 import ardupilotmega as dialect  # noqa: E402
+
+from sim.daemon import write_config  # noqa: E402
+from sim.firmware import firmware_missing, free_udp_port  # noqa: E402
+from tests.service_peers import Recorder  # noqa: E402
+from tests.test_service_sources import scene  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+FRAME_SIZE = (320, 240)  # px
+TARGET_PX = (250.0, 70.0)  # right of and above the image centre (160, 120): yaw right, pitch up
+TRACK_RECTANGLE, STOP_TRACKING, SET_INTERVAL = 2005, 2010, 511
+
+
+def require_firmware(kind: str) -> None:
+    """Skip with the reason when firmware `kind` is missing, outside CI only; in CI (env CI set) fail."""
+    missing = firmware_missing(kind)
+    if missing is None:
+        return
+    if os.environ.get("CI"):
+        pytest.fail(f"CI needs the autopilot firmware: {missing}")
+    pytest.skip(missing)
+
+
+def target_image(visible: bool = True) -> Any:
+    """A FRAME_SIZE BGR frame: the checkered target at TARGET_PX on the textured background, or the
+    background alone (the target gone)."""
+    return scene(FRAME_SIZE, TARGET_PX, 30) if visible else scene(FRAME_SIZE, (-100.0, -100.0), 0)
+
+
+class FramePump:
+    """The camera: publishes target_image(visible) over Zenoh at `fps` (wall clock) on a thread; set
+    `visible` False to take the target out of view (the track is then lost)."""
+
+    def __init__(self, zenoh_port: int, prefix: str, fps: float = 20.0) -> None:
+        from sim.zenoh_link import SimCamera, ZenohEndpoints
+
+        self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{zenoh_port}",), prefix=prefix))
+        self.period = 1.0 / fps
+        self.visible = True
+        self._images = {True: target_image(True), False: target_image(False)}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> "FramePump":
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.camera.close()
+
+    def _run(self) -> None:
+        frame_id = 0
+        while not self._stop.wait(self.period):  # a camera's frame clock, not a synchronisation
+            self.camera.publish(self._images[self.visible], frame_id)
+            frame_id += 1
+
+
+def target_rectangle() -> list[float]:
+    """TRACK_RECTANGLE params 1-4 (normalised top-left x, y, bottom-right x, y) around the target."""
+    x, y = TARGET_PX
+    w, h = FRAME_SIZE
+    return [(x - 17) / w, (y - 17) / h, (x + 17) / w, (y + 17) / h]
+
+
+class WireTap:
+    """A UDP relay between a firmware link and the daemon, recording what the daemon sends.
+
+    The firmware sends (udpclient) to `firmware_port`; the tap forwards that to the daemon's udpin port
+    `daemon_port` and the daemon's answers back to the firmware, each datagram as it came. Every message
+    from the daemon is parsed and kept in `from_daemon` (Recorder: message + arrival time)."""
+
+    def __init__(self, firmware_port: int, daemon_port: int) -> None:
+        self.firmware_port, self.daemon_port = firmware_port, daemon_port
+        self.outer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # faces the firmware
+        self.outer.bind(("127.0.0.1", firmware_port))
+        self.inner = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # faces the daemon
+        self.inner.bind(("127.0.0.1", 0))
+        for sock in (self.outer, self.inner):
+            sock.settimeout(0.1)
+        self.firmware_address: tuple[str, int] | None = None
+        self.parser = dialect.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.from_daemon = Recorder()
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._down, daemon=True), threading.Thread(target=self._up, daemon=True)]
+
+    def start(self) -> "WireTap":
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(1.0)
+        self.outer.close()
+        self.inner.close()
+
+    def _down(self) -> None:
+        """Firmware -> daemon."""
+        while not self._stop.is_set():
+            try:
+                data, address = self.outer.recvfrom(65536)
+            except (socket.timeout, OSError):
+                continue
+            self.firmware_address = address  # a restarted firmware sends from a new port
+            self.inner.sendto(data, ("127.0.0.1", self.daemon_port))
+
+    def _up(self) -> None:
+        """Daemon -> firmware, recorded."""
+        while not self._stop.is_set():
+            try:
+                data, _ = self.inner.recvfrom(65536)
+            except (socket.timeout, OSError):
+                continue
+            try:
+                for msg in self.parser.parse_buffer(data) or []:
+                    if msg.get_type() != "BAD_DATA":
+                        self.from_daemon.add(msg)
+            except Exception:  # noqa: BLE001 - a packet the parser chokes on is still forwarded
+                pass
+            if self.firmware_address is not None:
+                self.outer.sendto(data, self.firmware_address)
+
+    def sent(self, kind: str, since: float = 0.0) -> list[Any]:
+        """Messages of `kind` the daemon sent at or after time.monotonic() `since`."""
+        return [r.msg for r in self.from_daemon.of(kind) if r.at >= since]
+
+
+class DaemonProcess:
+    """`python -m service` with frames from Zenoh (a FramePump listening on zenoh_port) on a MAVLink URL, config = config.yaml + overrides; log in
+    workdir/service.log. A context manager: SIGTERM on exit (kill after 5 s)."""
+
+    def __init__(self, workdir: Path, zenoh_port: int, prefix: str, mavlink_url: str, overrides: dict[str, Any]) -> None:
+        base: dict[str, Any] = {
+            "source": {"kind": "zenoh"},
+            "zenoh": {"enabled": True, "mode": "peer", "listen": [], "connect": [f"tcp/127.0.0.1:{zenoh_port}"],
+                      "multicast_scouting": False, "prefix": prefix},
+            "tracker": {"name": "csrt", "range_size_band": 0},  # csrt: fast, takes no side bounds
+            "camera": {"point_proposal": False, "rectangle_fit": False},
+            "logging": {"level": "DEBUG"},
+        }
+        for section, values in overrides.items():
+            base.setdefault(section, {}).update(values)
+        self.workdir = workdir
+        self.config_path = workdir / "daemon.yaml"
+        self.log_path = workdir / "service.log"
+        write_config(self.config_path, base)
+        self.mavlink_url = mavlink_url
+        self.process: subprocess.Popen[bytes] | None = None
+
+    def __enter__(self) -> "DaemonProcess":
+        env = dict(os.environ, MAVLINK20="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", PYTHONUNBUFFERED="1")
+        with open(self.log_path, "wb") as log:
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "service", "--config", str(self.config_path), "--source", "zenoh",
+                 "--mavlink", self.mavlink_url],
+                cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(5.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(5.0)
+
+    def log_tail(self, lines: int = 30) -> str:
+        """The end of the daemon's log (for failure messages)."""
+        try:
+            return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return "(no log)"
+
+
+class Station:
+    """A pymavlink ground station on a firmware link (the test's view): a receiver thread keeps every
+    message in `received` (Recorder), a heartbeat thread sends GCS heartbeats at 1 Hz."""
+
+    def __init__(self, url: str, system: int = 255, component: int = 190) -> None:
+        from pymavlink import mavutil
+
+        self.conn = mavutil.mavlink_connection(url, source_system=system, source_component=component)
+        self.received = Recorder()
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=self._receive, daemon=True),
+                         threading.Thread(target=self._beat, daemon=True)]
+
+    def start(self) -> "Station":
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(1.0)
+        self.conn.close()
+
+    def _receive(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.conn.recv_match(blocking=True, timeout=0.1)
+            except OSError:
+                continue
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                self.received.add(msg)
+
+    def _beat(self) -> None:
+        while True:
+            self.send(lambda mav: mav.heartbeat_encode(6, 8, 0, 0, 4))  # GCS, AUTOPILOT_INVALID
+            if self._stop.wait(1.0):
+                return
+
+    def send(self, build: Callable[[Any], Any]) -> None:
+        """Send build(mav) (the pymavlink MAVLink object of this link)."""
+        with self._send_lock:
+            self.conn.mav.send(build(self.conn.mav))
+
+    def command(self, target: tuple[int, int], command: int, params: list[float], timeout: float = 5.0) -> Any:
+        """COMMAND_LONG to target; its COMMAND_ACK from that target (AssertionError on none)."""
+        since = time.monotonic()
+        padded = list(params) + [0.0] * (7 - len(params))
+        self.send(lambda mav: mav.command_long_encode(target[0], target[1], command, 0, *padded))
+        ack = self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command
+                        and (m.get_srcSystem(), m.get_srcComponent()) == target, timeout, since)
+        assert ack is not None, f"no COMMAND_ACK for {command} from {target} within {timeout} s"
+        return ack
+
+    def wait(self, predicate: Callable[[Any], bool], timeout: float, since: float = 0.0) -> Any:
+        """The first message received at or after `since` meeting `predicate`, or None after `timeout` s."""
+        found: list[Any] = []
+        cursor = [0]  # items before it were checked already: each wake-up looks at the new ones only
+
+        def check() -> bool:
+            items = self.received.items
+            for item in items[cursor[0]:]:
+                if item.at >= since and predicate(item.msg):
+                    found.append(item.msg)
+                    return True
+            cursor[0] = len(items)
+            return False
+        self.received.wait_for(check, timeout)
+        return found[0] if found else None
+
+    def latest(self, kind: str, source: tuple[int, int] | None = None) -> Any:
+        """The last message of `kind` (from `source` when given), or None."""
+        items = [r.msg for r in self.received.of(kind)
+                 if source is None or (r.msg.get_srcSystem(), r.msg.get_srcComponent()) == source]
+        return items[-1] if items else None
+
+    def of(self, kind: str, since: float = 0.0) -> list[tuple[float, Any]]:
+        """(arrival time, message) of every `kind` received at or after `since`."""
+        return [(r.at, r.msg) for r in self.received.of(kind) if r.at >= since]
+
+
+def free_port() -> int:
+    """A loopback UDP port that was free a moment ago."""
+    return free_udp_port()
+
+
+def free_tcp_port() -> int:
+    """A loopback TCP port that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]

@@ -17,6 +17,11 @@ log = logging.getLogger("service.mavlink")
 SIGNING_EPOCH_S = 1420070400
 
 
+def signing_timestamp(unix_s: float) -> int:
+    """A MAVLink 2 signing timestamp: 10-us units since 2015-01-01 UTC."""
+    return int((unix_s - SIGNING_EPOCH_S) * 1e5)
+
+
 def read_signing_key(path: str) -> bytes:
     """32-byte secret from a file holding 32 raw bytes or 64 hex characters; ValueError otherwise."""
     try:
@@ -142,6 +147,11 @@ class MavlinkLink:
     def send(self, msg: object) -> bool:
         """Send one message; False (counted, logged at debug) if the OS refused it."""
         with self._lock:
+            signing = self._conn.mav.signing
+            if signing.sign_outgoing:
+                # pymavlink advances the signing timestamp by one (10 us) per message, far slower than time: a
+                # receiver meeting this link anew refuses timestamps over a minute behind its own clock
+                signing.timestamp = max(signing.timestamp, signing_timestamp(time.time()))
             try:
                 self._conn.mav.send(msg)
             except OSError as exc:
@@ -200,8 +210,7 @@ class MavlinkLink:
                 counts.refused(msg_id, mav.signing.badsig_count)  # type: ignore[attr-defined]
             return allow
         # timestamp must only move forward; start at the current time like MAVLink's reference code
-        stamp = int((time.time() - SIGNING_EPOCH_S) * 1e5)
         self._conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=allow_unsigned,
-                                 initial_timestamp=stamp, link_id=signing.link_id)
+                                 initial_timestamp=signing_timestamp(time.time()), link_id=signing.link_id)
         keep_stream_on_refusal(self._conn.mav)
         log.info("event=signing_enabled allow_unsigned=%s link_id=%d pid=%d", allow, signing.link_id, os.getpid())

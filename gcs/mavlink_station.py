@@ -175,6 +175,10 @@ class Link:
 
     def send(self, msg: object) -> None:
         with self.lock:
+            signing = self.conn.mav.signing
+            if signing.sign_outgoing:  # pymavlink adds 10 us a message: keep up with the clock (receivers
+                # refuse a new stream over a minute behind their own)
+                signing.timestamp = max(signing.timestamp, int((time.time() - SIGNING_EPOCH_S) * 1e5))
             try:
                 self.conn.mav.send(msg)
             except OSError:

@@ -120,8 +120,8 @@ REFUSAL_KINDS = (
     ("unsupported", "not offered", "requests for what this camera does not have; ground stations poll for every "
                                    "camera feature, so this is expected"),
     ("denied", "bad parameters", "malformed or out-of-range command parameters"),
-    ("temporarily", "not yet", "asked before the camera had frames; the ground station retries"),
-    ("failed", "failed", "accepted but could not be carried out (e.g. no camera frames)"),
+    ("temporarily", "not yet", "asked before the camera's first frame; the ground station retries"),
+    ("failed", "failed", "valid but could not be carried out (the camera fails, or its file ended)"),
 )
 CAMERA_COMMAND_KEYS = {"mavlink_commands", "mavlink_accepted", "mavlink_rejected",
                        *(f"mavlink_rejected_{kind}" for kind, _, _ in REFUSAL_KINDS)}

@@ -167,3 +167,51 @@ def test_an_operator_logs_in_from_the_browser_and_the_page_connects(station: tup
         page.wait_for_selector("#connection:has-text('connected')", timeout=10_000)
         assert page.locator("#connection").inner_text() == "connected"
         assert page.errors == []
+
+
+def asgi_call(app, scope: dict, body: bytes = b"") -> list[dict]:
+    """One request through an ASGI app; the messages it sent."""
+    sent: list[dict] = []
+
+    async def receive() -> dict:
+        return {"type": "http.request", "body": body, "more_body": False}
+
+    async def send(message: dict) -> None:
+        sent.append(message)
+    asyncio.run(app(scope, receive, send))
+    return sent
+
+
+def test_wrong_tokens_from_one_address_are_throttled_for_a_minute() -> None:
+    from gcs.web.auth import MAX_FAILURES, TokenAuth
+
+    reached: list[str] = []
+
+    async def page(scope, receive, send) -> None:  # what the middleware protects
+        reached.append(scope["type"])
+        if scope["type"] == "http":
+            await send({"type": "http.response.start", "status": 200, "headers": []})
+            await send({"type": "http.response.body", "body": b"page"})
+    now = [1000.0]
+    auth = TokenAuth(page, TOKEN, clock=lambda: now[0])
+
+    def login(token: str, client: str = "10.0.0.7") -> int:
+        scope = {"type": "http", "method": "POST", "path": "/login", "client": (client, 5000), "headers": []}
+        return asgi_call(auth, scope, f"token={token}".encode())[0]["status"]
+
+    def api(token: str, client: str = "10.0.0.7") -> int:
+        scope = {"type": "http", "method": "GET", "path": "/api/drones", "client": (client, 5000),
+                 "headers": [(b"authorization", f"Bearer {token}".encode())]}
+        return asgi_call(auth, scope)[0]["status"]
+
+    assert [login("guess-%d" % i) for i in range(MAX_FAILURES - 1)] == [401] * (MAX_FAILURES - 1)
+    assert api("another-guess") == 401  # a wrong bearer token is a guess too: the limit is reached
+    assert login(TOKEN) == 429 and api(TOKEN) == 429  # even the right token waits
+    assert login(TOKEN, client="10.0.0.8") == 303  # another address is not held up
+    now[0] += 59.0
+    assert login(TOKEN) == 429
+    now[0] += 2.0  # a minute after the first failures
+    assert login(TOKEN) == 303 and api(TOKEN) == 200
+    assert reached == ["http"]  # only the right token's request reached the page
+    asgi_call(auth, {"type": "lifespan"})  # start-up and shut-down pass untouched
+    assert reached == ["http", "lifespan"]

@@ -7,7 +7,8 @@ or an authenticating reverse proxy (docs/security.md).
   cookie (random id, HttpOnly, SameSite=Strict); a script sends `Authorization: Bearer TOKEN`.
 - Every HTTP request and the WebSocket handshake are checked (ASGI middleware): without a valid session or
   header, a page request is sent to /login, anything else gets 401, a WebSocket is closed (1008) before it
-  is accepted. Tokens are compared in constant time (hmac.compare_digest).
+  is accepted. Tokens are compared in constant time (hmac.compare_digest); an address that sends
+  MAX_FAILURES wrong tokens within a minute is refused (429) until the minute has passed.
 """
 from __future__ import annotations
 
@@ -29,6 +30,9 @@ COOKIE = "jsar_gcs_session"
 SESSION_S = 12 * 3600.0  # a login lasts a working day, then the form again
 MAX_SESSIONS = 256  # the oldest login is forgotten past this (a flood of logins cannot grow memory)
 MAX_FORM_BYTES = 4096  # a login form is one short field
+MAX_FAILURES = 5  # wrong tokens from one address within FAILURE_WINDOW_S, and it is refused (429) ...
+FAILURE_WINDOW_S = 60.0  # ... until the oldest of them is this old (s): guessing stays slow
+MAX_CLIENTS = 1024  # addresses remembered with failures (the oldest forgotten first)
 
 Scope = dict[str, Any]
 Receive = Callable[[], Awaitable[dict[str, Any]]]
@@ -100,6 +104,25 @@ class Sessions:
         self._expiry.pop(session or "", None)
 
 
+@dataclass
+class Throttle:
+    """Wrong tokens by client address: more than `limit` in `window_s` seconds and the address is blocked."""
+
+    limit: int = MAX_FAILURES
+    window_s: float = FAILURE_WINDOW_S
+    _failures: OrderedDict = field(default_factory=OrderedDict)  # address -> [monotonic s of each failure]
+
+    def blocked(self, client: str, now_s: float) -> bool:
+        times = [t for t in self._failures.get(client, []) if now_s - t < self.window_s]
+        return len(times) >= self.limit
+
+    def failed(self, client: str, now_s: float) -> None:
+        times = [t for t in self._failures.pop(client, []) if now_s - t < self.window_s]
+        self._failures[client] = [*times, now_s][-self.limit:]
+        while len(self._failures) > MAX_CLIENTS:
+            self._failures.popitem(last=False)
+
+
 def header(scope: Scope, name: bytes) -> str | None:
     """A request header's value (latin-1), or None."""
     for key, value in scope.get("headers", ()):
@@ -115,6 +138,12 @@ def cookie(scope: Scope, name: str) -> str | None:
         if key == name:
             return value
     return None
+
+
+def client_address(scope: Scope) -> str:
+    """The connecting address (behind a proxy: the proxy's)."""
+    client = scope.get("client")
+    return str(client[0]) if client else "?"
 
 
 def bearer(scope: Scope) -> str | None:
@@ -144,11 +173,16 @@ class TokenAuth:
     def __init__(self, app: Callable, token: str, clock: Callable[[], float] = time.monotonic) -> None:
         self.app, self.token, self.clock = app, token, clock
         self.sessions = Sessions()
+        self.throttle = Throttle()
 
     def allowed(self, scope: Scope) -> bool:
-        """A valid bearer token or session cookie."""
-        return (token_matches(bearer(scope), self.token)
-                or self.sessions.valid(cookie(scope, COOKIE), self.clock()))
+        """A valid bearer token or session cookie (a wrong bearer token counts as a failed guess)."""
+        given = bearer(scope)
+        if given is not None:
+            if token_matches(given, self.token):
+                return True
+            self.throttle.failed(client_address(scope), self.clock())
+        return self.sessions.valid(cookie(scope, COOKIE), self.clock())
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         kind = scope["type"]
@@ -156,6 +190,14 @@ class TokenAuth:
             await self.app(scope, receive, send)
             return
         path = scope.get("path", "")
+        guessing = bearer(scope) is not None or (path == "/login" and scope.get("method") == "POST")
+        if guessing and self.throttle.blocked(client_address(scope), self.clock()):
+            log.warning("event=login_throttled client=%s", client_address(scope))
+            if kind == "websocket":
+                await send({"type": "websocket.close", "code": 1008})
+            else:
+                await respond(send, 429, b"too many wrong tokens: wait a minute\n", [(b"content-type", b"text/plain")])
+            return
         if kind == "http" and path == "/login":
             await self.login(scope, receive, send)
             return
@@ -167,9 +209,8 @@ class TokenAuth:
         if self.allowed(scope):
             await self.app(scope, receive, send)
             return
-        client = scope.get("client") or ("?", 0)
         if kind == "websocket":
-            log.warning("event=websocket_unauthenticated client=%s", client[0])
+            log.warning("event=websocket_unauthenticated client=%s", client_address(scope))
             await send({"type": "websocket.close", "code": 1008})
         elif scope.get("method") == "GET" and path == "/":
             await respond(send, 303, b"", [(b"location", b"/login")])
@@ -192,15 +233,16 @@ class TokenAuth:
             if not message.get("more_body"):
                 break
         given = parse_qs(body.decode("utf-8", "replace")).get("token", [None])[0]
-        client = scope.get("client") or ("?", 0)
+        client = client_address(scope)
         if not token_matches(given, self.token):
-            log.warning("event=login_refused client=%s", client[0])
+            self.throttle.failed(client, self.clock())
+            log.warning("event=login_refused client=%s", client)
             page = LOGIN_PAGE.format(error=html.escape("Wrong token.")).encode()
             await respond(send, 401, page, [(b"content-type", b"text/html")])
             return
         session = self.sessions.open(self.clock())
         secure = "; Secure" if scope.get("scheme") == "https" else ""
-        log.info("event=login client=%s", client[0])
+        log.info("event=login client=%s", client)
         await respond(send, 303, b"", [
             (b"location", b"/"),
             (b"set-cookie", f"{COOKIE}={session}; Path=/; HttpOnly; SameSite=Strict; "

@@ -15,7 +15,9 @@ log = logging.getLogger("service")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="jsar-service", description=__doc__)
+    parser = argparse.ArgumentParser(prog="jsar-service", description=__doc__,
+                                     epilog="jsar-service keygen --out FILE [--force]: make a MAVLink 2 signing key "
+                                            "for mavlink.signing.key_file (jsar-service keygen --help)")
     parser.add_argument("--config", required=True, help="YAML configuration (see config.yaml)")
     parser.add_argument("--source", help="override source: /dev/videoN, a video file or image folder, or 'zenoh'")
     parser.add_argument("--mavlink", help="override mavlink.url: udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT, "

@@ -260,3 +260,73 @@ def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_
         beat = rig.gcs.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1, 3.0,
                             time.monotonic())
         assert beat.custom_mode == COPTER_GUIDED
+
+
+def test_gimbal_manager_handshake_as_ardupilot_does_it(tmp_path: Path) -> None:
+    """ArduPilot records who is primary control (GIMBAL_MANAGER_STATUS) but does not enforce it: any
+    sender's rates move the mount. The daemon claims control for a track (1001), yields when a ground
+    station takes it (one zero rate, then silence: ArduPilot's rate commands have no time-out), claims
+    again when it is released, and after a reboot (which forgets the owner and the requested streams)."""
+    with Rig(tmp_path, {"gimbal": {"backend": "ardupilot"}}, links=3) as rig:
+        status = rig.stream_to_gcs(GIMBAL_MANAGER_STATUS, 5)
+        assert (status.primary_control_sysid, status.primary_control_compid) == (0, 0)  # nobody at boot
+        rig.stream_to_gcs(GIMBAL_DEVICE_ATTITUDE_STATUS, 20)
+        rig.meet_camera()
+        rig.settled_mount()
+
+        def primary_becomes(who: tuple[int, int], since: float, timeout: float = 5.0) -> bool:
+            return rig.gcs.wait(lambda m: m.get_type() == "GIMBAL_MANAGER_STATUS"
+                                and (m.primary_control_sysid, m.primary_control_compid) == who, timeout, since) is not None
+
+        selected = rig.select()
+        assert primary_becomes(CAMERA, selected), f"the daemon did not claim\n{rig.diagnostics()}"
+
+        # a ground station takes control: ArduPilot accepts it and names it; the daemon stops commanding
+        taken_at = time.monotonic()
+        assert rig.gcs.command(AUTOPILOT, 1001, [255, 190, -1, -1]).result == 0
+        assert primary_becomes((255, 190), taken_at)
+        assert rig.tap.from_daemon.wait_for(lambda: (0.0, 0.0) in rig.rates_sent(taken_at), 3.0), rig.diagnostics()
+        quiet_from = time.monotonic()
+        held = rig.mount_after(0.3)
+        assert rig.gcs.wait(lambda m: False, 2.0) is None  # two seconds of the ground station in control
+        assert rig.rates_sent(quiet_from) == [] and not [m for m in rig.tap.sent("COMMAND_LONG", quiet_from)
+                                                          if m.command == 1001], "the daemon fought the ground station"
+        still = rig.mount()
+        assert abs(still[0] - held[0]) < 0.5 and abs(still[1] - held[1]) < 0.5, (held, still)
+        # not enforced: a third component's rates move the mount while the ground station is primary
+        other = Station(rig.firmware.extra_urls[0], 2, 191).start()  # a second ground station, on SERIAL2
+        try:
+            # udpin answers only a peer it has heard: wait for ArduPilot's heartbeat on that link first
+            assert other.wait(lambda m: m.get_type() == "HEARTBEAT", 5.0) is not None
+            other.send(lambda mav: mav.gimbal_manager_set_pitchyaw_encode(1, 1, 0, 0, math.nan, math.nan, 0.0, 0.5))
+            moved = rig.mount_after(1.0)
+            other.send(lambda mav: mav.gimbal_manager_set_pitchyaw_encode(1, 1, 0, 0, math.nan, math.nan, 0.0, 0.0))
+        finally:
+            other.close()
+        assert abs(moved[1] - still[1]) > 5.0, (still, moved)
+        assert (rig.gcs.latest("GIMBAL_MANAGER_STATUS").primary_control_sysid,
+                rig.gcs.latest("GIMBAL_MANAGER_STATUS").primary_control_compid) == (255, 190)
+
+        # the ground station releases control: the daemon claims it back and its rates resume
+        released = time.monotonic()
+        assert rig.gcs.command(AUTOPILOT, 1001, [-3, -3, -1, -1]).result == 0
+        assert primary_becomes(CAMERA, released), rig.diagnostics()
+        assert rig.tap.from_daemon.wait_for(lambda: any(p > 0 for p, _ in rig.rates_sent(released)), 3.0)
+
+        # an autopilot reboot: ArduPilot forgets the primary controller (0, 0) and every requested stream;
+        # the daemon asks for its streams again, sees nobody in control and claims again
+        rebooted = time.monotonic()
+        assert rig.gcs.command(AUTOPILOT, 246, [1]).result == 0  # MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
+        assert rig.gcs.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1, 15.0,
+                            rebooted + 0.5) is not None
+        status = rig.stream_to_gcs(GIMBAL_MANAGER_STATUS, 5)  # the ground station asks again for its own
+        assert primary_becomes(CAMERA, rebooted, timeout=15.0), f"no claim after the reboot\n{rig.diagnostics()}"
+        after_claim = time.monotonic()
+        claims = [m for m in rig.tap.sent("COMMAND_LONG", rebooted) if m.command == 1001]
+        assert claims and (claims[-1].param1, claims[-1].param2) == CAMERA
+        rig.stream_to_gcs(GIMBAL_DEVICE_ATTITUDE_STATUS, 20)
+        start = rig.mount_after(0.0)
+        end = rig.mount_after(0.8)
+        assert end[1] - start[1] > 3.0, (start, end)  # the rates move the rebooted mount again
+        assert rig.rates_sent(after_claim), "no rates after the reboot"
+        _no_angle_rate_mix(rig.tap)

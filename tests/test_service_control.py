@@ -797,3 +797,37 @@ def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(c
     assert loop.counters["lost"] == 2 and loop.counters["lost_drift"] == 1 and loop.counters["recovered"] == 1
     lines = [r.getMessage() for r in caplog.records if "event=track_state" in r.getMessage()]
     assert any("to=lost cause=drift" in line for line in lines) and any("to=lost cause=peak" in line for line in lines)
+
+
+def test_gimbal_manager_handshake_claims_when_nobody_controls_and_yields_to_a_taker() -> None:
+    from service.mavlink.outputs import GimbalControl, gimbal_control
+
+    own, gcs = (1, 100), (255, 190)
+    assert gimbal_control("ardupilot", None, own, False) == GimbalControl(send=True, claim=False)  # no manager heard
+    assert gimbal_control("px4", None, own, False) == GimbalControl(send=False, claim=True)
+    assert gimbal_control("ardupilot", (0, 0), own, True) == GimbalControl(send=True, claim=True)  # after a reboot
+    assert gimbal_control("px4", (0, 0), own, False) == GimbalControl(send=False, claim=True)
+    assert gimbal_control("px4", own, own, False) == GimbalControl(send=True, claim=False)
+    assert gimbal_control("px4", gcs, own, False) == GimbalControl(send=False, claim=True)  # held before our track
+    assert gimbal_control("ardupilot", gcs, own, True) == GimbalControl(send=False, claim=False, yields=True)
+
+
+def test_ardupilot_backend_stops_its_rates_once_when_a_ground_station_takes_control_and_reclaims_on_release() -> None:
+    views = {"now": AutopilotView(system_id=1, gimbal_primary=(0, 0))}
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
+    link = FakeLink()
+    outputs = MavlinkOutputs(config, link, lambda: views["now"], lambda: 1234)
+    outputs.apply(1.0, TRACKING)
+    assert link.types() == ["COMMAND_LONG", "GIMBAL_MANAGER_SET_PITCHYAW"]  # claim, and rates (not enforced)
+    views["now"] = AutopilotView(system_id=1, gimbal_primary=(1, 100))
+    outputs.apply(1.1, TRACKING)
+    views["now"] = AutopilotView(system_id=1, gimbal_primary=(255, 190))  # a ground station takes control
+    before = len(link.sent)
+    for t in (1.2, 1.3, 2.5, 3.5):
+        outputs.apply(t, TRACKING)
+    taken = link.sent[before:]
+    assert [m.get_type() for m in taken] == ["GIMBAL_MANAGER_SET_PITCHYAW"]  # one stop, no claim back
+    assert (taken[0].pitch_rate, taken[0].yaw_rate) == (0.0, 0.0)
+    views["now"] = AutopilotView(system_id=1, gimbal_primary=(0, 0))  # released
+    outputs.apply(4.0, TRACKING)
+    assert [m.get_type() for m in link.sent[-2:]] == ["COMMAND_LONG", "GIMBAL_MANAGER_SET_PITCHYAW"]

@@ -9,6 +9,7 @@ lets the pilot engage OFFBOARD while a setpoint stream exists (and ignores it in
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Callable
 
 from pymavlink.dialects.v20.common import MAV_AUTOPILOT_PX4, MAV_COMP_ID_AUTOPILOT1
@@ -20,6 +21,36 @@ from service.mavlink import messages
 from service.mavlink.autopilot import AutopilotView
 
 log = logging.getLogger("service.control")
+
+
+@dataclass(frozen=True)
+class GimbalControl:
+    """What the gimbal backend does for one command: send the rates, claim primary control (1001), or
+    yield (a ground station took control from us: stop commanding until the next track)."""
+
+    send: bool
+    claim: bool
+    yields: bool = False
+
+
+def gimbal_control(backend: str, primary: tuple[int, int] | None, own: tuple[int, int], taken: bool) -> GimbalControl:
+    """The gimbal manager handshake (MAVLink gimbal protocol v2) for one command.
+
+    primary: who GIMBAL_MANAGER_STATUS names in control (None: never heard); own: our (sysid, compid);
+    taken: that controller took control during the current track, after we had it or had claimed it.
+    In control: send. Nobody in control (0, 0: at boot, after a reboot or a release): claim. Someone else
+    in control: claim when they had it before (the operator's track command asks this camera to point
+    the gimbal), yield when they took it from us (a ground station taking control wins). ArduPilot records primary control
+    but does not enforce it, and a rate command has no time-out there, so the ardupilot backend sends its
+    rates unless it yields, and also without any manager status; PX4 honours only the primary controller.
+    """
+    if primary == own:
+        return GimbalControl(send=True, claim=False)
+    if primary is None:
+        return GimbalControl(send=backend == "ardupilot", claim=backend == "px4")
+    if primary != (0, 0) and taken:
+        return GimbalControl(send=False, claim=False, yields=True)
+    return GimbalControl(send=backend == "ardupilot", claim=True)
 
 
 class MavlinkOutputs:
@@ -34,6 +65,10 @@ class MavlinkOutputs:
         self._last_claim_s: float | None = None
         self._last_guidance_frame_s: float | None = None  # capture time of the last guidance frame
         self._guidance_was_allowed = False
+        self._was_tracking = False  # the previous gimbal command was for a track (a new track resets the next two)
+        self._had_control = False  # GIMBAL_MANAGER_STATUS named us primary during the current track
+        self._claimed_over: tuple[int, int] | None = None  # who was primary when we last claimed in this track
+        self._yielded_to: tuple[int, int] | None = None  # who took gimbal control from us during this track
         self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0, "px4_prestream": 0}
 
     def apply(self, now_s: float, command: ControlCommand) -> None:
@@ -58,23 +93,49 @@ class MavlinkOutputs:
     def _gimbal(self, now_s: float, view: AutopilotView, target: tuple[int, int], rates: tuple[float, float],
                 tracking: bool) -> None:
         backend, gimbal = self.config.gimbal.backend, self.config.gimbal
+        if backend not in ("ardupilot", "px4"):
+            return
+        own = (self.link.system_id, self.config.mavlink.component_id)  # type: ignore[attr-defined]
+        if tracking and not self._was_tracking:  # a new track: the operator asked this camera to point the gimbal
+            self._had_control, self._yielded_to, self._claimed_over = False, None, None
+        self._was_tracking = tracking
+        if self._yielded_to is not None:
+            if view.gimbal_primary not in (self._yielded_to, own):
+                self._yielded_to = None  # released (0, 0) or passed on: ask again below
+            else:
+                return
+        primary = view.gimbal_primary
+        if primary == own:
+            self._had_control = True
+        # someone else than who held it when we claimed (our status stream is slower than a ground station's
+        # claim: we may never have seen ourselves in control before it was taken)
+        taken = primary not in (None, (0, 0), own) and (
+            self._had_control or (self._claimed_over is not None and primary != self._claimed_over))
+        control = gimbal_control(backend, primary, own, taken)
         yaw_rate, pitch_rate = rates
         mav = self.link.mav  # type: ignore[attr-defined]
+        if control.yields:
+            self._yielded_to = view.gimbal_primary
+            log.warning("event=gimbal_control_taken by=%s/%s detail=\"gimbal commands stop until the next track or "
+                        "a release\"", *view.gimbal_primary)  # type: ignore[misc]
+            if backend == "ardupilot":  # its rate commands have no time-out: stop what we started
+                self.link.send(messages.gimbal_rates_ardupilot(mav, target, gimbal.device_id, 0.0, 0.0))  # type: ignore[attr-defined]
+                self.counters["gimbal"] += 1
+            return
+        # the claim is a handshake with the autopilot (it answers in real time): service clock
+        if control.claim and tracking and (self._last_claim_s is None or now_s - self._last_claim_s >= gimbal.claim_interval_s):
+            self.link.send(messages.gimbal_claim_px4(mav, target, own, gimbal.device_id))  # type: ignore[attr-defined]
+            self._last_claim_s = now_s
+            self._claimed_over = view.gimbal_primary
+            self.counters["claims"] += 1
+            log.info("event=gimbal_claim primary=%s", view.gimbal_primary)
+        if not control.send:
+            return
         if backend == "ardupilot":
             self.link.send(messages.gimbal_rates_ardupilot(mav, target, gimbal.device_id, yaw_rate, pitch_rate))  # type: ignore[attr-defined]
-            self.counters["gimbal"] += 1
-        elif backend == "px4":
-            own = (self.link.system_id, self.config.mavlink.component_id)  # type: ignore[attr-defined]
-            if view.gimbal_primary == own:
-                self.link.send(messages.gimbal_rates_px4(mav, target, gimbal.device_id, yaw_rate, pitch_rate))  # type: ignore[attr-defined]
-                self.counters["gimbal"] += 1
-            # the claim is a handshake with the autopilot (it answers in real time): service clock
-            elif tracking and (self._last_claim_s is None or now_s - self._last_claim_s >= gimbal.claim_interval_s):
-                # PX4 honours 282 only from the primary controller: claim, then wait for 281 to confirm
-                self.link.send(messages.gimbal_claim_px4(mav, target, own, gimbal.device_id))  # type: ignore[attr-defined]
-                self._last_claim_s = now_s
-                self.counters["claims"] += 1
-                log.info("event=gimbal_claim primary=%s", view.gimbal_primary)
+        else:
+            self.link.send(messages.gimbal_rates_px4(mav, target, gimbal.device_id, yaw_rate, pitch_rate))  # type: ignore[attr-defined]
+        self.counters["gimbal"] += 1
 
     # --- guidance -----------------------------------------------------------------------------
     def _due(self, command: ControlCommand, force: bool) -> bool:

@@ -26,7 +26,7 @@ from typing import Any, Callable
 import zenoh
 
 from gcs.preview import PREVIEW_SUFFIX, PreviewFrame, decode_preview, drone_prefix
-from gcs.zenoh_tls import ZenohTls, check_endpoints
+from gcs.zenoh_tls import ZenohTls, check_endpoints, is_outgoing
 
 log = logging.getLogger("gcs.drones")
 TRACK_SUFFIX = "track"
@@ -86,13 +86,15 @@ class Drone:
     last_preview_s: float | None = None
     previews: int = 0
     malformed: int = 0
+    stale: bool = False  # the station's link to the Zenoh network went down since it was last heard
 
-    def summary(self, now_s: float, online_s: float = 5.0) -> dict[str, Any]:
-        """For the page's drone list."""
+    def summary(self, now_s: float, online_s: float = 5.0, link_up: bool = True) -> dict[str, Any]:
+        """For the page's drone list; offline at once when the station's Zenoh link is down (`zenoh_link`)."""
         track = self.last_track or {}
         heard = [t for t in (self.last_track_s, self.last_status_s, self.last_preview_s) if t is not None]
+        online = link_up and not self.stale and bool(heard) and now_s - max(heard) <= online_s
         return {"prefix": self.prefix, "system_id": self.system_id, "component_id": self.component_id,
-                "daemon_status": self.daemon_status, "online": bool(heard) and now_s - max(heard) <= online_s,
+                "daemon_status": self.daemon_status, "online": online, "zenoh_link": "up" if link_up else "lost",
                 "state": track.get("state"), "coasting": bool(track.get("coasting")), "score": track.get("score"),
                 "previews": self.previews, "autopilot": self.autopilot}
 
@@ -141,10 +143,16 @@ class DroneDirectory:
         self._preview_subs: dict[str, Any] = {}
         self._stop = threading.Event()
         self.status_rounds = 0  # completed status queries: after one, the list holds every daemon that answers
+        # links this station opened to its --zenoh endpoints (a router, a daemon): none left = link down
+        self._links_out: set[tuple[str, str, str]] = set()
+        self.link_up = not self.settings.connect  # without connect endpoints there is no link of ours to lose
+        self.disconnections = 0
+        self._lost_at: float | None = None
         try:
             self.session = zenoh.open(self.settings.to_zenoh())
         except Exception as exc:  # zenoh.ZError: bad endpoint, port in use
             raise ConnectionError(f"zenoh: cannot open a session ({self.settings}): {exc}") from exc
+        self._link_listener = self.session.info.declare_link_events_listener(self._on_link, history=True)
         self._track_sub = self.session.declare_subscriber(f"**/{TRACK_SUFFIX}", self._on_track_sample)
         self._poller = threading.Thread(target=self._poll_status, name="zenoh-status", daemon=True)
         self._poller.start()
@@ -157,6 +165,46 @@ class DroneDirectory:
         return drone
 
     # ----- Zenoh callbacks ----------------------------------------------------------------------
+    def _on_link(self, event: Any) -> None:
+        """A link opened or closed: the loss of the last link to the --zenoh endpoints is logged at once and
+        every drone shown offline until it is heard again; Zenoh reconnects by itself."""
+        link = event.link
+        key = (str(link.zid), str(link.src), str(link.dst))
+        if not self.settings.connect or not is_outgoing(key[1], self.settings.listen):
+            return
+        with self._changed:
+            was_up = bool(self._links_out)
+            if event.kind == zenoh.SampleKind.PUT:
+                self._links_out.add(key)
+            else:
+                self._links_out.discard(key)
+            up = bool(self._links_out)
+            if up == was_up:
+                return
+            self.link_up = up
+            now = time.monotonic()
+            down_s = now - self._lost_at if up and self._lost_at is not None else None
+            if not up:
+                self.disconnections += 1
+                self._lost_at = now
+                for drone in self.drones.values():
+                    drone.stale = True
+            self._changed.notify_all()
+        endpoints = ",".join(self.settings.connect)
+        if not up:
+            log.warning("event=zenoh_disconnected endpoints=%s remote=%s: no drone can be heard or seen until "
+                        "Zenoh reconnects", endpoints, key[2])
+        elif down_s is None:
+            log.info("event=zenoh_connected endpoints=%s remote=%s", endpoints, key[2])
+        else:
+            log.info("event=zenoh_reconnected endpoints=%s remote=%s down_s=%.2f", endpoints, key[2], down_s)
+
+    def _heard(self, drone: Drone) -> None:
+        """Called under the lock whenever a drone is heard: one that was cut off by a link loss is back."""
+        if drone.stale:
+            drone.stale = False
+            log.info("event=drone_back prefix=%s", drone.prefix)
+
     def _on_track_sample(self, sample: zenoh.Sample) -> None:
         prefix = drone_prefix(str(sample.key_expr), TRACK_SUFFIX)
         if prefix is None:
@@ -171,6 +219,7 @@ class DroneDirectory:
         with self._changed:
             drone = self._drone(prefix)
             drone.last_track, drone.last_track_s = track, time.monotonic()
+            self._heard(drone)
             self._changed.notify_all()
         self.on_track(prefix, track)
 
@@ -193,6 +242,7 @@ class DroneDirectory:
             drone = self._drone(prefix)
             drone.previews += 1
             drone.last_preview_s = time.monotonic()
+            self._heard(drone)
             self._changed.notify_all()
         self.on_preview(prefix, frame, payload)
 
@@ -227,6 +277,7 @@ class DroneDirectory:
                 drone.daemon_status = str(status.get("status"))
                 drone.autopilot = autopilot_summary(status)
                 drone.last_status_s = time.monotonic()
+                self._heard(drone)
                 self._changed.notify_all()
         with self._changed:
             self.status_rounds += 1
@@ -259,7 +310,7 @@ class DroneDirectory:
         """The drone list, sorted by prefix; a MAVLink identity two drones claim is flagged (`conflict`)."""
         now = time.monotonic()
         with self._lock:
-            items = [drone.summary(now) for _, drone in sorted(self.drones.items())]
+            items = [drone.summary(now, link_up=self.link_up) for _, drone in sorted(self.drones.items())]
         ids = [(d["system_id"], d["component_id"]) for d in items if d["system_id"] is not None]
         for item in items:
             key = (item["system_id"], item["component_id"])
@@ -289,7 +340,7 @@ class DroneDirectory:
         self._stop.set()
         self._poller.join(timeout=3.0)
         with self._lock:
-            subs = [self._track_sub, *self._preview_subs.values()]
+            subs = [self._link_listener, self._track_sub, *self._preview_subs.values()]
             self._preview_subs.clear()
         for sub in subs:
             try:

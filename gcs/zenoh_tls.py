@@ -1,4 +1,5 @@
-"""The ground side's Zenoh TLS: mutual TLS with the drones' CA (docs/security.md), for the web station and the router.
+"""The ground side's Zenoh links: mutual TLS with the drones' CA (docs/security.md) for the web station and
+the router; which links this node opened (to watch the link to a router).
 
 The ground tools take the same three PEM files as the daemon's `zenoh.tls` (CA, own certificate, own key)
 and set Zenoh's own TLS link from them (transport.link.tls, 1.x key names); connect and listen on
@@ -98,3 +99,16 @@ def check_endpoints(endpoints: tuple[str, ...] | list[str], tls: ZenohTls | None
             warnings.append(f"{endpoint} reaches beyond loopback without TLS: anyone on that network can read the "
                             f"telemetry and video; use tls/HOST:PORT with {option}-ca/-cert/-key")
     return warnings
+
+
+def endpoint_port(endpoint: str) -> tuple[str, str] | None:
+    """`tcp/127.0.0.1:7447` (`?metadata`, `#config` allowed) -> ("tcp", "7447"); None without a port."""
+    protocol, _, address = endpoint.partition("/")
+    address = address.split("?")[0].split("#")[0]
+    return (protocol, address.rsplit(":", 1)[1]) if ":" in address else None
+
+
+def is_outgoing(link_src: str, listen: tuple[str, ...]) -> bool:
+    """Whether a Zenoh link was opened by this node (towards a connect endpoint) rather than accepted: an
+    accepted link's local locator (`src`) has a listen endpoint's protocol and port."""
+    return endpoint_port(link_src) not in {endpoint_port(e) for e in listen}

@@ -69,7 +69,8 @@ class Service:
                 source_state=lambda: health.state,
                 video_stream=(lambda: stream.describe(health.last_frame_size)) if stream is not None else None)
             self.outputs = MavlinkOutputs(config, self.link, self.camera.autopilot, self.camera.time_boot_ms)
-            self.telemetry = Telemetry(self._session, config.zenoh.prefix, self.status) if self._session else None
+            self.telemetry = (Telemetry(self._session, config.zenoh.prefix, self.status, config.zenoh)
+                              if self._session else None)
             self.preview = (ZenohPreview(self._session, config.zenoh.prefix, config.video.preview)
                             if self._session is not None and config.video.preview.enabled else None)
             if config.video.preview.enabled and self._session is None:

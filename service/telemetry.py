@@ -8,6 +8,8 @@ from __future__ import annotations
 import ipaddress
 import json
 import logging
+import threading
+import time
 from typing import Any, Callable
 
 import zenoh
@@ -19,6 +21,7 @@ log = logging.getLogger("service.telemetry")
 
 ENCRYPTED_PROTOCOLS = ("tls", "quic")  # Zenoh links that run over TLS
 LOCAL_PROTOCOLS = ("unixsock-stream", "unixpipe", "vsock")  # links that never leave the machine
+START_GRACE_S = 3.0  # s: a connect endpoint not reached this long after start is logged (Zenoh's own retry goes on)
 
 
 def zenoh_config(config: ZenohConfig) -> zenoh.Config:
@@ -97,13 +100,109 @@ def open_session(config: ZenohConfig) -> zenoh.Session:
                               f"connect {list(config.connect)}): {exc}") from exc
 
 
-class Telemetry:
-    """Publishes track samples and answers status queries on an open session."""
+def endpoint_port(endpoint: str) -> tuple[str, str] | None:
+    """`tcp/127.0.0.1:7447` (`?metadata`, `#config` allowed) -> ("tcp", "7447"); None without a port."""
+    protocol, _, address = endpoint.partition("/")
+    address = address.split("?")[0].split("#")[0]
+    if ":" not in address:
+        return None
+    return protocol, address.rsplit(":", 1)[1]
 
-    def __init__(self, session: zenoh.Session, prefix: str, status: Callable[[], dict[str, Any]]) -> None:
+
+def is_outgoing(link_src: str, listen: tuple[str, ...]) -> bool:
+    """Whether a link was opened by this node (towards a connect endpoint) rather than accepted: an accepted
+    link's local locator (`src`) has a listen endpoint's protocol and port, an opened one an ephemeral port."""
+    return endpoint_port(link_src) not in {endpoint_port(e) for e in listen}
+
+
+class ZenohLinks:
+    """The session's links (Zenoh link events, on Zenoh's threads): how many go out to `zenoh.connect`
+    endpoints (a router, a listening station) and how many were accepted; the loss of the last outgoing
+    link is logged at once (event=zenoh_disconnected), and its return (event=zenoh_reconnected). Zenoh
+    itself reconnects to the connect endpoints; this only watches."""
+
+    def __init__(self, session: zenoh.Session, config: ZenohConfig,
+                 clock: Callable[[], float] | None = None) -> None:
+        self._config = config
+        self._clock = clock or time.monotonic
+        self._lock = threading.Lock()
+        self._out: set[tuple[str, str, str]] = set()  # (remote zid, src, dst)
+        self._in: set[tuple[str, str, str]] = set()
+        self.disconnections = 0
+        self._lost_at: float | None = self._clock() if config.connect else None
+        self._connected_once = False
+        self._listener = session.info.declare_link_events_listener(self._on_event, history=True)
+        # the links opened during zenoh.open arrive as events shortly after; an endpoint still unreached after
+        # START_GRACE_S is reported once (later losses are reported as they happen)
+        self._start_check = threading.Timer(START_GRACE_S, self._check_start)
+        self._start_check.daemon = True
+        if config.connect:
+            self._start_check.start()
+
+    def _check_start(self) -> None:
+        if self.snapshot()["state"] == "disconnected" and not self._connected_once:
+            log.warning("event=zenoh_disconnected key=zenoh.connect endpoints=%s: no connect endpoint reached "
+                        "%.0f s after start; Zenoh keeps trying", ",".join(self._config.connect), START_GRACE_S)
+
+    def _on_event(self, event: Any) -> None:
+        link = event.link
+        key = (str(link.zid), str(link.src), str(link.dst))
+        links = self._out if is_outgoing(key[1], self._config.listen) else self._in
+        with self._lock:
+            before = len(self._out)
+            if event.kind == zenoh.SampleKind.PUT:
+                links.add(key)
+            else:
+                links.discard(key)
+            after = len(self._out)
+            now = self._clock()
+            if not self._config.connect or (before == 0) == (after == 0):
+                return
+            if after == 0:
+                self.disconnections += 1
+                self._lost_at = now
+                lost = True
+            else:
+                down_s, self._lost_at = (now - self._lost_at if self._lost_at is not None else 0.0), None
+                lost, first = False, not self._connected_once
+                self._connected_once = True
+        if not lost and first:
+            log.info("event=zenoh_connected endpoints=%s remote=%s", ",".join(self._config.connect), key[2])
+        elif lost:
+            log.warning("event=zenoh_disconnected key=zenoh.connect endpoints=%s remote=%s: no link to any "
+                        "connect endpoint; telemetry and video reach no one through it until Zenoh reconnects",
+                        ",".join(self._config.connect), key[2])
+        else:
+            log.info("event=zenoh_reconnected endpoints=%s remote=%s down_s=%.2f",
+                     ",".join(self._config.connect), key[2], down_s)
+
+    def snapshot(self) -> dict[str, Any]:
+        """{"state": connected / disconnected (no link to any connect endpoint) / listening (none configured),
+        "links_out", "links_in", "disconnections", "disconnected_s": seconds since the loss (None while connected)}."""
+        with self._lock:
+            out, accepted, lost_at = len(self._out), len(self._in), self._lost_at
+        state = "listening" if not self._config.connect else "connected" if out else "disconnected"
+        return {"state": state, "links_out": out, "links_in": accepted, "disconnections": self.disconnections,
+                "disconnected_s": round(self._clock() - lost_at, 3) if state == "disconnected" and lost_at else None}
+
+    def close(self) -> None:
+        self._start_check.cancel()
+        try:
+            self._listener.undeclare()
+        except Exception:  # noqa: BLE001 - already closed at shutdown
+            pass
+
+
+class Telemetry:
+    """Publishes track samples and answers status queries on an open session; the status answer carries the
+    session's links (`zenoh`, ZenohLinks.snapshot) when the config is given."""
+
+    def __init__(self, session: zenoh.Session, prefix: str, status: Callable[[], dict[str, Any]],
+                 config: ZenohConfig | None = None) -> None:
         self.track_key = f"{prefix}/track"
         self.status_key = f"{prefix}/status"
         self._status = status
+        self.links = ZenohLinks(session, config) if config is not None else None
         self._publisher = session.declare_publisher(self.track_key)
         self._queryable = session.declare_queryable(self.status_key, self._answer)
         self.published = 0
@@ -114,11 +213,16 @@ class Telemetry:
 
     def _answer(self, query: zenoh.Query) -> None:
         try:
-            query.reply(self.status_key, json.dumps(self._status()))
+            status = self._status()
+            if self.links is not None:
+                status["zenoh"] = self.links.snapshot()
+            query.reply(self.status_key, json.dumps(status))
         except Exception:  # noqa: BLE001 - a failed reply must not kill Zenoh's callback thread
             log.exception("event=status_query_failed")
 
     def close(self) -> None:
+        if self.links is not None:
+            self.links.close()
         for entity in (self._queryable, self._publisher):
             try:
                 entity.undeclare()

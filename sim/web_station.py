@@ -37,6 +37,8 @@ class WebStation:
         self.url: str | None = None
         self._announced = threading.Event()
         self._reader: threading.Thread | None = None
+        self._line_added = threading.Condition()
+        self.line_count = 0  # lines read so far (wait_line counts from a given one)
 
     def start(self, timeout_s: float = 30.0) -> "WebStation":
         """Start it and wait (event, timeout_s) for `web station: URL`; RuntimeError with its output otherwise."""
@@ -54,7 +56,10 @@ class WebStation:
         assert self.process is not None and self.process.stdout is not None
         for line in self.process.stdout:  # drained to the end, so the pipe never fills
             line = line.rstrip("\n")
-            self.lines.append(line)
+            with self._line_added:
+                self.lines.append(line)
+                self.line_count += 1
+                self._line_added.notify_all()
             if line.startswith(ADDRESS_LINE) and self.url is None:
                 self.url = line[len(ADDRESS_LINE):].strip()
                 self._announced.set()
@@ -62,6 +67,18 @@ class WebStation:
 
     def output(self) -> str:
         return "\n".join(self.lines)
+
+    def wait_line(self, text: str, timeout_s: float, after: int = 0) -> str | None:
+        """The first output line containing `text` among lines number > `after` (see line_count) still held,
+        waiting (event, timeout_s) for it; None on timeout."""
+        def found() -> str | None:
+            held = list(self.lines)
+            first = self.line_count - len(held)  # number of lines already dropped from the deque
+            return next((line for i, line in enumerate(held) if first + i >= after and text in line), None)
+
+        with self._line_added:
+            self._line_added.wait_for(lambda: found() is not None, timeout=timeout_s)
+            return found()
 
     def alive(self) -> bool:
         return self.process is not None and self.process.poll() is None

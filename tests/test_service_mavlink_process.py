@@ -3,10 +3,12 @@ end to end (a key from `jsar-service keygen`, signed / unsigned / wrong-key / re
 the status query; MAVProxy's own signing against it where MAVProxy is installed)."""
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Iterator
@@ -292,6 +294,25 @@ class MavProxy:
              "--default-modules=signing,cmdlong,misc", f"--state-basedir={workdir}"],
             cwd=workdir, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             env={**os.environ, "MAVLINK20": "1", "HOME": str(workdir)})
+        self._printed: list[str] = []
+        self._changed = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:  # drained to the end, so the pipe never fills
+            with self._changed:
+                self._printed.append(line)
+                self._changed.notify_all()
+
+    def output(self) -> str:
+        with self._changed:
+            return "".join(self._printed)
+
+    def wait_printed(self, text: str, timeout_s: float) -> bool:
+        """Whether MAVProxy printed `text` within timeout_s."""
+        with self._changed:
+            return self._changed.wait_for(lambda: text in "".join(self._printed), timeout=timeout_s)
 
     def command(self, line: str) -> None:
         assert self.proc.poll() is None, "MAVProxy exited"
@@ -303,10 +324,11 @@ class MavProxy:
         try:
             self.proc.stdin.close()
             self.proc.wait(timeout=10)
-        except (subprocess.TimeoutExpired, BrokenPipeError):
+        except (subprocess.TimeoutExpired, BrokenPipeError, OSError):
             self.proc.kill()
             self.proc.wait()
-        return self.proc.stdout.read() if self.proc.stdout else ""
+        self._reader.join(timeout=5)
+        return self.output()
 
 
 @pytest.mark.skipif(not MAVPROXY.exists(), reason=f"MAVProxy is not installed at {MAVPROXY} "
@@ -422,6 +444,8 @@ def test_one_passphrase_signs_arducopter_the_camera_and_mavproxy(tmp_path: Path)
                 raise AssertionError(f"status never satisfied the condition; last: {status}")
             before = status_when(lambda s: refused(s, "HEARTBEAT") > 0, 60.0)  # the autopilot, unsigned
             assert before["autopilot"]["state"] == "waiting_for_heartbeat"
+            # MAVProxy listens (udpin): it can send only once it has heard the autopilot
+            assert mavproxy.wait_printed(f"Detected vehicle {firmware.system_id}:1", 30.0), mavproxy.output()[-3000:]
             mavproxy.command(f"signing setup {passphrase}")
             # ArduPilot checks the key on SERIAL1 at once but signs what it sends there only after a reboot
             # (measured on this firmware: its heartbeats stayed unsigned for 30 s, then signed after `reboot`)
@@ -430,11 +454,13 @@ def test_one_passphrase_signs_arducopter_the_camera_and_mavproxy(tmp_path: Path)
             assert heard["mavlink_system_id"] == firmware.system_id
             status_when(lambda s: s["source"]["state"] == "ok", 30.0)
             mavproxy.command("set target_component 100")
-            mavproxy.command("long MAV_CMD_CAMERA_TRACK_RECTANGLE 0.55 0.3 0.8 0.6")
-            try:
-                tracking = status_when(lambda s: s["track"]["state"] != "idle", 30.0)
-            except AssertionError as exc:
-                raise AssertionError(f"{exc}\nMAVProxy printed:\n{mavproxy.close()[-4000:]}") from None
+            tracking = None
+            for _ in range(5):  # as an operator would: MAVProxy may still send to the autopilot's old address
+                mavproxy.command("long MAV_CMD_CAMERA_TRACK_RECTANGLE 0.55 0.3 0.8 0.6")
+                with contextlib.suppress(AssertionError):
+                    tracking = status_when(lambda s: s["track"]["state"] != "idle", 6.0)
+                    break
+            assert tracking is not None, f"never tracking; MAVProxy printed:\n{mavproxy.output()[-4000:]}"
             assert tracking["counters"]["mavlink_accepted"] >= 1
         finally:
             output = mavproxy.close()

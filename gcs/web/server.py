@@ -10,6 +10,9 @@
   `{"type": "point", "prefix", "x", "y", "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1",
   "y1", "id"}`, `{"type": "stop", "prefix", "id"}` (coordinates normalised 0..1, top-left origin).
 
+With a token (create_app's `token`; gcs.web.auth), every route and the WebSocket need it, and `GET /login`,
+`POST /login`, `POST /logout` log a browser in and out.
+
 Latest frame wins towards each page: a page that reads slowly gets the newest preview, the ones it
 missed are counted (`dropped_frames` in /api/drones' `pages`), nothing queues up. A WebSocket whose
 Origin is not this server's own address is refused (another site open in the operator's browser must not

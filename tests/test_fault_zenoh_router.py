@@ -10,9 +10,6 @@ status `zenoh.state`, the station's log and drone list), and both resume by them
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import threading
 import time
 import urllib.request
@@ -21,45 +18,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from sim.daemon import REPO_ROOT, Daemon
+from sim.daemon import Daemon
 from sim.web_station import WebStation
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 from tests.conftest import free_tcp_port, free_udp_port
+from tests.zenoh_router import Router
 
 PREFIX = "jsar"
 START_TIMEOUT_S = 60.0  # the daemon's and the station's start on a loaded 2-core machine
 REPORT_BOUND_S = 1.0  # issue 42: the fault is reported within a second
-
-
-class Router:
-    """`python -m gcs.router --listen ENDPOINT` as a process; start() waits for its listening line."""
-
-    def __init__(self, endpoint: str) -> None:
-        self.endpoint = endpoint
-        self.process: subprocess.Popen | None = None
-
-    def start(self, timeout_s: float = 30.0) -> "Router":
-        self.process = subprocess.Popen([sys.executable, "-m", "gcs.router", "--listen", self.endpoint],
-                                        cwd=REPO_ROOT, env=dict(os.environ, PYTHONUNBUFFERED="1"),
-                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        ready = threading.Event()
-        first: list[str] = []
-
-        def read() -> None:
-            assert self.process is not None and self.process.stdout is not None
-            for line in self.process.stdout:  # drained to the end, so the pipe never fills
-                if not first:
-                    first.append(line)
-                    ready.set()
-            ready.set()
-        threading.Thread(target=read, name="router-output", daemon=True).start()
-        assert ready.wait(timeout_s) and first and "listening" in first[0], f"router did not start: {first}"
-        return self
-
-    def kill(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.kill()
-            self.process.wait(timeout=10.0)
 
 
 class Camera:

@@ -30,7 +30,9 @@ from service.sources.zenoh_wire import encode_frame
 from service.telemetry import access_control_section, insecure_endpoints, open_session, zenoh_config
 from sim.daemon import Daemon
 from sim.zenoh_link import SimCamera, ZenohEndpoints
+from sim.web_station import WebStation
 from tests.conftest import free_tcp_port, free_udp_port
+from tests.zenoh_router import Router
 
 ROOT = Path(__file__).resolve().parent.parent
 PREFIX = "jsar"
@@ -103,7 +105,8 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     if shutil.which("openssl") is None or shutil.which("sh") is None:
         pytest.skip("openssl (and sh) are needed to make the test certificates")
     base = tmp_path_factory.mktemp("pki")
-    return {"ours": make_pki(base / "ours", 'cert viewer "DNS:viewer"\n'), "other": make_pki(base / "other")}
+    return {"ours": make_pki(base / "ours", 'cert viewer "DNS:viewer"\ncert router "DNS:router,IP:127.0.0.1"\n'),
+            "other": make_pki(base / "other")}
 
 
 @pytest.fixture(scope="module")
@@ -158,13 +161,15 @@ def raw_config(endpoint: str, tls: dict[str, Any] | None = None) -> zenoh.Config
 
 
 class Listener:
-    """A Zenoh session counting what it receives on `<prefix>/track` and `<prefix>/camera/preview`."""
+    """A Zenoh session counting what it receives on `<prefix>/track` and `<prefix>/camera/preview`
+    (subscribed to those exact keys)."""
 
-    def __init__(self, config: zenoh.Config) -> None:
+    def __init__(self, config: zenoh.Config, prefix: str = PREFIX) -> None:
         self.session = zenoh.open(config)
+        self.prefix = prefix
         self.counts = {"track": 0, "camera/preview": 0}
         self.cond = threading.Condition()
-        self.subs = [self.session.declare_subscriber(f"{PREFIX}/{suffix}", self._counter(suffix))
+        self.subs = [self.session.declare_subscriber(f"{prefix}/{suffix}", self._counter(suffix))
                      for suffix in self.counts]
 
     def _counter(self, suffix: str):
@@ -180,7 +185,7 @@ class Listener:
                                       self.counts["camera/preview"] >= previews, timeout=timeout_s)
 
     def status_answers(self, timeout_s: float = 2.0) -> int:
-        return sum(1 for reply in self.session.get(f"{PREFIX}/status", timeout=timeout_s) if reply.ok is not None)
+        return sum(1 for reply in self.session.get(f"{self.prefix}/status", timeout=timeout_s) if reply.ok is not None)
 
     def close(self) -> None:
         for sub in self.subs:
@@ -271,6 +276,98 @@ def test_read_only_viewer_cannot_publish_frames_or_query_status(pki, drone) -> N
     finally:
         viewer.close()
         station.close()
+
+
+# ----- through a router: the same TLS settings on gcs.router and the web station ------------------------
+
+ROUTER_ACCESS = {  # the router's own access list (gcs.router --access): the drone and the station, nobody else
+    "enabled": True, "default_permission": "deny",
+    "rules": [{"id": "all", "permission": "allow", "messages": ["put", "delete", "declare_subscriber", "query",
+                                                                "declare_queryable",
+                                         "reply"], "key_exprs": ["**"]}],
+    "subjects": [{"id": "fleet", "cert_common_names": ["drone-1", "gcs"]}],
+    "policies": [{"rules": ["all"], "subjects": ["fleet"]}],
+}
+
+
+@needs_openssl
+def test_through_a_tls_router_the_station_is_served_and_others_are_refused(pki, tmp_path: Path) -> None:
+    ours, other = pki["ours"], pki["other"]
+    prefix = "via-router"
+    router_endpoint, local_port = f"tls/127.0.0.1:{free_tcp_port()}", free_tcp_port()
+    access_file = tmp_path / "router-access.yaml"
+    access_file.write_text(yaml.safe_dump(ROUTER_ACCESS), encoding="utf-8")
+    tls_args = ("--tls-ca", str(ours / "ca.crt"), "--tls-cert", str(ours / "router.crt"),
+                "--tls-key", str(ours / "router.key"), "--access", str(access_file))
+    router = Router(router_endpoint, tls_args).start()
+    overrides = {
+        "source": {"kind": "zenoh"},
+        "tracker": {"name": "csrt", "params": {}, "range_size_band": 0},
+        "zenoh": {"enabled": True, "mode": "peer", "listen": [f"tcp/127.0.0.1:{local_port}"],
+                  "connect": [router_endpoint], "multicast_scouting": False, "prefix": prefix,
+                  "tls": {"enabled": True, "root_ca_certificate": str(ours / "ca.crt"),
+                          "certificate": str(ours / "drone-1.crt"), "private_key": str(ours / "drone-1.key")},
+                  "access": {"enabled": False}},
+    }
+    (tmp_path / "daemon").mkdir()
+    daemon = Daemon(tmp_path / "daemon", overrides, f"udpout:127.0.0.1:{free_udp_port()}").start()
+    sim = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{local_port}",), prefix=prefix))
+    daemon.on_exit(sim.telemetry.mark_source_gone)
+    camera = Camera(sim)
+    station = WebStation([f"udpin:127.0.0.1:{free_udp_port()}"], [router_endpoint], extra_args=(
+        "--zenoh-mode", "client", "--zenoh-tls-ca", str(ours / "ca.crt"), "--zenoh-tls-cert", str(ours / "gcs.crt"),
+        "--zenoh-tls-key", str(ours / "gcs.key")))
+    strangers = {
+        "plain-tcp": raw_config(router_endpoint.replace("tls/", "tcp/")),
+        "certificate-from-another-ca": ZenohSettings(connect=(router_endpoint,), tls=ZenohTls(
+            str(ours / "ca.crt"), str(other / "gcs.crt"), str(other / "gcs.key"))).to_zenoh(),
+        # client mode: a peer would also learn the daemon's own (loopback) listen endpoint by gossip through the
+        # router and connect to it directly, which on this one machine it can (docs/security.md)
+        "viewer-not-in-the-router-access-list": ZenohSettings(connect=(router_endpoint,), mode="client", tls=ZenohTls(
+            str(ours / "ca.crt"), str(ours / "viewer.crt"), str(ours / "viewer.key"))).to_zenoh(),
+    }
+    listeners: dict[str, Listener] = {}
+    try:
+        assert sim.telemetry.wait_frame(1, START_TIMEOUT_S) is not None, f"daemon silent:\n{daemon.log_tail()}"
+        listeners = {name: Listener(config, prefix) for name, config in strangers.items()}
+        station.start(START_TIMEOUT_S)  # after the strangers: they had longer to connect
+        assert station.wait_line(f"event=drone_found prefix={prefix}", 20.0), station.output()
+        assert station.wait_line("event=zenoh_connected", 5.0), station.output()
+        # a second station certificate holder, counting what the router lets through to it
+        fleet = Listener(ZenohSettings(connect=(router_endpoint,), tls=ZenohTls(
+            str(ours / "ca.crt"), str(ours / "gcs.crt"), str(ours / "gcs.key"))).to_zenoh(), prefix)
+        listeners["station-certificate"] = fleet
+        assert fleet.wait(track=10, previews=3, timeout_s=20.0), "a station certificate was not served by the router"
+        assert fleet.status_answers() == 1
+        for name, listener in strangers_of(listeners).items():
+            assert listener.counts == {"track": 0, "camera/preview": 0}, f"{name}: received {listener.counts}"
+            assert listener.status_answers(timeout_s=1.0) == 0, f"{name}: status answered"
+        assert list(listeners["plain-tcp"].session.info.peers_zid()) == []
+        assert list(listeners["plain-tcp"].session.info.routers_zid()) == []
+        assert list(listeners["certificate-from-another-ca"].session.info.routers_zid()) == []
+        assert len(list(listeners["viewer-not-in-the-router-access-list"].session.info.routers_zid())) == 1, \
+            "the viewer's certificate is valid: it connects, and the router's access list gives it nothing"
+        assert daemon.alive() and station.alive()
+    finally:
+        for listener in listeners.values():
+            listener.close()
+        station.stop()
+        camera.stop()
+        sim.close()
+        code = daemon.stop()
+        router.kill()
+    assert code == 0, f"the daemon exited {code}; its log:\n{daemon.log_tail()}"
+
+
+def strangers_of(listeners: dict[str, Listener]) -> dict[str, Listener]:
+    return {name: listener for name, listener in listeners.items() if name != "station-certificate"}
+
+
+def test_router_refuses_tls_listening_without_certificates(capsys) -> None:
+    from gcs.router import main
+
+    assert main(["--listen", "tls/127.0.0.1:7447"]) == 2
+    assert "--tls-ca, --tls-cert and --tls-key" in capsys.readouterr().err
 
 
 # ----- configuration: checked at start, the bad key named -----------------------------------------------

@@ -1,7 +1,10 @@
 """Zenoh adapter: session from config, per-frame track telemetry and the status queryable.
 
 Keys: `<prefix>/track` (one JSON sample per processed frame, loop.FrameReport.as_json) and
-`<prefix>/status` (queryable: JSON status, counters and effective configuration).
+`<prefix>/status` (queryable: JSON status, counters and effective configuration, the session's links).
+The session takes Zenoh's own TLS link and access control from `zenoh.tls` / `zenoh.access`
+(docs/security.md); endpoints open beyond loopback without TLS are logged at start, and the loss of the
+link to the connect endpoints (a router) as it happens.
 """
 from __future__ import annotations
 
@@ -161,20 +164,21 @@ class ZenohLinks:
             if after == 0:
                 self.disconnections += 1
                 self._lost_at = now
-                lost = True
+                change, down_s = "lost", 0.0
             else:
-                down_s, self._lost_at = (now - self._lost_at if self._lost_at is not None else 0.0), None
-                lost, first = False, not self._connected_once
+                down_s = now - self._lost_at if self._lost_at is not None else 0.0
+                self._lost_at = None
+                change = "reconnected" if self._connected_once else "connected"
                 self._connected_once = True
-        if not lost and first:
-            log.info("event=zenoh_connected endpoints=%s remote=%s", ",".join(self._config.connect), key[2])
-        elif lost:
+        endpoints = ",".join(self._config.connect)
+        if change == "lost":
             log.warning("event=zenoh_disconnected key=zenoh.connect endpoints=%s remote=%s: no link to any "
                         "connect endpoint; telemetry and video reach no one through it until Zenoh reconnects",
-                        ",".join(self._config.connect), key[2])
+                        endpoints, key[2])
+        elif change == "connected":
+            log.info("event=zenoh_connected endpoints=%s remote=%s", endpoints, key[2])
         else:
-            log.info("event=zenoh_reconnected endpoints=%s remote=%s down_s=%.2f",
-                     ",".join(self._config.connect), key[2], down_s)
+            log.info("event=zenoh_reconnected endpoints=%s remote=%s down_s=%.2f", endpoints, key[2], down_s)
 
     def snapshot(self) -> dict[str, Any]:
         """{"state": connected / disconnected (no link to any connect endpoint) / listening (none configured),
@@ -183,7 +187,8 @@ class ZenohLinks:
             out, accepted, lost_at = len(self._out), len(self._in), self._lost_at
         state = "listening" if not self._config.connect else "connected" if out else "disconnected"
         return {"state": state, "links_out": out, "links_in": accepted, "disconnections": self.disconnections,
-                "disconnected_s": round(self._clock() - lost_at, 3) if state == "disconnected" and lost_at else None}
+                "disconnected_s": (round(self._clock() - lost_at, 3)
+                                  if state == "disconnected" and lost_at is not None else None)}
 
     def close(self) -> None:
         self._start_check.cancel()

@@ -153,3 +153,16 @@ def test_router_restart_under_a_running_daemon_and_web_station(tmp_path: Path) -
         if second_router is not None:
             second_router.kill()
     assert code == 0, f"the daemon exited {code}; its log:\n{daemon.log_tail()}"
+
+
+def test_links_opened_and_accepted_are_told_apart_by_the_local_port() -> None:
+    from gcs.zenoh_tls import is_outgoing as station_is_outgoing
+    from service.telemetry import is_outgoing
+
+    listen = ("tcp/127.0.0.1:7447", "tls/0.0.0.0:7448")
+    for outgoing in (is_outgoing, station_is_outgoing):
+        assert not outgoing("tcp/127.0.0.1:7447", listen)  # accepted on the loopback listener
+        assert not outgoing("tls/192.168.1.20:7448", listen)  # accepted on the wildcard TLS listener
+        assert outgoing("tcp/127.0.0.1:45120", listen)  # opened towards a router
+        assert outgoing("tcp/127.0.0.1:7448", listen)  # the TLS listener's port, another protocol
+        assert outgoing("tcp/127.0.0.1:7447", ())  # no listener at all: every link was opened

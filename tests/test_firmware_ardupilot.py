@@ -168,8 +168,8 @@ def test_target_off_centre_turns_the_real_mount_towards_it_and_stop_and_loss_zer
         assert yaw1 - yaw0 > 5.0 and pitch1 - pitch0 > 5.0, (pitch0, yaw0, pitch1, yaw1)
 
         # MAV_CMD_CAMERA_STOP_TRACKING: the last rates are zero and the mount stops where it is
+        stopped = time.monotonic()  # before the command: the daemon may act on it before its ACK reaches us
         assert rig.gcs.command(CAMERA, STOP_TRACKING, [0]).result == 0
-        stopped = time.monotonic()
         assert rig.tap.from_daemon.wait_for(lambda: (0.0, 0.0) in rig.rates_sent(stopped), 3.0), rig.rates_sent(stopped)
         settled = rig.mount_after(0.5)
         still = rig.mount_after(1.5)

@@ -240,7 +240,7 @@ def test_velocity_guidance_gated_on_mode_and_zero_when_lost() -> None:
     outputs.apply(100.2, LOST)
     setpoints = [m for m in link.sent if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
     assert len(setpoints) == 2
-    assert setpoints[0].yaw_rate > 0 and setpoints[0].type_mask == 0x05C7 and setpoints[0].coordinate_frame == 9
+    assert setpoints[0].yaw_rate > 0 and setpoints[0].type_mask == 0x05C7 and setpoints[0].coordinate_frame == 8
     assert (setpoints[1].vx, setpoints[1].vy, setpoints[1].vz, setpoints[1].yaw_rate) == (0, 0, 0, 0)
     # heartbeat timed out: no guidance even in GUIDED
     outputs.apply(100.0 + 5.0, TRACKING)

@@ -211,7 +211,7 @@ def test_autopilot_heartbeat_timeout_and_guidance_only_in_guided(frames_dir: Pat
         ap.custom_mode = 4  # the operator switches to GUIDED
         assert ap.from_service.wait_for(lambda: count("SET_POSITION_TARGET_LOCAL_NED") >= 3, 5.0)
         setpoint = ap.from_service.of("SET_POSITION_TARGET_LOCAL_NED")[-1].msg
-        assert setpoint.type_mask == 0x05C7 and setpoint.coordinate_frame == 9 and setpoint.target_system == AP_SYSID
+        assert setpoint.type_mask == 0x05C7 and setpoint.coordinate_frame == 8 and setpoint.target_system == AP_SYSID
         ap.heartbeats_on = False  # link to the autopilot goes quiet
         assert rig.gcs.received.wait_for(lambda: not rig.service.camera.autopilot_alive(), 5.0)
         before = count("SET_POSITION_TARGET_LOCAL_NED")
@@ -464,14 +464,16 @@ def test_refusals_are_logged_with_the_message_they_came_in_and_each_new_reason_i
     assert "finite number" in refused[0].getMessage() and "inverted" in refused[1].getMessage()
 
 
-def test_wanted_autopilot_streams_are_asked_for_when_silent_and_not_more_often_than_the_stale_time() -> None:
-    # ArduPilot streams nothing on a companion port (SRn_ rates 0) until asked, and forgets on reboot
-    from service.mavlink.autopilot import STREAM_STALE_S, WANTED_STREAMS_HZ, streams_to_request
+def test_wanted_autopilot_streams_are_asked_for_when_silent_or_slow_and_not_more_often_than_the_retry_time() -> None:
+    # ArduPilot streams nothing on a companion port (SRn_ rates 0) until asked, and forgets on reboot;
+    # PX4's onboard link sends GIMBAL_MANAGER_STATUS every 2-3 s
+    from service.mavlink.autopilot import STREAM_RETRY_S, WANTED_STREAMS_HZ, stream_late_s, streams_to_request
 
     assert sorted(streams_to_request({}, {}, 100.0)) == sorted(WANTED_STREAMS_HZ)  # never heard: ask for all
-    heard = {msg_id: 99.0 for msg_id in WANTED_STREAMS_HZ}
+    heard = {msg_id: 99.9 for msg_id in WANTED_STREAMS_HZ}
     assert streams_to_request(heard, {}, 100.0) == []  # all arriving: ask for nothing
-    heard[285] = 100.0 - STREAM_STALE_S - 0.1  # the gimbal status stopped (a reboot)
-    assert streams_to_request(heard, {}, 100.0) == [285]
-    assert streams_to_request(heard, {285: 99.0}, 100.0) == []  # asked a moment ago: wait
-    assert streams_to_request(heard, {285: 100.0 - STREAM_STALE_S - 0.1}, 100.0) == [285]  # ask again
+    heard[281] = 100.0 - stream_late_s(WANTED_STREAMS_HZ[281]) - 0.1  # too slow (or stopped: a reboot)
+    assert streams_to_request(heard, {}, 100.0) == [281]
+    assert streams_to_request(heard, {281: 99.0}, 100.0) == []  # asked a moment ago: wait
+    assert streams_to_request(heard, {281: 100.0 - STREAM_RETRY_S - 0.1}, 100.0) == [281]  # ask again
+    assert stream_late_s(10.0) == 0.6 and stream_late_s(1.0) == 3.0

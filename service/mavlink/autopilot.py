@@ -78,16 +78,24 @@ def observe(view: AutopilotView, msg: object, now_s: float, expected_system: int
 
 # The autopilot messages the service uses, and the rate it asks for each (Hz). ArduPilot sends nothing
 # but heartbeats on a port whose SRn_ stream rates are 0 (its defaults on SERIAL1 / SERIAL2, where a
-# companion computer sits) until someone asks with MAV_CMD_SET_MESSAGE_INTERVAL on that port; a
-# reboot forgets what was asked. ATTITUDE 30, GLOBAL_POSITION_INT 33, GIMBAL_MANAGER_STATUS 281,
-# GIMBAL_DEVICE_ATTITUDE_STATUS 285.
-WANTED_STREAMS_HZ = {30: 10.0, 33: 5.0, 281: 1.0, 285: 10.0}
-STREAM_STALE_S = 3.0  # a wanted message not heard for this long is asked for (again)
+# companion computer sits) until someone asks with MAV_CMD_SET_MESSAGE_INTERVAL on that port, and a
+# reboot forgets what was asked; PX4's onboard link sends GIMBAL_MANAGER_STATUS about every 2-3 s, too
+# slow to see a ground station take gimbal control. ATTITUDE 30, GLOBAL_POSITION_INT 33,
+# GIMBAL_MANAGER_STATUS 281, GIMBAL_DEVICE_ATTITUDE_STATUS 285.
+WANTED_STREAMS_HZ = {30: 10.0, 33: 5.0, 281: 5.0, 285: 10.0}
+STREAM_RETRY_S = 3.0  # at most one request per message per this many seconds
 
 
-def streams_to_request(heard_s: dict[int, float], asked_s: dict[int, float], now_s: float,
-                       stale_s: float = STREAM_STALE_S) -> list[int]:
+def stream_late_s(rate_hz: float) -> float:
+    """A wanted message not heard for this long (s) arrives too slowly or not at: three periods, >= 0.6 s."""
+    return max(0.6, 3.0 / rate_hz)
+
+
+def streams_to_request(heard_s: dict[int, float], asked_s: dict[int, float], now_s: float) -> list[int]:
     """Ids of WANTED_STREAMS_HZ to ask the autopilot for: not heard (heard_s: id -> last arrival,
-    time.monotonic() s) within stale_s, and not asked for (asked_s, same clock) within stale_s."""
-    return [msg_id for msg_id in WANTED_STREAMS_HZ
-            if now_s - heard_s.get(msg_id, -math.inf) > stale_s and now_s - asked_s.get(msg_id, -math.inf) > stale_s]
+    time.monotonic() s) within stream_late_s of its rate, and not asked for (asked_s, same clock) within
+    STREAM_RETRY_S. Only what is missing or slow is asked for: on a link shared with a ground station
+    (one autopilot port behind a router) a request sets the rate for both."""
+    return [msg_id for msg_id, hz in WANTED_STREAMS_HZ.items()
+            if now_s - heard_s.get(msg_id, -math.inf) > stream_late_s(hz)
+            and now_s - asked_s.get(msg_id, -math.inf) > STREAM_RETRY_S]

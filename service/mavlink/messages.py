@@ -14,7 +14,7 @@ from pymavlink.dialects.v20.common import (
     CAMERA_TRACKING_MODE_NONE, CAMERA_TRACKING_MODE_POINT, CAMERA_TRACKING_MODE_RECTANGLE,
     CAMERA_TRACKING_STATUS_FLAGS_ACTIVE, CAMERA_TRACKING_STATUS_FLAGS_COASTING, CAMERA_TRACKING_STATUS_FLAGS_ERROR,
     CAMERA_TRACKING_STATUS_FLAGS_IDLE, CAMERA_TRACKING_TARGET_DATA_IN_STATUS, GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME,
-    MAV_AUTOPILOT_INVALID, MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, MAV_FRAME_BODY_OFFSET_NED, MAV_STATE_ACTIVE,
+    MAV_AUTOPILOT_INVALID, MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE, MAV_FRAME_BODY_NED, MAV_STATE_ACTIVE,
     MAV_STATE_CRITICAL, MAV_TYPE_CAMERA,
 )
 
@@ -131,9 +131,11 @@ def gimbal_claim_px4(mav: object, target: tuple[int, int], own: tuple[int, int],
 
 
 def velocity_target(mav: object, target: tuple[int, int], time_boot_ms: int, setpoint: VelocitySetpoint) -> object:
-    """SET_POSITION_TARGET_LOCAL_NED (84), body frame, velocity + yaw rate only (type_mask 0x05C7)."""
+    """SET_POSITION_TARGET_LOCAL_NED (84), velocity + yaw rate only (type_mask 0x05C7), in MAV_FRAME_BODY_NED
+    (8): velocity along the vehicle's heading, level. Both autopilots take 8; PX4 refuses
+    MAV_FRAME_BODY_OFFSET_NED (9: "coordinate frame 9 unsupported", so OFFBOARD never engaged)."""
     return mav.set_position_target_local_ned_encode(  # type: ignore[attr-defined]
-        time_boot_ms, target[0], target[1], MAV_FRAME_BODY_OFFSET_NED, VELOCITY_YAW_RATE_TYPE_MASK,
+        time_boot_ms, target[0], target[1], MAV_FRAME_BODY_NED, VELOCITY_YAW_RATE_TYPE_MASK,
         0, 0, 0, setpoint.forward, setpoint.right, setpoint.down, 0, 0, 0, 0, setpoint.yaw_rate)
 
 

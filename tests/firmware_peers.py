@@ -90,7 +90,8 @@ class WireTap:
 
     The firmware sends (udpclient) to `firmware_port`; the tap forwards that to the daemon's udpin port
     `daemon_port` and the daemon's answers back to the firmware, each datagram as it came. Every message
-    from the daemon is parsed and kept in `from_daemon` (Recorder: message + arrival time)."""
+    from the daemon is parsed and kept in `from_daemon` (Recorder: message + arrival time), every one to
+    it in `to_daemon`."""
 
     def __init__(self, firmware_port: int, daemon_port: int) -> None:
         self.firmware_port, self.daemon_port = firmware_port, daemon_port
@@ -104,6 +105,9 @@ class WireTap:
         self.parser = dialect.MAVLink(None)
         self.parser.robust_parsing = True
         self.from_daemon = Recorder()
+        self.to_daemon = Recorder()  # what reached the daemon (parsed as it passed)
+        self._down_parser = dialect.MAVLink(None)
+        self._down_parser.robust_parsing = True
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=self._down, daemon=True), threading.Thread(target=self._up, daemon=True)]
 
@@ -128,6 +132,12 @@ class WireTap:
                 continue
             self.firmware_address = address  # a restarted firmware sends from a new port
             self.inner.sendto(data, ("127.0.0.1", self.daemon_port))
+            try:
+                for msg in self._down_parser.parse_buffer(data) or []:
+                    if msg.get_type() != "BAD_DATA":
+                        self.to_daemon.add(msg)
+            except Exception:  # noqa: BLE001 - forwarded anyway
+                pass
 
     def _up(self) -> None:
         """Daemon -> firmware, recorded."""

@@ -98,9 +98,9 @@ class VehicleConfig:
     gimbal_start_pitch_deg: float = -45.0
     # ArduCopter GUIDED: a velocity target older than 3 s is replaced by zero velocity (vehicle stops).
     ardupilot_guided_timeout_s: float = 3.0
-    # PX4 OFFBOARD: COM_OF_LOSS_T. PX4 documents 1 s by default on recent releases and 0.5 s on older
-    # ones; we take the stricter 0.5 s so a service that only passes the mock at 1 s fails here.
-    px4_offboard_loss_s: float = 0.5
+    # PX4 OFFBOARD: COM_OF_LOSS_T. PX4 SIH (main, 2025) left OFFBOARD 1.0 s after the last setpoint (was 0.5 s,
+    # the default of older releases, before the firmware was at hand).
+    px4_offboard_loss_s: float = 1.0
     # PX4 refuses to enter OFFBOARD unless setpoints have streamed (> 2 Hz) for about 1 s.
     px4_offboard_prestream_s: float = 1.0
     follow_distance_m: float = 15.0
@@ -241,6 +241,10 @@ class VehicleModel:
     def set_velocity(self, frame: int, type_mask: int, vx: float, vy: float, vz: float, yaw_rate: float,
                      now_s: float) -> str:
         """Apply a SET_POSITION_TARGET_LOCAL_NED velocity setpoint; returns the outcome for the record."""
+        if self.config.flavour == "px4" and frame == FRAME_BODY_OFFSET_NED:
+            # PX4 refuses it ("SET_POSITION_TARGET_LOCAL_NED coordinate frame 9 unsupported"): not a setpoint,
+            # and not part of the stream that lets the pilot engage OFFBOARD
+            return "ignored: PX4 does not take coordinate frame 9 (MAV_FRAME_BODY_OFFSET_NED)"
         self.setpoint_times.append(now_s)
         del self.setpoint_times[:-64]
         if not self.in_guidance_mode:
@@ -278,7 +282,9 @@ class VehicleModel:
             return "applied (unchanged)"
         if primary_sysid == -2:
             self.gimbal_primary = src
-        elif primary_sysid == -3:
+        elif primary_sysid == -3:  # release, only by the one in control (ArduCopter SITL ignores others')
+            if tuple(src) != self.gimbal_primary:
+                return "applied (unchanged: the sender is not in control)"
             self.gimbal_primary = (0, 0)
         else:
             self.gimbal_primary = (int(primary_sysid), int(primary_compid))
@@ -321,8 +327,9 @@ class VehicleModel:
         if vt is not None and self.time_s - vt.received_s > cfg.setpoint_timeout_s:
             self.velocity_target = None
             if cfg.flavour == "px4" and self.mode == "OFFBOARD":
-                # Offboard loss failsafe (COM_OBL_RC_ACT default): switch to Hold; the pilot must re-engage.
-                self._set_mode("HOLD", "offboard setpoint stream lost")
+                # Offboard loss failsafe: PX4 SIH switched to Position mode (POSCTL, "Failsafe activated") and
+                # held there (was Hold before the firmware was at hand); the pilot must re-engage.
+                self._set_mode("POSCTL", "offboard setpoint stream lost")
             else:
                 self.events.append((self.time_s, "guided setpoint timeout: stopping"))
         ft = self.follow_target

@@ -129,8 +129,8 @@ def test_recovered_after_occlusion_and_recentred(scenario):
 def test_link_drop_stops_guidance_within_firmware_timeout(scenario):
     records = scenario.result.records
     stop_by = DROP_START_S + scenario.timeout_s + 0.1
-    # The setpoint times out (ArduPilot: stops, stays GUIDED; PX4: failsafe to HOLD)...
-    expected = "guided setpoint timeout" if scenario.flavour == "ardupilot" else "mode OFFBOARD -> HOLD"
+    # The setpoint times out (ArduPilot: stops, stays GUIDED; PX4: failsafe to Position mode, as PX4 SIH)...
+    expected = "guided setpoint timeout" if scenario.flavour == "ardupilot" else "mode OFFBOARD -> POSCTL"
     event_times = [t for t, e in scenario.events if expected in e]
     assert event_times and DROP_START_S < event_times[0] <= stop_by, scenario.events
     # ... and the vehicle brakes to a stop (max_accel 4 m/s^2 from <= 5 m/s) before the link returns.
@@ -154,12 +154,12 @@ def test_link_drop_resumes_cleanly(scenario):
     if scenario.flavour == "ardupilot":
         assert any(c.outcome == "applied" for c in setpoints_after), "velocity guidance did not resume in GUIDED"
     else:
-        # PX4 stays in HOLD until the pilot re-engages OFFBOARD, which PX4 allows only while setpoints
+        # PX4 stays in POSCTL until the pilot re-engages OFFBOARD, which PX4 allows only while setpoints
         # stream; the daemon must never switch modes itself.
         # Compared on the model's own clock: the switch is stamped with model.time_s, which accumulates
         # frame steps and so sits a rounding error away from REENGAGE_S.
-        switches = [t for t, e in scenario.events if "HOLD -> OFFBOARD (operator)" in e]
-        assert switches, f"pilot could not re-engage OFFBOARD (no setpoint stream in HOLD?): {scenario.events}"
+        switches = [t for t, e in scenario.events if "POSCTL -> OFFBOARD (operator)" in e]
+        assert switches, f"pilot could not re-engage OFFBOARD (no setpoint stream in POSCTL?): {scenario.events}"
         reengaged_s = switches[0]
         assert abs(reengaged_s - REENGAGE_S) < 0.1
         assert not [c for c in setpoints_after if c.outcome == "applied" and c.time_s < reengaged_s]

@@ -65,13 +65,13 @@ def test_ardupilot_guided_stops_after_3_s_without_setpoint():
 def test_px4_offboard_fails_safe_and_refuses_reengage_without_stream():
     model = VehicleModel(VehicleConfig(flavour="px4"))
     model.set_velocity(1, BODY_VELOCITY_MASK, 4.0, 0.0, 0.0, 0.0, model.time_s)
-    step_for(model, 0.4)
+    step_for(model, 0.9)
     assert model.mode == "OFFBOARD"
     step_for(model, 0.2)
-    assert model.mode == "HOLD"
+    assert model.mode == "POSCTL"  # as PX4 SIH: Position mode 1 s after the last setpoint
     with pytest.raises(ValueError, match="setpoint stream"):
         model.operator_set_mode("OFFBOARD")
-    for _ in range(40):  # a 30 Hz stream for 1.3 s (ignored in HOLD, but counted for the switch)
+    for _ in range(40):  # a 30 Hz stream for 1.3 s (ignored in POSCTL, but counted for the switch)
         model.set_velocity(1, BODY_VELOCITY_MASK, 0.0, 0.0, 0.0, 0.0, model.time_s)
         model.step(DT)
     model.operator_set_mode("OFFBOARD")
@@ -756,3 +756,25 @@ def test_telemetry_waits_end_when_the_daemon_has_gone():
     assert results == [None]
     log.add(json.dumps({"frame_id": 5}).encode())
     assert log.wait_frame(5, 0.0)["frame_id"] == 5  # what did arrive is still returned
+
+
+def test_px4_refuses_body_offset_frame_setpoints_and_they_make_no_stream():
+    # PX4 SIH: "SET_POSITION_TARGET_LOCAL_NED coordinate frame 9 unsupported"; OFFBOARD then refused
+    model = VehicleModel(VehicleConfig(flavour="px4", start_mode="POSCTL"))
+    for _ in range(40):
+        assert model.set_velocity(9, BODY_VELOCITY_MASK, 0.0, 0.0, 0.0, 0.0, model.time_s).startswith("ignored")
+        model.step(DT)
+    with pytest.raises(ValueError, match="setpoint stream"):
+        model.operator_set_mode("OFFBOARD")
+    ardupilot = VehicleModel(VehicleConfig(flavour="ardupilot"))
+    assert ardupilot.set_velocity(9, BODY_VELOCITY_MASK, 1.0, 0.0, 0.0, 0.0, 0.0) == "applied"
+
+
+def test_gimbal_manager_release_only_by_the_controller():
+    # ArduCopter SITL: CONFIGURE -3 from a component not in control leaves the primary controller as it is
+    model = VehicleModel(VehicleConfig(flavour="ardupilot"))
+    model.configure_gimbal_manager(1, 100, (1, 100))
+    model.configure_gimbal_manager(-3, -3, (255, 190))
+    assert model.gimbal_primary == (1, 100)
+    model.configure_gimbal_manager(-3, -3, (1, 100))
+    assert model.gimbal_primary == (0, 0)

@@ -139,6 +139,9 @@ class GimbalConfig:
     integrator_limit_deg_s: float = _checked(15.0, _non_negative)  # |ki * integral| bound
     deadband_deg: float = _checked(0.0, _non_negative)
     claim_interval_s: float = _checked(1.0, _positive)  # px4: re-send the claim while not primary
+    # how GIMBAL_DEVICE_ATTITUDE_STATUS is to be read: "earth" (MAVLink's definition: roll and pitch against the
+    # horizon) or "body" (angles against the vehicle's body: ArduPilot's servo mount, MNT1_TYPE 1, reports so)
+    attitude_frame: Literal["earth", "body"] = "earth"
     # while lost: point at the target's predicted ground position for coast_s, then hold (control.coast)
     coast_s: float = _checked(3.0, _in_range(0.0, 10.0))  # 0 = hold at once (no coasting)
     coast_fit_s: float = _checked(1.0, _in_range(0.1, 5.0))  # confident history the rate is fitted on

@@ -11,6 +11,7 @@ monotonic clock, because they are about the service's own real time.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -24,7 +25,8 @@ from service.config import ServiceConfig
 from service.control.coast import (CoastParams, CoastState, Position, TrackHistory, camera_angles, coast_step,
                                    plan_coast, remember, start_coast)
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
-from service.control.geo import GroundTarget, camera_ray_ned, ground_px_per_m, locate_on_ground, relative_gimbal_yaw
+from service.control.geo import (GroundTarget, camera_ray_ned, gimbal_in_earth_frame, ground_px_per_m, locate_on_ground,
+                                 relative_gimbal_yaw)
 from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
 from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
 from service.domain import (AutopilotState, ControlCommand, LoopState, SelectionKind, StopTracking, TrackPoint,
@@ -152,7 +154,7 @@ class TrackingLoop:
         # One snapshot of the autopilot a frame, taken once the tracker is done (the newest state the control
         # can have): this frame's size sample, control and status, and with this frame's box the next
         # update's size bound.
-        view = self.view = self.autopilot()
+        view = self.view = self._mount_read(self.autopilot())
         confident = change == "started" or (result is not None and result.state == "tracking")
         if confident and self.box is not None:  # the selection, or a box the tracker is confident of
             self._remember_size(self.box, size, frame.capture_time_s, view)
@@ -299,6 +301,16 @@ class TrackingLoop:
         self.last_clock_reset = interval.reason if unexpected_reset else None
         self.last_stamp = stamp
         return self.nominal_dt_s if interval.dt_s is None else interval.dt_s
+
+    def _mount_read(self, view: AutopilotState) -> AutopilotState:
+        """The autopilot's snapshot with the mount's attitude as the geometry reads it: a body-frame report
+        (gimbal.attitude_frame: body) turned into the earth frame with the vehicle's attitude (without it, no
+        mount attitude: a body-frame angle alone is off by the vehicle's tilt, 10-20 degrees while it brakes)."""
+        if self.config.gimbal.attitude_frame == "earth" or view.gimbal is None:
+            return view
+        pose = view.pose()
+        gimbal = None if pose is None else gimbal_in_earth_frame(view.gimbal, pose.roll, pose.pitch, pose.yaw)
+        return dataclasses.replace(view, gimbal=gimbal)  # type: ignore[type-var]
 
     def _ground_px_per_m(self, box: tuple[float, float, float, float], size: tuple[int, int],
                          view: AutopilotState) -> float | None:

@@ -35,6 +35,7 @@ class GimbalAttitude:
     pitch: float
     yaw: float
     yaw_in_earth_frame: bool
+    roll: float = 0.0  # rad; as reported (kept for a body-frame report, see gimbal_in_earth_frame)
 
 
 @dataclass(frozen=True)
@@ -63,8 +64,27 @@ def quaternion_to_euler(q: tuple[float, float, float, float]) -> tuple[float, fl
 
 def gimbal_attitude_from_status(q: tuple[float, float, float, float], flags: int) -> GimbalAttitude:
     """GIMBAL_DEVICE_ATTITUDE_STATUS (q, flags) -> attitude; yaw is vehicle-relative unless flagged earth."""
-    _, pitch, yaw = quaternion_to_euler(q)
-    return GimbalAttitude(pitch, yaw, bool(flags & GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME))
+    roll, pitch, yaw = quaternion_to_euler(q)
+    return GimbalAttitude(pitch, yaw, bool(flags & GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME), roll)
+
+
+def euler_rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """3x3 rotation of Z-Y-X Euler angles (rad): the rotated frame's (forward, right, down) axes as columns."""
+    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw),
+                              math.sin(yaw))
+    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+                     [-sp, sr * cp, cr * cp]])
+
+
+def gimbal_in_earth_frame(gimbal: GimbalAttitude, roll: float, pitch: float, yaw: float) -> GimbalAttitude:
+    """A mount attitude reported against the vehicle's body (gimbal.attitude_frame: body; ArduPilot's servo
+    mount reports its servo angles so, whatever its flags say) -> the optical axis as geo reads a report:
+    earth-referenced pitch, yaw relative to the nose (rad). roll, pitch, yaw: the vehicle's (ATTITUDE, rad)."""
+    axis = (euler_rotation(roll, pitch, yaw) @ euler_rotation(gimbal.roll, gimbal.pitch, gimbal.yaw))[:, 0]
+    earth_pitch = math.asin(max(-1.0, min(1.0, -float(axis[2]))))
+    relative_yaw = math.atan2(float(axis[1]), float(axis[0])) - yaw
+    return GimbalAttitude(earth_pitch, math.atan2(math.sin(relative_yaw), math.cos(relative_yaw)), False)
 
 
 def relative_gimbal_yaw(gimbal: GimbalAttitude, vehicle_yaw: float | None) -> float | None:

@@ -32,7 +32,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (after MAVLINK20)
 
 from sim.vehicle_model import (ARDUCOPTER_MODES, FLAVOURS, PX4_MODES, ReceivedCommand,  # noqa: E402
-                               VehicleConfig, VehicleModel, wrap_pi)
+                               VehicleConfig, VehicleModel, VehicleSnapshot, mount_angles_in_body, wrap_pi)
 
 AUTOPILOT_COMPONENT = 1
 LINK_NAMES = ("service", "gcs")
@@ -148,6 +148,24 @@ class MockAutopilot:
         with self.lock:
             self.model.step(dt_s)
             self.changed.notify_all()
+
+    lockstep = True  # the model steps only when the caller says (sim.sitl_autopilot's firmware cannot)
+
+    def snapshot(self) -> VehicleSnapshot:
+        """The vehicle and gimbal state now (sim.vehicle_model.VehicleSnapshot), under the lock."""
+        with self.lock:
+            return self.model.snapshot()
+
+    @property
+    def events(self) -> list[tuple[float, str]]:
+        """The model's mode changes and failsafes: (model time s, text)."""
+        return self.model.events
+
+    def request_mode(self, mode: str) -> None:
+        """The pilot switches flight mode (ValueError where the firmware would refuse, e.g. PX4 OFFBOARD without
+        a setpoint stream)."""
+        with self.lock:
+            self.model.operator_set_mode(mode)
 
     def drop_link(self, seconds: float, links: Iterable[str] = ("service",)) -> None:
         """Drop all traffic both ways on `links` for `seconds` of the model's clock."""
@@ -404,13 +422,23 @@ class MockAutopilot:
         lat, lon = model.lat_lon_of(st.north, st.east)
         alt_rel = -st.down
         hdg = int(round(math.degrees(st.yaw) % 360 * 100)) % 36000
-        gimbal_q = euler_to_quaternion(0.0, st.gimbal_pitch, st.gimbal_yaw)  # yaw in the vehicle frame
+        if self.flavour == "ardupilot":
+            # ArduPilot's servo mount: its angles against the vehicle's body, flagged roll / pitch lock and yaw in
+            # the vehicle frame (44), as ArduCopter SITL with MNT1_TYPE 1 reports them
+            gimbal_q = euler_to_quaternion(*mount_angles_in_body((st.roll, st.pitch, st.yaw), st.gimbal_pitch,
+                                                                 st.gimbal_yaw))
+            gimbal_flags = (mavlink.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+                            | mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME)
+        else:
+            # PX4 (gimbal manager v2, no device): earth pitch, yaw relative to the nose, flags roll / pitch lock (12)
+            gimbal_q = euler_to_quaternion(0.0, st.gimbal_pitch, st.gimbal_yaw)
+            gimbal_flags = mavlink.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mavlink.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
         gpi = mavlink.MAVLink_global_position_int_message(
             t, int(lat * 1e7), int(lon * 1e7), int((model.config.home_alt_m + alt_rel) * 1000),
             int(alt_rel * 1000), int(st.v_north * 100), int(st.v_east * 100), int(st.v_down * 100), hdg)
-        att = mavlink.MAVLink_attitude_message(t, 0.0, 0.0, st.yaw, 0.0, 0.0, st.yaw_rate)
+        att = mavlink.MAVLink_attitude_message(t, st.roll, st.pitch, st.yaw, 0.0, 0.0, st.yaw_rate)
         gdas = mavlink.MAVLink_gimbal_device_attitude_status_message(
-            0, 0, t, mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME, gimbal_q, 0.0,
+            0, 0, t, gimbal_flags, gimbal_q, 0.0,
             st.gimbal_pitch_rate, st.gimbal_yaw_rate, 0, st.gimbal_yaw, NAN, 1)
         gms = mavlink.MAVLink_gimbal_manager_status_message(
             t, mavlink.GIMBAL_MANAGER_FLAGS_YAW_IN_VEHICLE_FRAME, 1, model.gimbal_primary[0],

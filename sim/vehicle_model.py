@@ -31,6 +31,7 @@ PX4_MODES = {"POSCTL": (3, 0), "OFFBOARD": (6, 0), "HOLD": (4, 3), "FOLLOW_TARGE
 IGNORE_VX, IGNORE_VY, IGNORE_VZ = 8, 16, 32
 IGNORE_YAW_RATE = 2048
 FRAME_LOCAL_NED, FRAME_BODY_NED, FRAME_BODY_OFFSET_NED = 1, 8, 9
+GRAVITY_M_S2 = 9.80665
 
 
 def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
@@ -71,6 +72,37 @@ def clamp(value: float, low: float, high: float) -> float:
     return min(max(value, low), high)
 
 
+def lean(accel_ne: tuple[float, float], velocity_ne: tuple[float, float], yaw: float,
+         drag_per_s: float) -> tuple[float, float]:
+    """(roll, pitch) rad of a multicopter whose thrust gives horizontal acceleration accel_ne (m/s/s) against
+    linear drag (drag_per_s * velocity, m/s): it tilts its thrust that way; pitch negative = nose down."""
+    a_n = accel_ne[0] + drag_per_s * velocity_ne[0]
+    a_e = accel_ne[1] + drag_per_s * velocity_ne[1]
+    forward = math.cos(yaw) * a_n + math.sin(yaw) * a_e
+    right = -math.sin(yaw) * a_n + math.cos(yaw) * a_e
+    return math.atan2(right, GRAVITY_M_S2), -math.atan2(forward, GRAVITY_M_S2)
+
+
+def rotation_zyx(roll: float, pitch: float, yaw: float) -> list[list[float]]:
+    """3x3 rotation (rows) of Z-Y-X Euler angles in rad: the rotated frame's (forward, right, down) axes as columns."""
+    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw),
+                              math.sin(yaw))
+    return [[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+            [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+            [-sp, sr * cp, cr * cp]]
+
+
+def mount_angles_in_body(vehicle_rpy: tuple[float, float, float], camera_pitch: float,
+                         camera_yaw: float) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) rad of a mount against the vehicle's body, for a camera held level at earth pitch
+    camera_pitch and yaw camera_yaw relative to the nose (rad): what ArduPilot's servo mount reports."""
+    roll, pitch, yaw = vehicle_rpy
+    v = rotation_zyx(roll, pitch, yaw)
+    c = rotation_zyx(0.0, camera_pitch, yaw + camera_yaw)
+    m = [[sum(v[k][i] * c[k][j] for k in range(3)) for j in range(3)] for i in range(3)]  # v^T c
+    return (math.atan2(m[2][1], m[2][2]), math.asin(max(-1.0, min(1.0, -m[2][0]))), math.atan2(m[1][0], m[0][0]))
+
+
 def approach(current: float, target: float, max_step: float) -> float:
     """Move `current` towards `target` by at most `max_step` (rate / acceleration limiting)."""
     return current + clamp(target - current, -max_step, max_step)
@@ -88,7 +120,12 @@ class VehicleConfig:
     start_altitude_m: float = 40.0  # above ground
     start_mode: str = ""  # "" = the firmware's guidance mode (GUIDED / OFFBOARD)
     max_speed_m_s: float = 12.0
-    max_accel_m_s2: float = 4.0
+    # ArduCopter GUIDED reached 1.7 m/s 1 s and 4.1 m/s 2 s after a 5 m/s velocity target (SITL, WPNAV_ACCEL
+    # 250 cm/s/s with jerk limiting); PX4's MPC_ACC_HOR is 3 m/s/s. Was 4.0 before the firmware was at hand.
+    max_accel_m_s2: float = 2.5
+    # The vehicle leans into its acceleration plus a drag term: ArduCopter SITL flew 4.8 m/s pitched 12 degrees
+    # nose down (tan 12.2 deg * g / 4.8 m/s = 0.44 /s) and leaned 19 degrees while speeding up.
+    drag_per_s: float = 0.44
     max_yaw_rate_deg_s: float = 90.0
     gimbal_max_rate_deg_s: float = 120.0
     gimbal_pitch_min_deg: float = -90.0
@@ -113,6 +150,8 @@ class VehicleConfig:
             raise ValueError(f"system_id must be 1..255, got {self.system_id}")
         if self.start_mode:
             custom_mode_of(self.flavour, self.start_mode)
+        if not self.drag_per_s >= 0:
+            raise ValueError(f"drag_per_s must be >= 0, got {self.drag_per_s}")
         for name in ("max_speed_m_s", "max_accel_m_s2", "max_yaw_rate_deg_s", "gimbal_max_rate_deg_s",
                      "ardupilot_guided_timeout_s", "px4_offboard_loss_s"):
             if not getattr(self, name) > 0:
@@ -136,10 +175,29 @@ class VehicleState:
     v_down: float = 0.0
     yaw: float = 0.0
     yaw_rate: float = 0.0
+    roll: float = 0.0  # rad, right side down positive: the lean into sideways acceleration and drag
+    pitch: float = 0.0  # rad, nose up positive: negative while speeding up forwards
     gimbal_pitch: float = math.radians(-45.0)
     gimbal_yaw: float = 0.0
     gimbal_pitch_rate: float = 0.0
     gimbal_yaw_rate: float = 0.0
+
+
+@dataclass(frozen=True)
+class VehicleSnapshot:
+    """What the closed loop renders and records, from the mock or from firmware: NED metres / m/s in the scene's
+    frame, vehicle yaw rad clockwise from north, gimbal pitch rad (earth frame) and yaw rad (vehicle frame), the
+    flight mode's name."""
+
+    north: float
+    east: float
+    down: float
+    yaw: float
+    gimbal_pitch: float
+    gimbal_yaw: float
+    v_north: float
+    v_east: float
+    mode: str
 
 
 @dataclass(frozen=True)
@@ -197,6 +255,12 @@ class VehicleModel:
             self.mode = self.config.start_mode or guidance_mode(self.config.flavour)
         self.state.down = -self.config.start_altitude_m
         self.state.gimbal_pitch = math.radians(self.config.gimbal_start_pitch_deg)
+
+    def snapshot(self) -> VehicleSnapshot:
+        """The state the closed loop renders and records (see VehicleSnapshot)."""
+        st = self.state
+        return VehicleSnapshot(st.north, st.east, st.down, st.yaw, st.gimbal_pitch, st.gimbal_yaw, st.v_north,
+                               st.v_east, self.mode)
 
     # ----- identity -----------------------------------------------------------------------------
     @property
@@ -310,8 +374,11 @@ class VehicleModel:
             target_n, target_e = target_n * cfg.max_speed_m_s / speed, target_e * cfg.max_speed_m_s / speed
         target_d = clamp(target_d, -3.0, 3.0)
         dv = cfg.max_accel_m_s2 * dt_s
+        v_north, v_east = st.v_north, st.v_east
         st.v_north = approach(st.v_north, target_n, dv)
         st.v_east = approach(st.v_east, target_e, dv)
+        st.roll, st.pitch = lean(((st.v_north - v_north) / dt_s, (st.v_east - v_east) / dt_s),
+                                 (st.v_north, st.v_east), st.yaw, cfg.drag_per_s)
         st.v_down = approach(st.v_down, target_d, dv)
         max_yaw_rate = math.radians(cfg.max_yaw_rate_deg_s)
         st.yaw_rate = clamp(target_yaw_rate, -max_yaw_rate, max_yaw_rate)

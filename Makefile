@@ -20,9 +20,11 @@ $(STAMP): pyproject.toml requirements-no-deps.txt jsar/features/_kernels.c
 	touch $(STAMP)
 
 # ARGS: the demo's options, e.g. make run ARGS="--flavour px4 --duration 60" (python -m sim.demo --help lists them)
+# AUTOPILOT=sitl: the real firmware (ArduCopter SITL; ARGS="--flavour px4" for PX4 SIH) instead of the mock
 ARGS ?=
+AUTOPILOT ?= mock
 run: $(STAMP)
-	$(PY) -m sim.demo $(ARGS)
+	$(PY) -m sim.demo --autopilot $(AUTOPILOT) $(ARGS)
 
 # JSAR-Re's closed-loop and headline tests check outcomes of a chain of threshold decisions, which the
 # rounding of OpenBLAS's CPU kernels can change (docs/results-tracker.md, "Reproducibility"): on x86-64 the

@@ -82,6 +82,12 @@ class ClosedLoopConfig:
     """One run. Times are simulated seconds from the first frame."""
 
     flavour: str = "ardupilot"
+    # "mock": sim.autopilot's model, stepped by the loop (lockstep possible); "firmware": ArduCopter SITL / PX4 SIH
+    # (sim.sitl_autopilot) flying in real time, the scene rendered from what it reports
+    autopilot: str = "mock"
+    # firmware: its simulation's speed over real time during the run (ArduPilot SIM_SPEEDUP; PX4
+    # PX4_SIM_SPEED_FACTOR, from boot); below 1 lets a loaded machine keep up, frames follow the firmware's clock
+    speedup: float = 1.0
     duration_s: float = 20.0
     fps: float = 30.0
     pace: Pace = "lockstep"
@@ -114,6 +120,13 @@ class ClosedLoopConfig:
     def __post_init__(self) -> None:
         if self.flavour not in ("ardupilot", "px4"):
             raise ValueError(f"flavour must be ardupilot or px4, got {self.flavour!r}")
+        if not 0.05 <= self.speedup <= 10.0:
+            raise ValueError(f"speedup must be in 0.05..10, got {self.speedup}")
+        if self.autopilot not in ("mock", "firmware"):
+            raise ValueError(f"autopilot must be mock or firmware, got {self.autopilot!r}")
+        if self.autopilot == "firmware" and (self.pace != "realtime" or self.link_drops):
+            raise ValueError("autopilot firmware runs on its own clock: pace must be realtime, and link_drops "
+                             "(simulated by the mock) must be empty")
         if self.pace not in ("lockstep", "realtime"):
             raise ValueError(f"pace must be lockstep or realtime, got {self.pace!r}")
         if self.guidance not in ("off", "velocity", "follow_target"):
@@ -190,6 +203,7 @@ class RunResult:
     # frames sent before the run (daemon start-up, camera discovery, the selection): the daemon processed and
     # counted them too, so its `frames` counter is startup_frames + the run frames it answered
     startup_frames: int = 0
+    skipped_frames: int = 0  # firmware, real time: frames not rendered because the loop ran more than a frame late
 
     def centring_ratio(self, exclude: tuple[tuple[float, float], ...] = ()) -> float:
         """Fraction of visible frames with the car in the central 20 %, outside the `exclude` windows."""
@@ -272,7 +286,8 @@ class RunResult:
                 "wall_s": round(self.wall_s, 2),
                 "sent_fps": round(len(self.records) / max(self.wall_s, 1e-9), 1),
                 "processed_fps": round(sum(r.state is not None for r in self.records) / max(self.wall_s, 1e-9), 1),
-                "dropped_frames": self.dropped_frames, "gimbal_command_timeouts": self.gimbal_command_timeouts,
+                "dropped_frames": self.dropped_frames, "skipped_frames": self.skipped_frames,
+                "gimbal_command_timeouts": self.gimbal_command_timeouts,
                 "lost": lost, "recovered": recovered,
                 "false_lock_frames": sum(r.reports_track and r.box_off_car() for r in self.records),
                 "false_lock_first_s": round(false_locks[0][0], 2) if false_locks else None,
@@ -293,7 +308,9 @@ def daemon_overrides(cfg: ClosedLoopConfig, zenoh_port: int) -> dict[str, Any]:
     overrides: dict[str, Any] = {
         "source": {"kind": "zenoh"},
         "camera": {"hfov_deg": cfg.camera.hfov_deg},
-        "gimbal": {"backend": cfg.flavour},
+        # ArduPilot's servo mount reports its angles against the vehicle's body (docs/sim.md, mock versus firmware);
+        # the mock's ArduPilot flavour does the same
+        "gimbal": {"backend": cfg.flavour, "attitude_frame": "body" if cfg.flavour == "ardupilot" else "earth"},
         "guidance": {"mode": cfg.guidance},
         "zenoh": {"enabled": True, "mode": "peer", "listen": [],
                   "connect": [f"tcp/127.0.0.1:{zenoh_port}", *cfg.zenoh_connect],
@@ -381,12 +398,24 @@ class ClosedLoop:
         self.service_port, self.gcs_port = free_port(2), free_port(2)  # SOCK_DGRAM
         self.zenoh_port = free_port(1)  # SOCK_STREAM
         self.scene = Scene(cfg.scene, cfg.camera) if world is None else world
-        # The daemon's config first (it opens nothing): a failure here leaves no socket or session behind.
-        self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
-                             f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
-        self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
-                                                     start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
-                                       self.service_port, self.gcs_port)
+        if cfg.autopilot == "firmware":
+            from sim.sitl_autopilot import SitlAutopilot
+            # opens nothing yet (an instance number's lock file and a temporary folder, freed by close)
+            self.autopilot: Any = SitlAutopilot(cfg.flavour, self.gcs_port, cfg.altitude_m,
+                                                reengage_offboard=cfg.guidance != "off", speedup=cfg.speedup)
+            try:
+                self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port), self.autopilot.service_url,
+                                     cfg.daemon_module)
+            except BaseException:
+                self.autopilot.close()
+                raise
+        else:
+            # The daemon's config first (it opens nothing): a failure here leaves no socket or session behind.
+            self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
+                                 f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
+            self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
+                                                         start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
+                                           self.service_port, self.gcs_port)
         try:
             self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",),
                                                    prefix=cfg.zenoh_prefix))
@@ -451,14 +480,13 @@ class ClosedLoop:
         self.close()
 
     # ----- pieces -------------------------------------------------------------------------------
-    def camera_pose(self):
-        st = self.autopilot.model.state
-        return pose_from_vehicle(st.north, st.east, st.down, st.yaw, st.gimbal_pitch, st.gimbal_yaw)
+    def camera_pose(self) -> CameraPose:
+        """The camera's pose from the autopilot side's vehicle and gimbal state now (mock or firmware)."""
+        s = self.autopilot.snapshot()
+        return pose_from_vehicle(s.north, s.east, s.down, s.yaw, s.gimbal_pitch, s.gimbal_yaw)
 
     def render(self, t: float) -> tuple[np.ndarray, GroundTruth]:
-        with self.autopilot.lock:
-            pose = self.camera_pose()
-        return self.scene.render(pose, t)
+        return self.scene.render(self.camera_pose(), t)
 
     def publish(self, frame: np.ndarray, run_time_s: float | None = None) -> int:
         """Send a frame stamped on the sim clock: run_time_s (simulated s after the init frame) for run
@@ -475,7 +503,10 @@ class ClosedLoop:
         return self.frame_id
 
     def gimbal_outputs(self) -> int:
-        """How many gimbal commands (or PX4 gimbal claims) the daemon's component has sent the mock."""
+        """How many gimbal commands (or PX4 gimbal claims) the daemon's component has sent the mock (0 with
+        firmware, which does not say: it is never lockstep)."""
+        if not self.autopilot.lockstep:
+            return 0
         counts = self.autopilot.stats.received_by_source
         return sum(counts[key] for key in GIMBAL_OUTPUT_KEYS)
 
@@ -561,34 +592,43 @@ class ClosedLoop:
         drops = sorted(cfg.link_drops)
         modes = sorted(cfg.operator_modes)
         next_rss = 0.0
+        skipped = 0
         # the init frame's command acts for one frame period, like every run frame's
         self.autopilot.step(dt)
         if cfg.pace == "lockstep":
             self.autopilot.send_state_now()
         start_wall = time.monotonic()
+        firmware_start = self.autopilot.firmware_time_s() if not self.autopilot.lockstep else 0.0
         for k in range(frames):
             t = (k + 1) * dt  # simulated time after the init frame
             while drops and drops[0][0] <= t:
                 self.autopilot.drop_link(drops.pop(0)[1])
             while modes and modes[0][0] <= t:
                 mode = modes.pop(0)[1]
-                with self.autopilot.lock:
-                    try:
-                        self.autopilot.model.operator_set_mode(mode)
-                    except ValueError as exc:
-                        self.autopilot.model.events.append((t, f"operator switch to {mode} refused: {exc}"))
+                try:
+                    self.autopilot.request_mode(mode)
+                except ValueError as exc:
+                    with self.autopilot.lock:
+                        self.autopilot.events.append((t, f"operator switch to {mode} refused: {exc}"))
             if t >= next_rss and self.daemon.alive():
                 rss.append((t, self.daemon.rss_kib()))
                 cpu.append((t, self.daemon.cpu_s()))
                 next_rss += cfg.rss_every_s
-            frame, truth = self.render(t)
+            if not self.autopilot.lockstep:
+                # firmware: frames keep to the firmware's own clock (real time, or cfg.speedup times it); a frame
+                # the loop is more than a frame late for is dropped, as a real camera's would be
+                if self.autopilot.firmware_time_s() - firmware_start > t + dt:
+                    skipped += 1
+                    continue
+                self.autopilot.wait_firmware_time(firmware_start + t, 5.0 * dt / cfg.speedup + 1.0)
+            snap = self.autopilot.snapshot()
+            frame, truth = self.scene.render(pose_from_vehicle(snap.north, snap.east, snap.down, snap.yaw,
+                                                               snap.gimbal_pitch, snap.gimbal_yaw), t)
             gimbal_before = self.gimbal_outputs()
             frame_id = self.publish(frame, t)
-            with self.autopilot.lock:
-                st, model = self.autopilot.model.state, self.autopilot.model
-                record = FrameRecord(frame_id, t, truth, None, None, None, (st.north, st.east),
-                                     math.hypot(st.v_north, st.v_east), model.mode,
-                                     self.autopilot.link_is_down("service"))
+            record = FrameRecord(frame_id, t, truth, None, None, None, (snap.north, snap.east),
+                                 math.hypot(snap.v_north, snap.v_east), snap.mode,
+                                 self.autopilot.link_is_down("service"))
             if cfg.pace == "lockstep":
                 sample = self.camera.telemetry.wait_frame(frame_id, cfg.telemetry_timeout_s)
                 if sample is not None and int(sample["frame_id"]) == frame_id:
@@ -607,7 +647,7 @@ class ClosedLoop:
             else:
                 pending.append((frame_id, record, frame if writer is not None else None))
                 self._collect(pending, records, writer, final=False)
-                delay = start_wall + (k + 1) * dt - time.monotonic()
+                delay = start_wall + (k + 1) * dt - time.monotonic() if self.autopilot.lockstep else 0.0
                 if delay > 0:
                     self.camera.telemetry.wait_frame(frame_id, delay)  # pacing; returns early on telemetry
                     remaining = start_wall + (k + 1) * dt - time.monotonic()
@@ -632,7 +672,7 @@ class ClosedLoop:
                          int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
                          self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
                          selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []), cpu,
-                         startup_frames)
+                         startup_frames, skipped)
 
     def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
                  final: bool) -> None:

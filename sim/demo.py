@@ -7,6 +7,7 @@ prints to watch the video with the track, click on the car to select it again, E
 
     python -m sim.demo                                  # closed loop, ArduPilot flavour, real time
     python -m sim.demo --flavour px4 --guidance velocity
+    python -m sim.demo --autopilot sitl --flavour px4   # real firmware: PX4 SIH (ArduCopter SITL for ardupilot)
     python -m sim.demo --replay UAVDT_S0310             # a shared sequence from $JSAR_DATA_ROOT
     python -m sim.demo --coast-s 0                      # hold the gimbal at once when lost (no coasting)
     python -m sim.demo --duration 600 --web-port 8081   # ten minutes to click around, page on port 8081
@@ -90,21 +91,32 @@ def web_station(args: argparse.Namespace, loop: ClosedLoop, daemon_zenoh_port: i
 
 
 def run_closed_loop(args: argparse.Namespace) -> int:
-    video = OUT_DIR / f"demo_closed_loop_{args.flavour}.avi"
+    video = OUT_DIR / f"demo_closed_loop_{args.flavour}{'_sitl' if args.autopilot == 'sitl' else ''}.avi"
     overrides = {"gimbal": {"coast_s": args.coast_s}} if args.coast_s is not None else {}
     web_zenoh_port = free_port(1)
     overrides = deep_merge(overrides, daemon_listen(web_zenoh_port))
-    cfg = ClosedLoopConfig(flavour=args.flavour, duration_s=args.duration, pace=args.pace,
+    firmware = args.autopilot == "sitl"
+    if firmware and args.pace != "realtime":
+        raise SystemExit("--autopilot sitl: the firmware flies in real time; --pace lockstep is for the mock")
+    if firmware:
+        from sim.sitl_autopilot import firmware_unavailable
+        missing = firmware_unavailable(args.flavour)
+        if missing:
+            raise SystemExit(f"--autopilot sitl: {missing}")
+    cfg = ClosedLoopConfig(flavour=args.flavour, autopilot="firmware" if firmware else "mock",
+                           speedup=args.sitl_speed, duration_s=args.duration, pace=args.pace,
                            guidance=args.guidance, tracker=args.tracker, scene=SceneConfig(seed=args.seed),
                            video_path=video, daemon_overrides=overrides)
-    print(f"closed loop: mock {args.flavour} autopilot, synthetic scene (seed {args.seed}), daemon with "
+    autopilot = (f"{'ArduCopter SITL' if args.flavour == 'ardupilot' else 'PX4 SIH'} (real firmware; start-up, arming "
+                 "and take-off take 10-30 s)") if firmware else f"mock {args.flavour} autopilot"
+    print(f"closed loop: {autopilot}, synthetic scene (seed {args.seed}), daemon with "
           f"guidance {args.guidance}, {args.pace} pacing, {args.duration:.0f} s", flush=True)
     with ClosedLoop(cfg) as loop, web_station(args, loop, web_zenoh_port) as station:
         print(f"ground texture: {loop.scene.texture_source}; selecting the car through the mavsdk ground station",
               flush=True)
         result = loop.run(live=True)
         summary = result.summary()
-        summary["autopilot_events"] = "; ".join(e for _, e in loop.autopilot.model.events[-5:]) or "none"
+        summary["autopilot_events"] = "; ".join(e for _, e in loop.autopilot.events[-5:]) or "none"
         summary["annotated_video"] = str(video.relative_to(OUT_DIR.parent))
         print_summary("closed loop summary", summary, {"counters": result.counters, "mavlink_refusals": result.refusals})
         return print_ending(station, verdict(result))
@@ -167,6 +179,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.demo", description=__doc__.splitlines()[0],
                                      epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--flavour", choices=("ardupilot", "px4"), default="ardupilot")
+    parser.add_argument("--autopilot", choices=("mock", "sitl"), default="mock",
+                        help="mock: the project's mock autopilot (fast, lockstep possible); sitl: the real firmware "
+                             "of --flavour, ArduCopter SITL or PX4 SIH from $JSAR_SITL_ROOT (default ../shared/sitl), "
+                             "in real time")
+    parser.add_argument("--sitl-speed", type=float, default=1.0,
+                        help="--autopilot sitl: the firmware's simulation speed over real time during the run (below 1 "
+                             "lets a busy machine keep up; frames follow the firmware's clock)")
     parser.add_argument("--duration", type=float, default=30.0, help="seconds (simulated in lockstep)")
     parser.add_argument("--pace", choices=("realtime", "lockstep"), default="realtime")
     parser.add_argument("--guidance", choices=("off", "velocity", "follow_target"), default="velocity")

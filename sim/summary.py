@@ -42,6 +42,8 @@ RUN_MEANINGS = {
     "sent_fps": "frames sent per wall-clock second",
     "processed_fps": "frames answered per wall-clock second",
     "dropped_frames": "frames the daemon skipped because a newer one had arrived (it keeps only the latest)",
+    "skipped_frames": "real-time frames on the firmware not rendered because the sim was more than a frame late "
+                      "(the firmware flies on regardless; 0 with the mock)",
     "gimbal_command_timeouts": "lockstep frames stepped without the daemon's gimbal command (should be 0)",
     "lost": "times the track was declared lost",
     "recovered": "times a lost track came back",
@@ -64,7 +66,8 @@ RUN_MEANINGS = {
     "frames_processed": "frames of the recording the daemon answered with telemetry",
     "send_fps": "frames sent per wall-clock second",
     "centre_error_px_median": "pixels from the box's centre to the ground truth's centre, median",
-    "autopilot_events": "the mock autopilot's last events (mode changes, link drops)",
+    "autopilot_events": "the autopilot's last events (mock: mode changes, link drops; firmware: mode changes, its "
+                        "messages)",
     "annotated_video": "the video with the car, the track and a colour legend drawn on it",
 }
 

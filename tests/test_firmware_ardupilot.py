@@ -147,6 +147,9 @@ def _no_angle_rate_mix(tap: WireTap) -> None:
         assert not (quaternion and rates), msg
 
 
+pytestmark = pytest.mark.slow  # real firmware processes, 10-30 s a test
+
+
 @pytest.fixture(autouse=True)
 def _firmware() -> Iterator[None]:
     require_firmware("arducopter")

@@ -34,6 +34,9 @@ MAVPROXY = Path(os.environ.get("JSAR_MAVPROXY", REPO / ".venv-mavproxy" / "bin" 
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 
 
+pytestmark = pytest.mark.slow  # real firmware processes, 10-30 s a test
+
+
 @pytest.fixture(autouse=True)
 def _firmware_and_mavproxy() -> Iterator[None]:
     require_firmware("arducopter")

@@ -23,11 +23,11 @@ class JsarParams:
     takes the best grid cell) and `size_learning_rate` 0.03 (original 0.014). The label is nearly
     flat over the grid (sigma 5.4 of 13 cells), so the best cell stays the centre until the target
     has changed by about half a step, while the model meanwhile learns the wrong size. In the PX4
-    closed loop (README "Sim harness") a car that shrank while turning kept a box of 2.8x its area
+    closed loop (docs/sim.md, "Tests") a car that shrank while turning kept a box of 2.8x its area
     and was declared lost in plain view; with both changes the box follows it and the four PX4
     tracking checks pass. The learning rate alone did not fix that run; sub-cell alone lowered
-    jsar-re's mean AUC on the shared sequences (README "Size filter" has the numbers). Costs one
-    fresh grid sample per frame: after a fractional step no cell of the old grid is reusable.
+    jsar-re's mean AUC on the shared sequences (docs/results-tracker.md, "Size filter: sub-cell estimate").
+    Costs one fresh grid sample per frame: after a fractional step no cell of the old grid is reusable.
 
     `size_deadband_cells` (default 0: off) ignores a sub-cell offset smaller than this many grid cells
     per axis; 0.5 = move only when the best cell is not the centre, then by the refined amount. The

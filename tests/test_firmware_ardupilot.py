@@ -17,6 +17,8 @@ import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 
+from service.control.geo import GroundTarget  # noqa: E402
+from service.mavlink.messages import follow_target  # noqa: E402
 from sim.firmware import COPTER_BRAKE, COPTER_GUIDED, ArduPilotSitl, connect, euler_deg  # noqa: E402
 from tests.firmware_peers import (FRAME_SIZE, SET_INTERVAL, STOP_TRACKING, TARGET_PX, TRACK_RECTANGLE,  # noqa: E402
                                   DaemonProcess, FramePump, Station, WireTap, free_port, free_tcp_port,
@@ -25,13 +27,15 @@ from tests.firmware_peers import (FRAME_SIZE, SET_INTERVAL, STOP_TRACKING, TARGE
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 HFOV_DEG = 70.0  # config.yaml's camera.hfov_deg
 GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS, TRACKING_IMAGE_STATUS = 285, 281, 275
+COPTER_FOLLOW = 23
 
 
 class Rig:
     """SITL + ground station + tap + camera frames + daemon, as one context."""
 
-    def __init__(self, tmp_path: Path, overrides: dict[str, Any], speedup: float = 1.0, links: int = 2) -> None:
-        self.firmware = ArduPilotSitl(speedup=speedup, links=links)
+    def __init__(self, tmp_path: Path, overrides: dict[str, Any], speedup: float = 1.0, links: int = 2,
+                 params: dict[str, float] | None = None) -> None:
+        self.firmware = ArduPilotSitl(speedup=speedup, links=links, params=params)
         self.tmp_path, self.overrides = tmp_path, overrides
 
     def __enter__(self) -> "Rig":
@@ -200,10 +204,13 @@ def _bearing_to_target_deg() -> float:
     return math.degrees(math.atan((TARGET_PX[0] - FRAME_SIZE[0] / 2) / focal_px))
 
 
-def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_loss(tmp_path: Path) -> None:
+def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_loss_and_follow_ignores_the_camera(tmp_path: Path) -> None:
     overrides = {"gimbal": {"backend": "none", "coast_s": 0.0},  # the mount stays where ArduPilot holds it
                  "guidance": {"mode": "velocity", "yaw_gain": 0.2, "follow_distance_m": 5.0}}
-    with Rig(tmp_path, overrides, speedup=10, links=3) as rig:
+    # FOLLOW set up for the end of the test: a fixed offset 5 m south of the target (a zero offset would be
+    # taken from where the vehicle is when FOLLOW starts, and it would not move)
+    follow = {"FOLL_ENABLE": 1, "FOLL_SYSID": 0, "FOLL_OFS_TYPE": 0, "FOLL_OFS_X": -5}
+    with Rig(tmp_path, overrides, speedup=10, links=3, params=follow) as rig:
         # the pilot: GUIDED, arm, take off to 10 m at 10 x real time (the 30-40 s position-estimate wait
         # takes a few seconds), then real time for the daemon
         pilot = connect(rig.firmware.extra_urls[0])
@@ -263,6 +270,29 @@ def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_
         beat = rig.gcs.wait(lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1, 3.0,
                             time.monotonic())
         assert beat.custom_mode == COPTER_GUIDED
+
+        # FOLLOW (guidance.mode follow_target): ArduPilot ignores FOLLOW_TARGET from its own system id, the
+        # camera's, and follows the same message from another system. The daemon's own message (its
+        # builder), 20 m north of the vehicle, sent as the camera (1/100) and then as system 7
+        rig.stream_to_gcs(33, 10)  # GLOBAL_POSITION_INT
+        here = rig.gcs.latest("GLOBAL_POSITION_INT", AUTOPILOT)
+        target = GroundTarget(here.lat / 1e7 + 20.0 / 111_111.0, here.lon / 1e7, here.alt / 1000.0, 20.0, 0.0)
+        rig.set_mode(COPTER_FOLLOW)
+        moved = {}
+        for identity in (CAMERA, (7, 100)):
+            sender = Station(rig.firmware.extra_urls[0], *identity).start()
+            try:
+                assert sender.wait(lambda m: m.get_type() == "HEARTBEAT", 5.0) is not None
+                before = rig.position()
+                end = time.monotonic() + 4.0
+                while time.monotonic() < end:  # at 10 Hz, as the daemon's guidance.rate_hz
+                    sender.send(lambda mav: follow_target(mav, int(time.monotonic() * 1000) & 0xFFFFFFFF, target))
+                    sender.wait(lambda m: False, 0.1)
+                after = rig.position()
+            finally:
+                sender.close()
+            moved[identity] = after.x - before.x
+        assert abs(moved[CAMERA]) < 0.5 and moved[(7, 100)] > 3.0, moved
 
 
 def test_gimbal_manager_handshake_as_ardupilot_does_it(tmp_path: Path) -> None:

@@ -831,3 +831,18 @@ def test_ardupilot_backend_stops_its_rates_once_when_a_ground_station_takes_cont
     views["now"] = AutopilotView(system_id=1, gimbal_primary=(0, 0))  # released
     outputs.apply(4.0, TRACKING)
     assert [m.get_type() for m in link.sent[-2:]] == ["COMMAND_LONG", "GIMBAL_MANAGER_SET_PITCHYAW"]
+
+
+def test_follow_target_with_ardupilot_warns_once_that_its_follow_mode_ignores_the_cameras_system_id(caplog) -> None:
+    # ArduCopter SITL (tests/test_firmware_ardupilot.py): FOLLOW ignores FOLLOW_TARGET from its own system id
+    from service.control.geo import GroundTarget
+    ground = GroundTarget(lat_deg=47.1, lon_deg=8.2, alt_amsl_m=500.0, ground_range_m=20.0, bearing_rad=0.3)
+    view = AutopilotView(system_id=1, autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    outputs, link = _outputs({"guidance": {"mode": "follow_target", "rate_hz": 10.0}}, view)
+    with caplog.at_level("WARNING", logger="service.control"):
+        for i in range(3):
+            outputs.apply(1.0 + i, ControlCommand(state=LoopState.TRACKING, rates=(0.0, 0.0), bearing=0.1,
+                                                  ground=ground, frame_time_s=50.0 + i))
+    assert [r.message for r in caplog.records].count(next(
+        r.message for r in caplog.records if "event=follow_target_ignored" in r.message)) == 1
+    assert len([m for m in link.sent if m.get_type() == "FOLLOW_TARGET"]) == 3  # still sent: the setting is the operator's

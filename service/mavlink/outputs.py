@@ -5,6 +5,10 @@ guidance.rate_hz on the frames' capture clock (see `_due`); velocity mode comman
 stops. With PX4 outside OFFBOARD, zero-velocity setpoints stream while tracking, because PX4 only
 lets the pilot engage OFFBOARD while a setpoint stream exists (and ignores it in other modes). follow_target sends FOLLOW_TARGET only while there is a ground estimate of a tracked target
 (when it stops, the autopilot's follow timeout holds the vehicle). Never arms, never changes modes.
+Once the autopilot has been heard, nothing at all goes out while its heartbeat is lost (older than
+mavlink.heartbeat_timeout_s): gimbal rates, claims and guidance are held (counted as `held`, logged
+once as event=commands_held) and resume with the next command after the heartbeat returns
+(event=commands_resumed).
 """
 from __future__ import annotations
 
@@ -12,7 +16,7 @@ import logging
 from dataclasses import dataclass
 from typing import Callable
 
-from pymavlink.dialects.v20.common import MAV_AUTOPILOT_PX4, MAV_COMP_ID_AUTOPILOT1
+from pymavlink.dialects.v20.common import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4, MAV_COMP_ID_AUTOPILOT1
 
 from service.config import ServiceConfig
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
@@ -65,11 +69,14 @@ class MavlinkOutputs:
         self._last_claim_s: float | None = None
         self._last_guidance_frame_s: float | None = None  # capture time of the last guidance frame
         self._guidance_was_allowed = False
+        self._follow_warned = False  # the follow_target-with-ArduPilot warning is logged once
         self._was_tracking = False  # the previous gimbal command was for a track (a new track resets the next two)
         self._had_control = False  # GIMBAL_MANAGER_STATUS named us primary during the current track
         self._claimed_over: tuple[int, int] | None = None  # who was primary when we last claimed in this track
         self._yielded_to: tuple[int, int] | None = None  # who took gimbal control from us during this track
-        self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0, "px4_prestream": 0}
+        self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0, "px4_prestream": 0,
+                         "held": 0}
+        self._held_since: float | None = None  # time.monotonic() s of the first command held in this silence
 
     def apply(self, now_s: float, command: ControlCommand) -> None:
         """Send what `command` asks for; now_s: time.monotonic(), for heartbeat age and gimbal claims."""
@@ -77,6 +84,8 @@ class MavlinkOutputs:
         system_id = view.system_id or self.config.mavlink.system_id
         if not system_id:
             return  # no autopilot heard and none configured: nobody to command yet
+        if self._hold_while_silent(now_s, view, command):
+            return
         target = (system_id, MAV_COMP_ID_AUTOPILOT1)
         # guidance first, the gimbal command last: whoever sees a frame's gimbal command (a lockstep
         # simulator stepping its model on it) has its setpoint too; on a real link the order of two
@@ -88,6 +97,25 @@ class MavlinkOutputs:
             self._follow(command)
         if command.rates is not None:
             self._gimbal(now_s, view, target, command.rates, tracking=command.state != LoopState.IDLE)
+
+    def _hold_while_silent(self, now_s: float, view: AutopilotView, command: ControlCommand) -> bool:
+        """True (the command is held, not sent) while an autopilot heard before is silent: a rate or a
+        setpoint sent into a dead link is either lost or, worse, acted on late when it comes back, and an
+        open loop's commands are stale by then. Logs the start and the end of each hold once."""
+        silent = view.last_heartbeat_s is not None and not view.alive(now_s, self.config.mavlink.heartbeat_timeout_s)
+        if silent:
+            if self._held_since is None:
+                self._held_since = now_s
+                log.warning("event=commands_held reason=autopilot_heartbeat_lost timeout_s=%.1f state=%s "
+                            "detail=\"no gimbal or guidance command is sent until its heartbeat returns\"",
+                            self.config.mavlink.heartbeat_timeout_s, command.state)
+            self.counters["held"] += 1
+            return True
+        if self._held_since is not None:
+            log.info("event=commands_resumed held_s=%.2f held=%d state=%s", now_s - self._held_since,
+                     self.counters["held"], command.state)
+            self._held_since = None
+        return False
 
     # --- gimbal -------------------------------------------------------------------------------
     def _gimbal(self, now_s: float, view: AutopilotView, target: tuple[int, int], rates: tuple[float, float],
@@ -192,6 +220,12 @@ class MavlinkOutputs:
     def _follow(self, command: ControlCommand) -> None:
         if command.state not in (LoopState.TRACKING, LoopState.RECOVERED) or command.ground is None:
             return
+        if not self._follow_warned and self.autopilot().autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
+            # ArduCopter SITL: AP_Follow skips messages from its own system id, and the camera must share the
+            # vehicle's (ground stations look for cameras there): FOLLOW never moves on our FOLLOW_TARGET
+            log.warning("event=follow_target_ignored autopilot=ardupilot detail=\"ArduPilot's FOLLOW mode ignores "
+                        "FOLLOW_TARGET from its own system id, which this camera uses; use guidance.mode velocity\"")
+            self._follow_warned = True
         if not self._due(command, force=False):
             return
         self.link.send(messages.follow_target(self.link.mav, self.time_boot_ms(), command.ground))  # type: ignore[attr-defined]

@@ -27,6 +27,11 @@ API (stable; the firmware tests and the closed loop use it):
   `PX4_SIM_SPEED_FACTOR`.
 - `restart()`: stop and start the same instance again (same working directory, parameters and ports):
   an autopilot reboot as a ground station sees it.
+- Things the firmware does that a caller must know (docs/sim.md, "Mock versus firmware"): a pymavlink
+  udpin link sends nothing before it has heard the firmware (wait for a heartbeat first); ArduPilot sends
+  no telemetry on a port until asked (`set_message_interval`), and a request in its first ~3 s is
+  acknowledged but not acted on; PX4 boots in about 5 s. PX4's px4/bin holds its command links as
+  3-byte files (a copy of symlinks): a bin/ of real links in the working directory goes first on PATH.
 """
 from __future__ import annotations
 

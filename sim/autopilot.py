@@ -408,8 +408,8 @@ class MockAutopilot:
         caps = (mavlink.GIMBAL_MANAGER_CAP_FLAGS_HAS_PITCH_AXIS | mavlink.GIMBAL_MANAGER_CAP_FLAGS_HAS_YAW_AXIS
                 | mavlink.GIMBAL_MANAGER_CAP_FLAGS_HAS_PITCH_FOLLOW | mavlink.GIMBAL_MANAGER_CAP_FLAGS_HAS_YAW_FOLLOW)
         return mavlink.MAVLink_gimbal_manager_information_message(
-            self._time_boot_ms(), caps, 1, 0.0, 0.0, math.radians(cfg.gimbal_pitch_min_deg),
-            math.radians(cfg.gimbal_pitch_max_deg), math.radians(cfg.gimbal_yaw_min_deg),
+            self._time_boot_ms(), caps, 1, 0.0, 0.0, math.radians(cfg.pitch_limits_deg[0]),
+            math.radians(cfg.pitch_limits_deg[1]), math.radians(cfg.gimbal_yaw_min_deg),
             math.radians(cfg.gimbal_yaw_max_deg))
 
     def _send_heartbeat(self) -> None:

@@ -128,8 +128,11 @@ class VehicleConfig:
     drag_per_s: float = 0.44
     max_yaw_rate_deg_s: float = 90.0
     gimbal_max_rate_deg_s: float = 120.0
-    gimbal_pitch_min_deg: float = -90.0
+    gimbal_pitch_min_deg: float = -90.0  # ArduPilot: MNT1_PITCH_MIN / MAX of the servo gimbal the SITL tests use
     gimbal_pitch_max_deg: float = 20.0
+    # PX4 (MNT_MODE_OUT 0) keeps the pitch within +-MNT_RANGE_PITCH / 2: SIH with the default 90 stopped a
+    # 60 deg/s pitch-down command at -45 deg (yaw went on past 120 deg)
+    px4_pitch_range_deg: float = 90.0
     gimbal_yaw_min_deg: float = -160.0
     gimbal_yaw_max_deg: float = 160.0
     gimbal_start_pitch_deg: float = -45.0
@@ -156,6 +159,14 @@ class VehicleConfig:
                      "ardupilot_guided_timeout_s", "px4_offboard_loss_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+
+    @property
+    def pitch_limits_deg(self) -> tuple[float, float]:
+        """(lowest, highest) gimbal pitch in degrees the firmware allows."""
+        if self.flavour == "px4":
+            half = self.px4_pitch_range_deg / 2.0
+            return max(self.gimbal_pitch_min_deg, -half), min(self.gimbal_pitch_max_deg, half)
+        return self.gimbal_pitch_min_deg, self.gimbal_pitch_max_deg
 
     @property
     def setpoint_timeout_s(self) -> float:
@@ -427,8 +438,8 @@ class VehicleModel:
         else:
             pitch_rate = clamp(self.gimbal_rate_target[0], -max_rate, max_rate)
             yaw_rate = clamp(self.gimbal_rate_target[1], -max_rate, max_rate)
-        pitch = clamp(st.gimbal_pitch + pitch_rate * dt_s, math.radians(cfg.gimbal_pitch_min_deg),
-                      math.radians(cfg.gimbal_pitch_max_deg))
+        low, high = cfg.pitch_limits_deg
+        pitch = clamp(st.gimbal_pitch + pitch_rate * dt_s, math.radians(low), math.radians(high))
         yaw = clamp(st.gimbal_yaw + yaw_rate * dt_s, math.radians(cfg.gimbal_yaw_min_deg),
                     math.radians(cfg.gimbal_yaw_max_deg))
         st.gimbal_pitch_rate = (pitch - st.gimbal_pitch) / dt_s

@@ -170,7 +170,10 @@ def test_gimbal_commands_per_firmware(autopilot_with_peers):
         assert ap.commands("GIMBAL_MANAGER_SET_ATTITUDE")[-1].outcome == "applied: rates"
     ap.step(0.5)
     expected = (-0.1, 0.3)
-    assert ap.model.state.gimbal_pitch == pytest.approx(math.radians(-45) + 0.5 * expected[0], abs=1e-6)
+    # PX4 holds the pitch at -45 deg and above (MNT_RANGE_PITCH 90, as PX4 SIH did); ArduPilot goes on to -90
+    lowest = math.radians(ap.model.config.pitch_limits_deg[0])
+    assert ap.model.config.pitch_limits_deg[0] == (-45.0 if ap.flavour == "px4" else -90.0)
+    assert ap.model.state.gimbal_pitch == pytest.approx(max(lowest, math.radians(-45) + 0.5 * expected[0]), abs=1e-6)
     assert ap.model.state.gimbal_yaw == pytest.approx(0.5 * expected[1], abs=1e-6)
 
 

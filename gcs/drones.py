@@ -107,8 +107,8 @@ def autopilot_summary(status: dict[str, Any]) -> dict[str, Any] | None:
     to the daemon, False before, None from a daemon that does not say}; None if the answer has no `autopilot`
     part (an older daemon).
 
-    The daemon sends gimbal commands once it knows a system id to send them to (heard, or configured), whether
-    or not the heartbeat is still fresh; with none, they are held."""
+    The daemon sends gimbal commands once it knows a system id to send them to (heard, or configured); with
+    none, and while the heartbeat of an autopilot heard before is lost, they are held."""
     autopilot = status.get("autopilot")
     if not isinstance(autopilot, dict):
         return None
@@ -118,7 +118,8 @@ def autopilot_summary(status: dict[str, Any]) -> dict[str, Any] | None:
     system_id = autopilot.get("system_id") or None
     configured = mavlink.get("system_id") or 0
     backend = gimbal.get("backend")
-    commands = "none" if backend == "none" else "sent" if (system_id or configured) else "held"
+    lost = autopilot.get("state") == "heartbeat_lost"
+    commands = "none" if backend == "none" else "sent" if (system_id or configured) and not lost else "held"
     heard = autopilot.get("gimbal_attitude_heard")
     return {"state": autopilot.get("state"), "system_id": system_id, "configured_system_id": configured,
             "gimbal_backend": backend, "gimbal_commands": commands,

@@ -92,6 +92,7 @@ COUNTER_MEANINGS = {
     "out_follow_target": "FOLLOW_TARGET messages sent",
     "out_gated": "commands with guidance held: autopilot silent or not in GUIDED / OFFBOARD",
     "out_px4_prestream": "zero setpoints streamed so the pilot can engage OFFBOARD (PX4)",
+    "out_held": "commands held (none sent) while the autopilot's heartbeat was lost",
     "mavlink_sent": "MAVLink messages sent",
     "mavlink_send_errors": "sends the operating system refused",
     "mavlink_bad_packets": "packets received that were undecodable or failed signing",

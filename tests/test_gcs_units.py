@@ -173,8 +173,8 @@ def test_autopilot_and_gimbal_from_the_daemons_status() -> None:
     # never heard, nothing configured: the daemon holds its gimbal commands (nobody to send them to)
     none = autopilot_summary(status("waiting_for_heartbeat", None))
     assert (none["state"], none["system_id"], none["gimbal_commands"]) == ("waiting_for_heartbeat", None, "held")
-    # a configured system id: sent, unanswered; heard once then lost: still sent to it; no gimbal configured
+    # a configured system id: sent, unanswered; heard once then lost: held until it returns; no gimbal configured
     assert autopilot_summary(status("waiting_for_heartbeat", None, configured=7))["gimbal_commands"] == "sent"
-    assert autopilot_summary(status("heartbeat_lost", 1))["gimbal_commands"] == "sent"
+    assert autopilot_summary(status("heartbeat_lost", 1))["gimbal_commands"] == "held"
     assert autopilot_summary(status("connected", 1, backend="none"))["gimbal_commands"] == "none"
     assert autopilot_summary({"status": "ok"}) is None  # an answer without it: unknown, not "none"

@@ -339,7 +339,10 @@ class CameraComponent:
                 next_heartbeat += 1.0
                 if next_heartbeat < now:
                     next_heartbeat = now + 1.0
-                self._watch_autopilot(now)
+                if self.autopilot_alive(now):
+                    self._request_streams(now)
+            # every pass (<= 50 ms apart), not once a second: a lost heartbeat is reported right at its timeout
+            self._watch_autopilot(now)
             size = self._frame_size()
             if size is not None and size != announced_size:
                 announced_size = size  # first real frame size, or a size change mid-stream
@@ -376,14 +379,16 @@ class CameraComponent:
                 system_id, 1, MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / WANTED_STREAMS_HZ[msg_id], 0, 0, 0, 0, 0))
 
     def _watch_autopilot(self, now: float) -> None:
+        """Log the autopilot's heartbeat being lost (silent_s: since its last heartbeat) or (re)gained."""
         alive = self.autopilot_alive(now)
-        if alive:
-            self._request_streams(now)
         if alive != self._autopilot_alive:
             self._autopilot_alive = alive
+            view = self.autopilot()
             if alive:
-                log.info("event=autopilot_connected system_id=%s", self.autopilot().system_id)
+                log.info("event=autopilot_connected system_id=%s", view.system_id)
             else:
-                log.warning("event=autopilot_heartbeat_timeout timeout_s=%.1f", self.config.mavlink.heartbeat_timeout_s)
+                silent_s = now - view.last_heartbeat_s if view.last_heartbeat_s is not None else float("nan")
+                log.warning("event=autopilot_heartbeat_timeout timeout_s=%.1f silent_s=%.2f",
+                            self.config.mavlink.heartbeat_timeout_s, silent_s)
 
 

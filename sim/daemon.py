@@ -100,9 +100,12 @@ class Daemon:
     `on_exit` callbacks run, so whoever waits on the daemon (its heartbeat, its telemetry) can wait on that
     event too instead of sitting out a timeout."""
 
-    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str, module: str = "service") -> None:
+    def __init__(self, workdir: Path, overrides: dict[str, Any], mavlink_url: str, module: str = "service",
+                 source: str | None = "zenoh", env: dict[str, str] | None = None) -> None:
         self.workdir = workdir
         self.module = module  # `python -m module`: the service, or a test's instrumented wrapper of it
+        self.source = source  # --source: zenoh (the sim's camera), a file / image folder, /dev/videoN; None: the config's
+        self.extra_env = dict(env or {})  # added to the daemon's environment (e.g. RUNTIME_DIRECTORY)
         self.config_path = workdir / "service-config.yaml"
         self.log_path = workdir / "service.log"
         self.config = write_config(self.config_path, overrides)
@@ -127,10 +130,15 @@ class Daemon:
 
     def start(self) -> "Daemon":
         env = dict(os.environ, MAVLINK20="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
-                   MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1")
-        self._log_handle = open(self.log_path, "w", encoding="utf-8")
+                   MKL_NUM_THREADS="1", PYTHONUNBUFFERED="1", **self.extra_env)
+        if self._log_handle is not None:
+            self._log_handle.close()
+        # a restart (start() after the process ended) appends to the same log
+        self._log_handle = open(self.log_path, "a" if self.process is not None else "w", encoding="utf-8")
+        self.exited.clear()
+        source = ["--source", self.source] if self.source is not None else []
         self.process = subprocess.Popen(
-            [sys.executable, "-m", self.module, "--config", str(self.config_path), "--source", "zenoh",
+            [sys.executable, "-m", self.module, "--config", str(self.config_path), *source,
              "--mavlink", self.mavlink_url],
             cwd=REPO_ROOT, env=env, stdout=self._log_handle, stderr=subprocess.STDOUT)
         threading.Thread(target=self._watch, args=(self.process,), name="daemon-exit", daemon=True).start()

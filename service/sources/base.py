@@ -127,6 +127,16 @@ class SourceHealth:
                     "frame_size": list(self.last_frame_size) if self.last_frame_size else None}
 
 
+JPEG_EOI = b"\xff\xd9"  # JPEG's end-of-image marker
+
+
+def is_complete_jpeg(data: bytes | memoryview) -> bool:
+    """Whether a JPEG stream ends with its end-of-image marker (trailing zero padding allowed). OpenCV's
+    imread decodes a truncated file into a full-size image whose missing part is grey, with only a warning
+    on stderr: without this check a half-written frame would be tracked as if it were the scene."""
+    return bytes(data[-64:]).rstrip(b"\x00").endswith(JPEG_EOI)
+
+
 def backoff_delays(initial_s: float, max_s: float):
     """Infinite generator of retry delays: initial, doubled each time, capped at max_s (seconds)."""
     delay = initial_s
@@ -139,6 +149,7 @@ class CaptureWorker:
     """Runs a FrameReader on a thread, feeding `mailbox`; retries failures with backoff."""
 
     STALL_S = 2.0  # no frame for this long while open -> health "error" (stalled), until one arrives
+    CORRUPT_RUN = 3  # this many undecodable frames in a row -> health "error", until a good one arrives
 
     def __init__(self, reader: FrameReader, mailbox: LatestSlot[Frame], retry_initial_s: float,
                  retry_max_s: float) -> None:
@@ -204,6 +215,7 @@ class CaptureWorker:
         interval = self.reader.frame_interval_s()
         next_due: float | None = None
         last_frame = time.monotonic()
+        corrupt_run = 0  # undecodable frames since the last good one
         while not self._stop.is_set():
             if interval is not None and next_due is not None:
                 # pace like a camera: one frame per interval; after a stall, restart the clock
@@ -213,12 +225,25 @@ class CaptureWorker:
             try:
                 frame = self.reader.read(timeout_s=0.2)
             except CorruptFrame as exc:
+                if interval is not None:  # a corrupt frame takes its slot: a paced file keeps its frame rate
+                    now = time.monotonic()
+                    next_due = now + interval if next_due is None or next_due < now - interval else next_due + interval
+                corrupt_run += 1
                 with self.health._lock:
                     self.health.corrupt += 1
                     self.health._lock.notify_all()
-                log.warning("event=corrupt_frame reader=%s reason=%s", self.reader.name, _quote(str(exc)))
+                # the first of a run at WARNING, the rest at DEBUG: a stream of garbage must not flood the log
+                log.log(logging.WARNING if corrupt_run == 1 else logging.DEBUG,
+                        "event=corrupt_frame reader=%s run=%d reason=%s", self.reader.name, corrupt_run,
+                        _quote(str(exc)))
+                if corrupt_run == self.CORRUPT_RUN:
+                    self.health.set("error", f"corrupt frames: {corrupt_run} in a row, no good frame since "
+                                             f"(this one: {exc})")
                 continue
             now = time.monotonic()
+            if frame is not None and corrupt_run:
+                log.info("event=corrupt_frames_ended reader=%s run=%d", self.reader.name, corrupt_run)
+                corrupt_run = 0
             if frame is None:
                 if now - last_frame > self.STALL_S:
                     self.health.set("error", f"no frame for {now - last_frame:.1f} s")

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from service.sources.base import CorruptFrame, EndOfStream, Frame, SourceError
+from service.sources.base import CorruptFrame, EndOfStream, Frame, SourceError, is_complete_jpeg
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 MAX_CONSECUTIVE_BAD_READS = 5  # a video that fails this many reads in a row has ended
@@ -84,10 +84,20 @@ class FileReader:
             return self._at_end()
         path = self._images[self._index]
         self._index += 1
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError as exc:  # the folder (or the file) went away: reopen lists it afresh
+            raise SourceError(f"{path} is gone (source removed?)") from exc
+        except OSError as exc:
+            raise SourceError(f"cannot read {path}: {exc.strerror}") from exc
+        image = None
+        truncated = path.suffix.lower() in (".jpg", ".jpeg") and not is_complete_jpeg(data)
+        if not truncated:
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if image is None:
             self._next_id += 1  # the slot is consumed: ids stay aligned with positions in the folder
-            raise CorruptFrame(f"{path.name} could not be decoded")
+            raise CorruptFrame(f"{path.name} is a truncated JPEG (no end-of-image marker)" if truncated
+                               else f"{path.name} could not be decoded")
         return self._frame(image)
 
     def _at_end(self) -> Frame | None:

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from service.sources.base import is_complete_jpeg
+
 MAGIC = b"JFR1"
 HEADER = struct.Struct("<4s4sIIQd")
 PIXEL_FORMATS = (b"BGR3", b"GRAY", b"JPEG")
@@ -76,6 +78,8 @@ def decode_frame(payload: bytes | bytearray | memoryview) -> WireFrame:
         image = np.frombuffer(data, dtype=np.uint8)
         image = image.reshape((height, width, 3) if channels == 3 else (height, width))
     elif pixel_format == b"JPEG":
+        if not is_complete_jpeg(data):
+            raise ValueError("truncated JPEG frame (no end-of-image marker)")
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
         if image is None:
             raise ValueError("corrupt JPEG frame")

@@ -109,7 +109,8 @@ class WireTap:
         self._down_parser = dialect.MAVLink(None)
         self._down_parser.robust_parsing = True
         self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._down, daemon=True), threading.Thread(target=self._up, daemon=True)]
+        self._threads = [threading.Thread(target=self._down, daemon=True),
+                         threading.Thread(target=self._up, daemon=True)]
 
     def start(self) -> "WireTap":
         for thread in self._threads:
@@ -161,10 +162,12 @@ class WireTap:
 
 
 class DaemonProcess:
-    """`python -m service` with frames from Zenoh (a FramePump listening on zenoh_port) on a MAVLink URL, config = config.yaml + overrides; log in
+    """`python -m service` with frames from Zenoh (a FramePump listening on zenoh_port) on a MAVLink URL,
+    config = config.yaml + overrides; log in
     workdir/service.log. A context manager: SIGTERM on exit (kill after 5 s)."""
 
-    def __init__(self, workdir: Path, zenoh_port: int, prefix: str, mavlink_url: str, overrides: dict[str, Any]) -> None:
+    def __init__(self, workdir: Path, zenoh_port: int, prefix: str, mavlink_url: str,
+                 overrides: dict[str, Any]) -> None:
         base: dict[str, Any] = {
             "source": {"kind": "zenoh"},
             "zenoh": {"enabled": True, "mode": "peer", "listen": [], "connect": [f"tcp/127.0.0.1:{zenoh_port}"],

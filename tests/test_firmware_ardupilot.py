@@ -26,7 +26,7 @@ from tests.firmware_peers import (FRAME_SIZE, SET_INTERVAL, STOP_TRACKING, TARGE
 
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 HFOV_DEG = 70.0  # config.yaml's camera.hfov_deg
-GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS, TRACKING_IMAGE_STATUS = 285, 281, 275
+GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS = 285, 281
 COPTER_FOLLOW = 23
 
 
@@ -204,7 +204,8 @@ def _bearing_to_target_deg() -> float:
     return math.degrees(math.atan((TARGET_PX[0] - FRAME_SIZE[0] / 2) / focal_px))
 
 
-def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_loss_and_follow_ignores_the_camera(tmp_path: Path) -> None:
+def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_loss_and_follow_ignores_the_camera(
+        tmp_path: Path) -> None:
     overrides = {"gimbal": {"backend": "none", "coast_s": 0.0},  # the mount stays where ArduPilot holds it
                  "guidance": {"mode": "velocity", "yaw_gain": 0.2, "follow_distance_m": 5.0}}
     # FOLLOW set up for the end of the test: a fixed offset 5 m south of the target (a zero offset would be
@@ -223,10 +224,12 @@ def test_velocity_guidance_in_guided_only_moves_towards_the_target_and_holds_on_
         rig.stream_to_gcs(32, 10)  # LOCAL_POSITION_NED
         rig.stream_to_gcs(30, 10)  # ATTITUDE
         rig.meet_camera()
-        # outside GUIDED nothing goes out: BRAKE (holds without RC input, unlike LOITER whose low SITL throttle descends), tracking, no setpoint
+        # outside GUIDED nothing goes out: BRAKE (holds without RC input, unlike LOITER, which descends at
+        # SITL's default throttle), tracking, no setpoint
         rig.set_mode(COPTER_BRAKE)
         selected = rig.select()
-        assert rig.tap.from_daemon.wait_for(lambda: bool(rig.setpoints(selected)), 2.0) is False, rig.setpoints(selected)
+        assert rig.tap.from_daemon.wait_for(lambda: bool(rig.setpoints(selected)), 2.0) is False, \
+            rig.setpoints(selected)
         # GUIDED: setpoints turn it right towards the target and move it forward
         yaw0 = math.degrees(rig.gcs.latest("ATTITUDE", AUTOPILOT).yaw)
         start = rig.position()
@@ -308,8 +311,9 @@ def test_gimbal_manager_handshake_as_ardupilot_does_it(tmp_path: Path) -> None:
         rig.settled_mount()
 
         def primary_becomes(who: tuple[int, int], since: float, timeout: float = 5.0) -> bool:
-            return rig.gcs.wait(lambda m: m.get_type() == "GIMBAL_MANAGER_STATUS"
-                                and (m.primary_control_sysid, m.primary_control_compid) == who, timeout, since) is not None
+            status = rig.gcs.wait(lambda m: m.get_type() == "GIMBAL_MANAGER_STATUS"
+                                  and (m.primary_control_sysid, m.primary_control_compid) == who, timeout, since)
+            return status is not None
 
         selected = rig.select()
         assert primary_becomes(CAMERA, selected), f"the daemon did not claim\n{rig.diagnostics()}"

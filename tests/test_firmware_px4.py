@@ -101,7 +101,8 @@ class Px4Rig:
 
     def rates_sent(self, since: float = 0.0) -> list[tuple[float, float]]:
         """(pitch, yaw) angular velocity rad/s of every GIMBAL_MANAGER_SET_ATTITUDE the daemon sent since `since`."""
-        return [(m.angular_velocity_y, m.angular_velocity_z) for m in self.tap.sent("GIMBAL_MANAGER_SET_ATTITUDE", since)]
+        return [(m.angular_velocity_y, m.angular_velocity_z)
+                for m in self.tap.sent("GIMBAL_MANAGER_SET_ATTITUDE", since)]
 
     def setpoints(self, since: float = 0.0) -> list[Any]:
         return self.tap.sent("SET_POSITION_TARGET_LOCAL_NED", since)

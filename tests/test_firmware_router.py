@@ -10,10 +10,11 @@ hears the autopilot, whose answer to a track command addressed to it is UNSUPPOR
 the two outputs does not: MAVProxy forwards what an output sends to its master only (mavproxy.py,
 process_mavlink), and ArduPilot never sends a message back out of the port it came in on. So the
 camera's heartbeat never reaches the ground station, and the ground station's track command never
-reaches the camera: ArduPilot answers it UNSUPPORTED itself, as if the camera could not track. The topology that works is ArduPilot's own routing, the camera on one serial port
-and the ground station on another (tests/test_firmware_ardupilot.py), or a router that forwards between
-its endpoints (mavlink-router); docs/deploy.md. This test fails when MAVProxy starts routing between
-its outputs, so that the docs can say so."""
+reaches the camera: ArduPilot answers it UNSUPPORTED itself, as if the camera could not track. The
+topology that works is ArduPilot's own routing, the camera on one serial port and the ground station
+on another (tests/test_firmware_ardupilot.py), or a router that forwards between its endpoints
+(mavlink-router); docs/deploy.md. This test fails when MAVProxy starts routing between its outputs, so
+that the docs can say so."""
 from __future__ import annotations
 
 import os

@@ -99,6 +99,7 @@ COUNTER_MEANINGS = {
     "mavlink_signing_refused_unsigned": "unsigned packets refused (signing on, mavlink.signing.allow_unsigned false)",
     "mavlink_signing_refused_bad_signature": "signed packets refused: wrong key, or a replayed or too old timestamp",
     "mavlink_status_sent": "tracking status messages (275) sent",
+    "mavlink_texts_suppressed": "refusal texts (STATUSTEXT) not sent: more than 5 a second (the ACK still went)",
     "telemetry_errors": "telemetry samples that could not be published",
 }
 

@@ -59,6 +59,7 @@ class UdpLink:
 
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)  # bursts (the flood test) wait here
         self.sock.settimeout(0.1)
         self.mav = dialect.MAVLink(self, srcSystem=system, srcComponent=component)
         self.parser = dialect.MAVLink(None)

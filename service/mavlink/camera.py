@@ -88,6 +88,30 @@ class RepeatedRefusals:
         return sorted(rows, key=lambda row: -row["count"])
 
 
+class TextBudget:
+    """A token bucket for the STATUSTEXT that explains a refused operator command: `burst` texts at once, then
+    `per_s` a second. An operator's own commands never meet it; a ground station flooding refused commands
+    (1,000 a second in issue 42's fault) would otherwise double the camera's traffic with texts nobody can
+    read. The ACK, with its result, answers every command regardless."""
+
+    def __init__(self, burst: float = 10.0, per_s: float = 5.0) -> None:
+        self.burst, self.per_s = burst, per_s
+        self._tokens = burst
+        self._at: float | None = None
+        self.suppressed = 0
+
+    def take(self, now_s: float) -> bool:
+        """True if a text may go out at now_s (time.monotonic() s); counts the suppressed ones."""
+        if self._at is not None:
+            self._tokens = min(self.burst, self._tokens + (now_s - self._at) * self.per_s)
+        self._at = now_s
+        if self._tokens >= 1.0:
+            self._tokens -= 1.0
+            return True
+        self.suppressed += 1
+        return False
+
+
 def selection_refusal(source_state: str, has_frame: bool, reason: str) -> Decision | None:
     """Why a valid selection cannot be taken now, or None: TEMPORARILY_REJECTED while the source has not
     delivered its first frame (starting: a ground station that selects as soon as the camera's heartbeat
@@ -139,8 +163,10 @@ class CameraComponent:
         # rejected = the sum of the rejected_* by result (unsupported: this camera does not have what was
         # asked, as when a ground station polls for every camera feature; denied: bad parameters)
         self.counters = {"commands": 0, "accepted": 0, "rejected": 0, "rejected_unsupported": 0, "rejected_denied": 0,
-                         "rejected_temporarily": 0, "rejected_failed": 0, "status_sent": 0}
+                         "rejected_temporarily": 0, "rejected_failed": 0, "status_sent": 0, "texts_suppressed": 0}
         self._refusals = RepeatedRefusals()
+        self._accepted = RepeatedRefusals()  # accepted routine requests: logged at INFO once per kind and source
+        self._texts = TextBudget()
         self._text_id = 0  # id of the last chunked STATUSTEXT (1..65535)
         self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
                          threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)]
@@ -241,14 +267,21 @@ class CameraComponent:
             self.counters[counter] += 1
             self._refusals.count(msg.command, params[0], decision.result, decision.reason)  # type: ignore[attr-defined]
         if decision.result == MAV_RESULT_ACCEPTED:
-            level, note = logging.INFO, ""
+            # the operator's commands always at INFO; what a ground station polls for (511, 512) once per kind
+            routine = msg.command not in OPERATOR_COMMANDS  # type: ignore[attr-defined]
+            first = self._accepted.first(msg.command, params[0], source, decision.result)  # type: ignore[attr-defined]
+            level, note = (logging.DEBUG, "") if routine and not first else (logging.INFO, "")
         elif self._refusals.first(msg.command, params[0], source, decision.result, decision.reason):  # type: ignore[attr-defined]
             level, note = logging.WARNING, " (repeats of this refusal are logged at DEBUG)"
         else:
             level, note = logging.DEBUG, ""
         log.log(level, 'event=command command=%d via=%s from=%d/%d result=%s reason="%s"%s', msg.command, kind,  # type: ignore[attr-defined]
                 source[0], source[1], RESULT_NAMES.get(decision.result, decision.result), decision.reason, note)
-        if decision.result != MAV_RESULT_ACCEPTED and msg.command in OPERATOR_COMMANDS:  # type: ignore[attr-defined]
+        explain = decision.result != MAV_RESULT_ACCEPTED and msg.command in OPERATOR_COMMANDS  # type: ignore[attr-defined]
+        if explain and not self._texts.take(time.monotonic()):
+            explain = False
+            self.counters["texts_suppressed"] += 1
+        if explain:
             # the reason, before the ACK, as ground stations show it (QGroundControl's messages, gcs.web)
             self._text_id = self._text_id % 65535 + 1
             text = (f"{OPERATOR_COMMANDS[msg.command]} {RESULT_NAMES.get(decision.result, decision.result)}: "  # type: ignore[attr-defined]

@@ -15,6 +15,10 @@ from service.config import MavlinkConfig, SigningConfig, parse_network_url
 log = logging.getLogger("service.mavlink")
 # pymavlink counts signing time in 10 us units since 2015-01-01
 SIGNING_EPOCH_S = 1420070400
+# A UDP link's receive buffer: a burst of commands (issue 42's flood: 1,000 a second) waits here while the
+# receive thread shares the interpreter with tracking; the default (~208 KiB) overflowed and lost about 1 in 12.
+# Linux caps it at net.core.rmem_max.
+RECEIVE_BUFFER_BYTES = 4 << 20
 
 
 def signing_timestamp(unix_s: float) -> int:
@@ -127,8 +131,21 @@ class MavlinkLink:
                 source_component=config.component_id, autoreconnect=True)
         except Exception as exc:  # pymavlink raises OSError / SerialException / ValueError variously
             raise ConnectionError(f"mavlink.url: cannot open {config.url}: {exc}") from exc
+        self._enlarge_receive_buffer()
         if config.signing.key_file:
             self._setup_signing(config.signing)
+
+    def _enlarge_receive_buffer(self) -> None:
+        """Ask for RECEIVE_BUFFER_BYTES on a UDP link's socket (pymavlink keeps it as `port`); logged at debug
+        with what the kernel granted (it reports twice the usable size)."""
+        sock = getattr(self._conn, "port", None)
+        if not isinstance(sock, socket.socket) or sock.type != socket.SOCK_DGRAM:
+            return
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+            log.debug("event=receive_buffer bytes=%d", sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+        except OSError as exc:
+            log.debug('event=receive_buffer error="%s"', exc)
 
     @property
     def mav(self) -> object:

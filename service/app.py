@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from typing import Any
@@ -17,6 +18,7 @@ from service.loop import FrameReport, TrackingLoop
 from service.mavlink.camera import CameraComponent
 from service.mavlink.link import MavlinkLink
 from service.mavlink.outputs import MavlinkOutputs
+from service.run_marker import PreviousRun, mark_running, mark_stopped, read_previous, runtime_directory
 from service.sources import CaptureWorker, LatestSlot, check_source, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
@@ -87,6 +89,8 @@ class Service:
             raise
         self._last_report: FrameReport | None = None
         self.telemetry_errors = 0
+        self._runtime_dir = runtime_directory(os.environ)
+        self.previous_run: PreviousRun = read_previous(self._runtime_dir)
 
     def _publish_report(self, report: FrameReport) -> None:
         self._last_report = report
@@ -131,6 +135,8 @@ class Service:
             "mavlink_refusals": self.camera.refusals(),
             "mavlink_signing": self.link.signing_status(),
             "mavlink_system_id": self.link.system_id,
+            # how the previous run ended (service.run_marker): "unclean" after a kill, with systemd's restart
+            "run": self.previous_run.as_json(),
             "config": as_plain(self.config),
         }
 
@@ -153,10 +159,12 @@ class Service:
                 sd_notify("WATCHDOG=1")
                 last_ping[0] = now
 
+        self._mark_running()
         sd_notify("READY=1")
-        log.info("event=started source=%s tracker=%s mavlink=%s gimbal=%s guidance=%s watchdog_s=%s",
-                 self.worker.reader.name, self.config.tracker.name, self.config.mavlink.url,
-                 self.config.gimbal.backend, self.config.guidance.mode, watchdog_s)
+        log.info("event=started source=%s tracker=%s mavlink=%s gimbal=%s guidance=%s watchdog_s=%s track=%s "
+                 "previous_exit=%s", self.worker.reader.name, self.config.tracker.name, self.config.mavlink.url,
+                 self.config.gimbal.backend, self.config.guidance.mode, watchdog_s, self.loop.state,
+                 self.previous_run.exit)
         # The loop runs on its own thread so that a slow tracker step (a re-detection can take a while)
         # never delays the stop: the main thread waits for the stop request and bounds the join.
         loop_failed: list[BaseException] = []
@@ -183,8 +191,24 @@ class Service:
             if runner.is_alive():
                 log.warning("event=loop_still_busy detail=abandoning_the_current_frame")
             self.shutdown()
-        if loop_failed:
+        if loop_failed:  # the marker stays: the next run reports this one as unclean
             raise RuntimeError("tracking loop crashed") from loop_failed[0]
+        try:
+            mark_stopped(self._runtime_dir)
+        except OSError as exc:
+            log.warning('event=run_marker_failed dir=%s error="%s"', self._runtime_dir, exc)
+
+    def _mark_running(self) -> None:
+        """Report an unclean end of the previous run (its marker left behind), then mark this one running."""
+        previous = self.previous_run
+        if previous.exit == "unclean":
+            log.warning('event=restarted_after_unclean_exit previous_pid=%s previous_started_unix_s=%s track=%s '
+                        'detail="the previous run was killed or crashed; this one starts idle: the target must be '
+                        'selected again"', previous.pid, previous.started_unix_s, self.loop.state)
+        try:
+            mark_running(self._runtime_dir, os.getpid(), time.time())
+        except OSError as exc:  # a read-only or missing directory costs the report, not the service
+            log.warning('event=run_marker_failed dir=%s error="%s"', self._runtime_dir, exc)
 
     def shutdown(self) -> None:
         """Zero the gimbal if tracking, stop threads, close links."""

@@ -65,6 +65,13 @@ class FaultRig:
         self.daemon.on_exit(self.sim.telemetry.mark_source_gone)
         return self
 
+    def restart(self) -> None:
+        """Start the daemon again after it ended (killed, or stopped): same config, its log appended to."""
+        assert self.sim is not None
+        with self.sim.telemetry.cond:
+            self.sim.telemetry.source_gone = False  # set when the previous process ended
+        self.daemon.start()
+
     def close(self) -> int | None:
         """Stop everything; the daemon's exit code (0 = clean SIGTERM stop)."""
         code = self.daemon.stop()

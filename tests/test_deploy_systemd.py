@@ -4,7 +4,7 @@ image with the unit installed as documented (deploy/systemd-check.Containerfile,
 It reaches `active (running)` through READY=1, the watchdog keeps it alive while frames flow (and it
 answers the MAVLink handshake and tracks a selected target inside the sandbox), the hardening lets it
 open camera and serial devices and blocks others, a hung loop (SIGSTOP) is restarted by the watchdog,
-and `systemctl stop` ends it within 2 s. Runs only with JSAR_CHECK_SYSTEMD=1 (`make check-systemd`
+SIGKILL is restarted and comes back idle saying so, and `systemctl stop` ends it within 2 s. Runs only with JSAR_CHECK_SYSTEMD=1 (`make check-systemd`
 builds the image and sets it): it needs root and a privileged container.
 """
 from __future__ import annotations
@@ -193,6 +193,38 @@ def test_a_hung_loop_is_restarted_by_the_watchdog(rig: Rig) -> None:
     assert 5.0 <= took, f"restarted after {took:.1f} s: before WatchdogSec=5s ran out"
     print(f"\nSIGSTOP -> watchdog timeout -> restarted and READY again after {took:.1f} s (pid {before['MainPID']} -> "
           f"{after['MainPID']})")
+
+
+def test_sigkill_restarts_it_idle_and_it_says_so(rig: Rig) -> None:
+    """Fault (issue 42): SIGKILL to the daemon while it tracks. systemd restarts it (Restart=on-failure,
+    RestartSec=2s); it comes back idle, and says so: the journal's event=restarted_after_unclean_exit and
+    the status's run.previous_exit "unclean" (its run marker in RuntimeDirectory, kept across restarts)."""
+    before = rig.wait_show(lambda p: p["ActiveState"] == "active", 60.0)
+    if rig.session is None:
+        rig.session = zenoh_session(rig.zenoh_port)
+    select_and_track(rig.gcs, rig.session, "systemdcheck", SYSTEM_ID, frames_wanted=30, timeout_s=30.0)
+    reply = status(rig.session, "systemdcheck")
+    assert reply is not None and reply["track"]["state"] != "idle", reply and reply["track"]
+    marks = len([line for line in rig.journal().splitlines() if "event=restarted_after_unclean_exit" in line])
+    rig.exec("systemctl", "kill", "--signal=SIGKILL", "--kill-whom=main", UNIT)
+    killed = time.monotonic()
+    after = rig.wait_show(lambda p: p["NRestarts"] == str(int(before["NRestarts"]) + 1)
+                          and p["ActiveState"] == "active" and p["MainPID"] not in ("0", before["MainPID"]), 60.0)
+    active_s = time.monotonic() - killed
+    reply = None
+    while reply is None or reply["source"]["frames"] == 0:  # each get waits up to 1 s for the reply
+        assert time.monotonic() - killed < 60.0, "no status from the restarted daemon within 60 s"
+        reply = status(rig.session, "systemdcheck")
+    status_s = time.monotonic() - killed
+    journal = rig.journal()
+    assert "status=9/KILL" in journal, journal[-3000:]
+    unclean = [line for line in journal.splitlines() if "event=restarted_after_unclean_exit" in line]
+    assert len(unclean) == marks + 1 and f"previous_pid={before['MainPID']} " in unclean[-1], unclean
+    assert "track=idle" in unclean[-1]
+    assert reply["run"]["previous_exit"] == "unclean" and reply["run"]["previous_pid"] == int(before["MainPID"])
+    assert reply["track"]["state"] == "idle" and reply["track"]["box_px"] is None, reply["track"]
+    print(f"\nSIGKILL while tracking -> restarted (pid {before['MainPID']} -> {after['MainPID']}) and READY after "
+          f"{active_s:.1f} s (RestartSec=2s), status answering idle with previous_exit unclean after {status_s:.1f} s")
 
 
 def test_systemctl_stop_ends_it_within_2s(rig: Rig) -> None:

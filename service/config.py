@@ -298,10 +298,15 @@ def load_config(path: str | Path, source: str | None = None, mavlink_url: str | 
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:  # a binary file, or another encoding than UTF-8
+        raise ConfigError(f"config file {path} is not UTF-8 text: byte {exc.start} is "
+                          f"0x{exc.object[exc.start]:02x}") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
+    except RecursionError as exc:  # PyYAML composes nested collections recursively
+        raise ConfigError(f"config file {path} nests lists or mappings too deeply to read") from exc
     return config_from_mapping(apply_overrides({} if raw is None else raw, source, mavlink_url))
 
 
@@ -596,14 +601,20 @@ def _coerce(hint: Any, value: object, key_path: str) -> Any:
         return value
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key_path}: must be an integer, got {value!r}")
+            raise ConfigError(f"{key_path}: must be an integer, got {_shown(value)}")
+        if not INT_MIN <= value <= INT_MAX:  # the values go to C (OpenCV threads, sockets, struct fields)
+            raise ConfigError(f"{key_path}: must be within a 32-bit integer's range, got {_shown(value)}")
         return value
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{key_path}: must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{key_path}: must be finite, got {value!r}")
-        return float(value)
+            raise ConfigError(f"{key_path}: must be a number, got {_shown(value)}")
+        try:
+            number = float(value)  # an integer beyond the float range (YAML reads 1000...0 as an int) overflows
+        except OverflowError:
+            number = math.inf
+        if not math.isfinite(number):
+            raise ConfigError(f"{key_path}: must be finite, got {_shown(value)}")
+        return number
     if hint is str:
         if not isinstance(value, str):
             raise ConfigError(f"{key_path}: must be a string, got {value!r}")
@@ -620,6 +631,15 @@ def _coerce(hint: Any, value: object, key_path: str) -> Any:
             raise ConfigError(f"{key_path}: must be a mapping, got {value!r}")
         return types.MappingProxyType(dict(value))
     raise TypeError(f"{key_path}: unsupported config type {hint!r}")
+
+
+INT_MIN, INT_MAX = -2**31, 2**31 - 1  # integer settings: the signed 32-bit range
+
+
+def _shown(value: object, limit: int = 80) -> str:
+    """repr(value) cut to `limit` characters (a fuzzed file may hold a 400-digit number or a 10 kB string)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def _join(path: str, name: str) -> str:

@@ -3,7 +3,7 @@
     python -m bench.learnt [--repeats 30]                 # cost per call
     python -m bench.learnt --separation DATA_ROOT        # does the embedding tell the target from others
 
-Cost: the median milliseconds per call for a batch of 1 and 16 64x64 crops, and for a 256x256 and a
+Cost: the median (and minimum) milliseconds per call for a batch of 1 and 16 64x64 crops, and for a 256x256 and a
 384x384 gate, at both cuts (stride 8 and 16), and for the same gate sizes alternating (the tracker's
 gate changes size from frame to frame: a runtime that re-plans per shape pays for it).
 
@@ -31,17 +31,28 @@ from jsar.learnt.mobilenet import BACKENDS, FeatureNet, to_blob
 GAPS = (5, 20, 50)  # frames between the reference and the later frame
 
 
-def median_ms(net: FeatureNet, blobs: list[np.ndarray], repeats: int) -> float:
-    """Median wall-clock ms of net.run_blob over `repeats` rounds cycling through blobs (after a warm-up)."""
+def timed_ms(call, repeats: int) -> str:
+    """'median (min)' wall-clock ms of call() over `repeats` calls after one warm-up (the minimum: the cost
+    without other processes' interference on a shared machine)."""
+    call()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - start)
+    return f"{1e3 * float(np.median(times)):7.2f} ({1e3 * min(times):6.2f})"
+
+
+def cycling(net: FeatureNet, blobs: list[np.ndarray]):
+    """A call of net.run_blob on the next of blobs each time (all of them once first)."""
     for blob in blobs:
         net.run_blob(blob)
-    times = []
-    for i in range(repeats):
-        blob = blobs[i % len(blobs)]
-        start = time.perf_counter()
-        net.run_blob(blob)
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+    state = {"i": 0}
+
+    def call() -> None:
+        net.run_blob(blobs[state["i"] % len(blobs)])
+        state["i"] += 1
+    return call
 
 
 def other_windows(rng: np.random.Generator, frame_hw: tuple[int, int], box: np.ndarray, count: int,
@@ -139,13 +150,13 @@ def main() -> None:
         "gate 256..384 alternating": [to_blob(rng.integers(0, 256, (s, s + 8, 3), dtype=np.uint8))
                                       for s in (256, 320, 384, 288)],
     }
-    print(f"opencv {cv2.__version__}; ms per call, median of {args.repeats}, one thread")
+    print(f"opencv {cv2.__version__}; ms per call, median (min) of {args.repeats}, one thread")
     frame = cv2.resize(rng.integers(0, 256, (90, 160, 3), dtype=np.uint8), (1280, 720), interpolation=cv2.INTER_CUBIC)
     boxes = np.column_stack([rng.uniform(0, 1200, 16), rng.uniform(0, 650, 16), rng.uniform(20, 80, (16, 2))])
     for cut in (8, 16):
         nets = {backend: FeatureNet(cut, backend) for backend in BACKENDS}
         for name, blobs in cases.items():
-            cells = "  ".join(f"{backend} {median_ms(net, blobs, args.repeats):7.2f}" for backend, net in nets.items())
+            cells = "  ".join(f"{backend} {timed_ms(cycling(net, blobs), args.repeats)}" for backend, net in nets.items())
             print(f"stride {cut:2d}  {name:28s} {cells}")
         net = nets["onnxruntime"]
         # whole calls on a 1280 x 720 frame: crops + pass + pooling; a 384 x 384 gate's map + its match map
@@ -155,13 +166,7 @@ def main() -> None:
                  "embed 16 boxes": lambda: embed(net, frame, boxes),
                  "match_map, 384 gate, 4x4 template": lambda: match_map(fmap, template)}
         for name, call in calls.items():
-            call()
-            times = []
-            for _ in range(args.repeats):
-                start = time.perf_counter()
-                call()
-                times.append(time.perf_counter() - start)
-            print(f"stride {cut:2d}  {name:34s} onnxruntime {1e3 * float(np.median(times)):7.2f}")
+            print(f"stride {cut:2d}  {name:34s} onnxruntime {timed_ms(call, args.repeats)}")
 
 
 if __name__ == "__main__":

@@ -392,7 +392,7 @@ SELECTION = (0.36, 0.41, 0.64, 0.59)  # TRACK_RECTANGLE around the square, norma
 def daemon_config(mavlink_port: int, zenoh_port: int, source: dict, tracker: str, fps: float) -> dict:
     """The daemon under fuzz: the given source, Zenoh on loopback only (prefix `fuzz`), no preview."""
     return {"source": {"retry_initial_s": 0.05, "retry_max_s": 0.5, "fps": fps, **source},
-            "tracker": {"name": tracker},
+            "tracker": {"name": tracker, **({} if tracker.startswith("jsar") else {"range_size_band": 0})},
             "mavlink": {"url": f"udpout:127.0.0.1:{mavlink_port}", "system_id": AUTOPILOT[0]},
             "gimbal": {"backend": "ardupilot"},
             "zenoh": {"listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "fuzz"},
@@ -717,7 +717,7 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
     result: dict[str, Any] = {"target": "mavlink", "seed": seed, "inputs_planned": inputs, "rate_per_s": rate,
                               "tracker": tracker, "source_fps": fps, "commit": git_commit()}
     try:
-        if not peer.wait_daemon(90.0):
+        if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
             raise RuntimeError(f"no packet from the daemon within 90 s; log:\n{daemon.log()[-3000:]}")
         session = zenoh_session(zenoh_port)
         track = TrackCounter(session)
@@ -822,7 +822,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
                               "tracker": tracker, "source_fps": fps, "commit": git_commit()}
     camera_ids = [0]
     try:
-        if not peer.wait_daemon(90.0):
+        if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
             raise RuntimeError(f"no packet from the daemon within 90 s; log:\n{daemon.log()[-3000:]}")
         session = zenoh_session(zenoh_port)
         track = TrackCounter(session)

@@ -91,6 +91,7 @@ class Service:
         self.telemetry_errors = 0
         self._runtime_dir = runtime_directory(os.environ)
         self.previous_run: PreviousRun = read_previous(self._runtime_dir)
+        self.outputs.stop_gimbal_first = self.previous_run.exit == "unclean"
 
     def _publish_report(self, report: FrameReport) -> None:
         self._last_report = report

@@ -198,7 +198,8 @@ def test_a_hung_loop_is_restarted_by_the_watchdog(rig: Rig) -> None:
 def test_sigkill_restarts_it_idle_and_it_says_so(rig: Rig) -> None:
     """Fault (issue 42): SIGKILL to the daemon while it tracks. systemd restarts it (Restart=on-failure,
     RestartSec=2s); it comes back idle, and says so: the journal's event=restarted_after_unclean_exit and
-    the status's run.previous_exit "unclean" (its run marker in RuntimeDirectory, kept across restarts)."""
+    the status's run.previous_exit "unclean" (its run marker in RuntimeDirectory, kept across restarts); it
+    zeroes the gimbal rates once, then sends nothing (idle)."""
     before = rig.wait_show(lambda p: p["ActiveState"] == "active", 60.0)
     if rig.session is None:
         rig.session = zenoh_session(rig.zenoh_port)
@@ -223,6 +224,13 @@ def test_sigkill_restarts_it_idle_and_it_says_so(rig: Rig) -> None:
     assert "track=idle" in unclean[-1]
     assert reply["run"]["previous_exit"] == "unclean" and reply["run"]["previous_pid"] == int(before["MainPID"])
     assert reply["track"]["state"] == "idle" and reply["track"]["box_px"] is None, reply["track"]
+    # the killed run's last gimbal rate (ArduPilot's never time out) is cancelled once by the new run
+    gimbal = "GIMBAL_MANAGER_SET_PITCHYAW"
+    assert rig.autopilot.from_service.wait_for(
+        lambda: any(r.at > killed + 0.5 for r in rig.autopilot.from_service.of(gimbal)), 10.0), "gimbal not zeroed"
+    zeroed = [r.msg for r in rig.autopilot.from_service.of(gimbal) if r.at > killed + 0.5]
+    assert len(zeroed) == 1 and (zeroed[0].yaw_rate, zeroed[0].pitch_rate) == (0.0, 0.0), zeroed
+    assert "event=gimbal_zeroed reason=previous_run_killed" in rig.journal()
     print(f"\nSIGKILL while tracking -> restarted (pid {before['MainPID']} -> {after['MainPID']}) and READY after "
           f"{active_s:.1f} s (RestartSec=2s), status answering idle with previous_exit unclean after {status_s:.1f} s")
 

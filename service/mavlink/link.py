@@ -1,6 +1,7 @@
 """The MAVLink socket adapter: one pymavlink connection, thread-safe sends, optional signing."""
 from __future__ import annotations
 
+import collections
 import logging
 import os
 import socket
@@ -91,6 +92,64 @@ def keep_stream_on_refusal(mav: object) -> None:
     mav.check_signature = checked  # type: ignore[attr-defined]
 
 
+def keep_no_message_history(conn: object) -> None:
+    """Make a pymavlink connection keep no history of the messages it received.
+
+    pymavlink's mavfile.post_message stores, per source system, the last message of every type, of every
+    instance (NAMED_VALUE_FLOAT, DEBUG_VECT, ... by their name field) and every PARAM_VALUE by name: a peer
+    sending made-up names grew the daemon without bound, by about 1 kB a packet (48 MB per 50,000 packets in
+    process; bench/fuzz.py's named_message inputs). The service reads none of it; recv_match only needs each
+    source system entered (at most 256 small entries).
+    """
+    states = conn.sysid_state  # type: ignore[attr-defined]
+
+    def post_message(msg: object) -> None:
+        system = msg.get_srcSystem()  # type: ignore[attr-defined]
+        if system not in states:
+            states[system] = mavutil.mavfile_state()
+    conn.post_message = post_message  # type: ignore[attr-defined]
+
+
+class DatagramParser:
+    """Parse each UDP datagram on its own: the packets in it, and nothing carried over to the next one.
+
+    pymavlink parses a UDP link as one byte stream: a datagram ending in part of a packet (truncated, or a
+    wrong length byte) made the parser take the start of the next datagram as the rest of that packet, so the
+    valid command in it was lost as a bad CRC (bench/fuzz.py: the first command after the fuzz went
+    unanswered). MAVLink over UDP sends whole packets per datagram, so an unfinished packet is dropped (and
+    counted) when the next datagram arrives. Relies on pymavlink 2.4.50's parser fields (buf, buf_index,
+    expected_length, have_prefix_error), reset as its own constructor sets them.
+    """
+
+    def __init__(self, conn: object) -> None:
+        self._conn = conn
+        self._pending: collections.deque = collections.deque()
+        self.partial_dropped = 0  # datagrams that ended inside a packet
+        conn.recv_msg = self.recv_msg  # type: ignore[attr-defined]
+
+    def recv_msg(self) -> object | None:
+        """mavfile.recv_msg's contract: the next message (BAD_DATA included) or None when nothing is waiting."""
+        conn = self._conn
+        conn.pre_message()  # type: ignore[attr-defined]
+        if not self._pending:
+            data = conn.recv()  # type: ignore[attr-defined]
+            if not data:
+                return None
+            if conn.first_byte:  # type: ignore[attr-defined]
+                conn.auto_mavlink_version(data)  # type: ignore[attr-defined]
+            mav = conn.mav  # type: ignore[attr-defined]
+            mav.buf, mav.buf_index = bytearray(), 0
+            mav.expected_length, mav.have_prefix_error = mavutil.mavlink.HEADER_LEN_V1 + 2, False
+            self._pending.extend(mav.parse_buffer(data) or ())
+            if mav.buf_len() > 0:
+                self.partial_dropped += 1
+            if not self._pending:
+                return None
+        msg = self._pending.popleft()
+        conn.post_message(msg)  # type: ignore[attr-defined]
+        return msg
+
+
 class SigningCounts:
     """Packets refused by signing: unsigned ones, badly signed ones, and both by message name."""
 
@@ -121,7 +180,7 @@ class MavlinkLink:
         self._lock = threading.Lock()
         self.send_errors = 0
         self.sent = 0
-        self.bad_packets = 0  # undecodable, or rejected by signing
+        self._bad_packets = 0  # undecodable, or rejected by signing
         self.signing = SigningCounts()
         self._sending_fails = False  # the last send failed (the first failure of a run is a warning)
         check_destination(config.url)
@@ -131,6 +190,8 @@ class MavlinkLink:
                 source_component=config.component_id, autoreconnect=True)
         except Exception as exc:  # pymavlink raises OSError / SerialException / ValueError variously
             raise ConnectionError(f"mavlink.url: cannot open {config.url}: {exc}") from exc
+        keep_no_message_history(self._conn)
+        self._datagrams = DatagramParser(self._conn) if isinstance(self._conn, mavutil.mavudp) else None
         self._enlarge_receive_buffer()
         if config.signing.key_file:
             self._setup_signing(config.signing)
@@ -146,6 +207,13 @@ class MavlinkLink:
             log.debug("event=receive_buffer bytes=%d", sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
         except OSError as exc:
             log.debug('event=receive_buffer error="%s"', exc)
+
+    @property
+    def bad_packets(self) -> int:
+        """Packets refused: undecodable (bad CRC, unknown id, bad prefix), rejected by signing, or unfinished at
+        the end of a UDP datagram."""
+        partial = self._datagrams.partial_dropped if self._datagrams is not None else 0
+        return self._bad_packets + partial
 
     @property
     def mav(self) -> object:
@@ -195,7 +263,7 @@ class MavlinkLink:
         if msg is None:
             return None
         if msg.get_type() == "BAD_DATA":
-            self.bad_packets += 1
+            self._bad_packets += 1
             log.debug("event=bad_packet reason=%s", str(getattr(msg, "reason", "")).replace(" ", "_"))
             return None
         return msg

@@ -77,6 +77,9 @@ class MavlinkOutputs:
         self.counters = {"gimbal": 0, "claims": 0, "velocity": 0, "follow_target": 0, "gated": 0, "px4_prestream": 0,
                          "held": 0}
         self._held_since: float | None = None  # time.monotonic() s of the first command held in this silence
+        # after a killed run: zero gimbal rates once the autopilot is heard (ArduPilot's rate commands never time
+        # out, so the killed run's last rate would turn the gimbal until someone sends another)
+        self.stop_gimbal_first = False
 
     def apply(self, now_s: float, command: ControlCommand) -> None:
         """Send what `command` asks for; now_s: time.monotonic(), for heartbeat age and gimbal claims."""
@@ -87,6 +90,8 @@ class MavlinkOutputs:
         if self._hold_while_silent(now_s, view, command):
             return
         target = (system_id, MAV_COMP_ID_AUTOPILOT1)
+        if self.stop_gimbal_first and view.alive(now_s, self.config.mavlink.heartbeat_timeout_s):
+            self._stop_gimbal_after_unclean_exit(target)
         # guidance first, the gimbal command last: whoever sees a frame's gimbal command (a lockstep
         # simulator stepping its model on it) has its setpoint too; on a real link the order of two
         # messages sent microseconds apart does not matter
@@ -116,6 +121,18 @@ class MavlinkOutputs:
                      self.counters["held"], command.state)
             self._held_since = None
         return False
+
+    def _stop_gimbal_after_unclean_exit(self, target: tuple[int, int]) -> None:
+        """Zero gimbal rates once, the first time the autopilot is heard after a killed run (service.run_marker)."""
+        self.stop_gimbal_first = False
+        backend, mav = self.config.gimbal.backend, self.link.mav  # type: ignore[attr-defined]
+        if backend not in ("ardupilot", "px4"):
+            return
+        build = messages.gimbal_rates_ardupilot if backend == "ardupilot" else messages.gimbal_rates_px4
+        log.warning("event=gimbal_zeroed reason=previous_run_killed detail=\"the killed run's last rate command may "
+                    "still be turning the gimbal (ArduPilot's do not time out): zero rates sent once\"")
+        self.link.send(build(mav, target, self.config.gimbal.device_id, 0.0, 0.0))  # type: ignore[attr-defined]
+        self.counters["gimbal"] += 1
 
     # --- gimbal -------------------------------------------------------------------------------
     def _gimbal(self, now_s: float, view: AutopilotView, target: tuple[int, int], rates: tuple[float, float],

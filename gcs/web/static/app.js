@@ -191,11 +191,11 @@ function showAutopilot(ap) {
   let text = "unknown (status not answered yet)", cls = "", gimbal = "–", gimbalCls = "";
   if (ap) {
     if (ap.state === "connected") { text = `connected (system ${ap.system_id})`; cls = "good"; }
-    else if (ap.state === "heartbeat_lost") { text = `heartbeat lost (system ${ap.system_id}) — guidance held`; cls = "bad"; }
+    else if (ap.state === "heartbeat_lost") { text = `heartbeat lost (system ${ap.system_id}) — gimbal and guidance held`; cls = "bad"; }
     else if (ap.gimbal_commands === "held") { text = "none — gimbal commands held"; cls = "bad"; }
     else { text = `none heard — commands sent to system ${ap.configured_system_id} unanswered`; cls = "bad"; }
     if (ap.gimbal_commands === "none") { gimbal = "none configured (gimbal.backend: none)"; gimbalCls = "warn"; }
-    else if (ap.gimbal_commands === "held") { gimbal = `${ap.gimbal_backend} — commands held (no autopilot)`; gimbalCls = "bad"; }
+    else if (ap.gimbal_commands === "held") { gimbal = `${ap.gimbal_backend} — commands held (${ap.state === "heartbeat_lost" ? "autopilot silent" : "no autopilot"})`; gimbalCls = "bad"; }
     else { gimbal = `${ap.gimbal_backend} gimbal manager, through the autopilot`; gimbalCls = ap.state === "connected" ? "" : "warn"; }
     // whether a gimbal device has reported its attitude: commands to a gimbal that never answered move nothing
     if (ap.gimbal_commands === "sent" && ap.gimbal_attitude === true) gimbal += " · attitude reported";

@@ -962,3 +962,64 @@ def test_a_shrunk_window_at_zero_degrees_is_the_upright_patch():
     image = np.random.default_rng(3).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
     for centre, side in (((634.0, 360.0), 885.0), ((100.3, 50.7), 415.5)):  # inside; partly outside the frame
         assert np.array_equal(turned_patch(image, centre, side, 200, 0.0), sample_patch(image, centre, (side, side), (200, 200)))
+
+
+# ---------------------------------------------------------------- the verifier (appearance.py) in the loss
+
+
+class _PlaceEmbedder:
+    """A stand-in for the network that knows where things are: a box centred within 6 px of a place in
+    `targets` embeds as the target, anything else as one of two other objects (by which half of the frame)."""
+
+    def __init__(self, targets: list[tuple[float, float]]) -> None:
+        self.targets = targets
+        self.calls = 0
+
+    def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        rows = []
+        for x, y, w, h in np.asarray(boxes_xywh, float).reshape(-1, 4):
+            centre = (x + w / 2, y + h / 2)
+            if any(math.dist(centre, t) < 6 for t in self.targets):
+                rows.append((1.0, 0.0, 0.0))
+            else:
+                rows.append((0.0, 1.0, 0.0) if centre[0] < 160 else (0.0, 0.0, 1.0))
+        return np.asarray(rows, np.float32)
+
+
+def test_a_look_alike_the_verifier_calls_another_object_is_not_taken_even_above_the_bar():
+    target_centre, look_alike_centre = (112.0, 112.0), (162.0, 112.0)
+    # Without the verifier the look-alike in the target's colours is taken (the probation test's scene).
+    without, _ = _run_with_a_passing_look_alike(_redetect(verify={"enabled": False}))
+    assert any(without[i][0] == "recovered" and math.dist(_centre(without[i][1]), look_alike_centre) < 6
+               for i in range(38, 50)), "the look-alike must pass the bar: the scenario tests nothing"
+    frame = _hidden_target_scene(_same_colour_look_alike(), (150, 100), range(38, 50))
+    embedder = _PlaceEmbedder([target_centre])
+    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectParams(), embedder=embedder)
+    tracker.init(frame(0), _target_box((100, 100)))
+    results = _run(tracker, [frame(i) for i in range(1, 70)])
+    assert all(results[i][0] == "lost" for i in range(36, 60)), [results[i][0] for i in range(35, 62)]
+    assert results[61][0] == "recovered" and math.dist(_centre(results[61][1]), target_centre) < 3
+    assert tracker.appearance is not None and len(tracker.appearance.other_rows()) > 0  # it learnt look-alikes
+
+
+def test_a_target_the_verifier_recognises_is_taken_under_a_bar_it_would_not_reach_otherwise():
+    """The target comes back 75 px to the right after frames 35..44 (_path); the bar is set at an absolute
+    peak of 0.1 (accept_peak), above the decision filter's peaks on the target (its reference is about 0.07)."""
+    background = _background()
+    strict = {"accept_peak": 0.1}
+
+    def run(verify: dict) -> dict[int, tuple[str, Box]]:
+        targets = [(_path(i)[0] + TARGET / 2, _path(i)[1] + TARGET / 2) for i in range(70)]
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept=strict, colour={"clear_bar_fraction": 1.0},
+                                                                verify=verify), embedder=_PlaceEmbedder(targets))
+        tracker.init(_frame(background, _path(0)), _target_box(_path(0)))
+        return _run(tracker, [_frame(background, None if 35 <= i < 45 else _path(i)) for i in range(1, 70)])
+
+    unverified = run({"bar_fraction": 1.0})
+    assert all(unverified[i][0] == "lost" for i in range(35, 70)), [unverified[i][0] for i in range(35, 70)]
+    verified = run({})
+    recovered = [i for i in range(45, 70) if verified[i][0] == "recovered"]
+    assert len(recovered) == 1 and recovered[0] <= 45 + 8, [verified[i][0] for i in range(35, 70)]
+    tx, ty = _path(69)
+    assert math.dist(_centre(verified[69][1]), (tx + TARGET / 2, ty + TARGET / 2)) < 6

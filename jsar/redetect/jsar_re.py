@@ -48,6 +48,7 @@ import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
+from jsar.redetect.appearance import AppearanceMemory, Embedder, Look, Verdict as Appearance, ring_boxes, shared_embedder
 from jsar.redetect.colour_check import AnchorColours, ColourModel
 from jsar.redetect.memory import DecisionMemory
 from jsar.redetect.monitor import FailureMonitor, Verdict
@@ -86,11 +87,17 @@ class Probation:
 class JsarReTracker:
     """Long-term JSAR: `init(frame, box)`, `update(frame) -> TrackResult` (state tracking / lost / recovered)."""
 
-    def __init__(self, params: JsarParams | None = None, redetect: RedetectParams | None = None) -> None:
+    def __init__(self, params: JsarParams | None = None, redetect: RedetectParams | None = None,
+                 embedder: Embedder | None = None) -> None:
         self.params = params if params is not None else JsarParams.jsar_re()
         self.params.validate()
         self.redetect = redetect if redetect is not None else RedetectParams()
         self.redetect.validate()
+        # The verifier's network (jsar.learnt; loaded on the first init() when verify.enabled and none given).
+        self.embedder = embedder
+        self.appearance: AppearanceMemory | None = None  # the verifier's memories (appearance.py)
+        self.reliable_frames = 0  # reliable committed frames since init (the verifier learns one in learn_frames)
+        self.gate_template: tuple[np.ndarray, float] | None = None  # the whole-gate search's (template, scale)
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.memory: DecisionMemory | None = None
@@ -127,6 +134,13 @@ class JsarReTracker:
         self.share = math.inf
         self.checkpoint = None
         self.loss_cause = None
+        self.reliable_frames = 0
+        self.appearance = None
+        self.gate_template = None
+        if self.redetect.verify.enabled:
+            self.appearance = self._learn_appearance(frame, self.core.box)
+            if self.redetect.verify.gate_map:
+                self.gate_template = self.embedder.template(frame, self.core.box, self.redetect.verify.gate_map_cells)
         self.monitor = FailureMonitor(self.redetect.monitor)
         self.search = None
         self.lost = False
@@ -269,6 +283,9 @@ class JsarReTracker:
             assert own is not None
             self.memory.train(self.core, own.score)
             self.colour.learn(frame, self.core.box)
+            self.reliable_frames += 1
+            if self.appearance is not None and self.reliable_frames % self.redetect.verify.learn_frames == 0:
+                self._learn_appearance(frame, self.core.box)
         else:
             self.memory.skip()
 
@@ -297,6 +314,10 @@ class JsarReTracker:
         assert self.memory is not None
         image = self.core.prepare(frame)
         centres, angles = search.windows((frame.shape[1], frame.shape[0]))
+        peaks = self._gate_peaks(frame, search)
+        if peaks:
+            centres = np.vstack([centres, peaks])
+            angles = np.append(angles, np.zeros(len(peaks)))
         focus = search.pending if search.pending is not None else search.lead
         if focus is not None:
             centres = np.vstack([centres, [[focus.x, focus.y]]])
@@ -321,7 +342,8 @@ class JsarReTracker:
         # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
         core_bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s, accept.core_fraction)
         if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, search)
-                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)):
+                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)
+                and not self._looks_other(frame, loc.center_xy)):
             search.core_agreements += 1
             if search.core_agreements >= accept.core_confirm_frames:
                 self._commit(frame, loc, verdict.reliable, own)
@@ -338,8 +360,13 @@ class JsarReTracker:
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
         minimum = self.redetect.colour.min_match
-        taken = search.decide(candidates, bar, lambda c: self._colour_passes(frame, (c.x, c.y), minimum),
-                              lambda c: self._candidate_bar(frame, c, bar))
+        looks = self._looks(frame, candidates, bar)
+        # The verifier's "target" stands in for the colour check: the embedding sees the colours too, and the
+        # check refused targets whose box held other colours (a wakeboarder in spray).
+        taken = search.decide(candidates, bar, lambda c: (self._verified(looks, c)
+                                                          or self._colour_passes(frame, (c.x, c.y), minimum)),
+                              lambda c: self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
+        self._learn_refused(candidates, bar, looks)
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
         if taken is None:
@@ -358,11 +385,16 @@ class JsarReTracker:
         self.probation = kept
         return result
 
-    def _candidate_bar(self, frame: np.ndarray, candidate: Candidate, bar: float) -> float:
-        """The bar a candidate must pass: colour.clear_bar_fraction x `bar` where its box clearly holds the
-        target's colours at selection (colour.clear_share; a car that came back turned scores low on the
-        decision filter's gradients but keeps its colours), else `bar`."""
+    def _candidate_bar(self, frame: np.ndarray, candidate: Candidate, bar: float, look: Look | None) -> float:
+        """The bar a candidate must pass: none (inf) where the verifier calls it another object;
+        verify.bar_fraction x `bar` where it calls it the target; colour.clear_bar_fraction x `bar` where its
+        box clearly holds the target's colours at selection (colour.clear_share; a car that came back turned
+        scores low on the decision filter's gradients but keeps its colours); else `bar`."""
         assert self.anchor is not None
+        if look is not None and look.verdict is Appearance.OTHER:
+            return math.inf
+        if look is not None and look.verdict is Appearance.TARGET:
+            return min(self.redetect.verify.bar_fraction, self.redetect.colour.clear_bar_fraction) * bar
         colour = self.redetect.colour
         lower = colour.clear_bar_fraction * bar
         if not lower <= candidate.score < bar or not self.anchor.usable:
@@ -370,6 +402,77 @@ class JsarReTracker:
         w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
         box = (candidate.x - w / 2.0, candidate.y - h / 2.0, w, h)
         return lower if self.anchor.share(frame, box) >= colour.clear_share else bar
+
+    def _loss_box(self, centre_xy: tuple[float, float]) -> tuple[float, float, float, float]:
+        """A box (x, y, w, h px) of the target's size at the loss centred on centre_xy px."""
+        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
+        return (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
+
+    def _learn_appearance(self, frame: np.ndarray, box: tuple[float, float, float, float]) -> AppearanceMemory:
+        """The verifier learns a reliable frame: the target's embedding at `box` (x, y, w, h px) and the
+        look-alikes' on a ring around it (one batch); on init the memories are made."""
+        verify = self.redetect.verify
+        if self.embedder is None:
+            self.embedder = shared_embedder()  # the network loads only where the verifier is used
+        ring = ring_boxes(box, verify.ring_sides, verify.ring_count, (frame.shape[1], frame.shape[0]))
+        rows = self.embedder.embed(frame, np.vstack([np.asarray(box, float)[None], ring]))
+        if self.appearance is None:
+            self.appearance = AppearanceMemory(verify, rows[0])
+        else:
+            self.appearance.learn_target(rows[0])
+        self.appearance.learn_others(rows[1:])
+        return self.appearance
+
+    def _looks(self, frame: np.ndarray, candidates: list[Candidate], bar: float) -> dict[int, tuple[Look, np.ndarray]]:
+        """The verifier's Look at each candidate that could pass a bar lowered by it, with its embedding
+        (keyed by id; one batch)."""
+        if self.appearance is None or self.embedder is None:
+            return {}
+        lowest = min(self.redetect.verify.bar_fraction, self.redetect.colour.clear_bar_fraction) * bar
+        near = [c for c in candidates if c.score >= lowest]
+        if not near:
+            return {}
+        rows = self.embedder.embed(frame, np.array([self._loss_box((c.x, c.y)) for c in near]))
+        return {id(c): (look, row) for c, look, row in zip(near, self.appearance.judge(rows), rows)}
+
+    @staticmethod
+    def _verified(looks: dict[int, tuple[Look, np.ndarray]], candidate: Candidate) -> bool:
+        """Whether the verifier called `candidate` the target."""
+        return id(candidate) in looks and looks[id(candidate)][0].verdict is Appearance.TARGET
+
+    def _looks_other(self, frame: np.ndarray, centre_xy: tuple[float, float]) -> bool:
+        """Whether the verifier calls the target-sized box centred on centre_xy px another object."""
+        if self.appearance is None or self.embedder is None:
+            return False
+        rows = self.embedder.embed(frame, np.array([self._loss_box(centre_xy)]))
+        return self.appearance.judge(rows)[0].verdict is Appearance.OTHER
+
+    def _gate_peaks(self, frame: np.ndarray, search: LossSearch) -> list[tuple[float, float]]:
+        """The whole-gate search on this lost frame (verify.gate_map): the centres (px) where the target's
+        template matches best over the motion gate, within the lattice's square and verify.gate_map_max_px."""
+        verify = self.redetect.verify
+        if self.gate_template is None or self.embedder is None or search.lost_frames % verify.gate_map_frames:
+            return []
+        template, scale = self.gate_template
+        radius = (min(search.reach_sides, search.area_sides() / 2.0) + 0.5) * search.side_px
+        radius = min(radius, verify.gate_map_max_px / (2.0 * scale))
+        height, width = frame.shape[:2]
+        x0, y0 = max(search.anchor_xy[0] - radius, 0.0), max(search.anchor_xy[1] - radius, 0.0)
+        x1, y1 = min(search.anchor_xy[0] + radius, float(width)), min(search.anchor_xy[1] + radius, float(height))
+        if x1 - x0 < 1 or y1 - y0 < 1:
+            return []
+        peaks = self.embedder.gate_peaks(frame, (x0, y0, x1 - x0, y1 - y0), scale, template,
+                                         verify.gate_map_peaks, verify.gate_map_min_cosine)
+        return [(x, y) for x, y, _ in peaks]
+
+    def _learn_refused(self, candidates: list[Candidate], bar: float,
+                       looks: dict[int, tuple[Look, np.ndarray]]) -> None:
+        """Candidates over the bar that the verifier called other objects join the look-alikes (they would
+        have been taken without it: the hardest negatives there are)."""
+        refused = [looks[id(c)][1] for c in candidates if c.score >= bar and id(c) in looks
+                   and looks[id(c)][0].verdict is Appearance.OTHER]
+        if refused and self.appearance is not None:
+            self.appearance.learn_others(np.vstack(refused))
 
     def _new_colour_model(self) -> ColourModel:
         colour = self.redetect.colour

@@ -233,13 +233,54 @@ class ColourParams:
 
 
 @dataclass(frozen=True)
+class VerifyParams:
+    """The verifier (appearance.py): a learnt embedding's check of candidates while lost; cosines -1..1."""
+
+    enabled: bool = True  # off: the decision filter and colour check alone decide
+    min_similarity: float = 0.6  # "target": cosine to the target memory at least this ...
+    margin: float = 0.05  # ... and this above the cosine to the look-alike memory
+    reject_similarity: float = 0.5  # "other": cosine to the target memory under this (or a look-alike as close)
+    bar_fraction: float = 0.6  # a "target" candidate's bar: this x the acceptance bar (1: no lower bar)
+    target_slots: int = 6  # target memory: the selection plus this many minus one recent reliable frames ...
+    learn_frames: int = 10  # ... one per this many reliable frames, with the look-alikes around it
+    other_slots: int = 32  # look-alike memory size (oldest out first)
+    ring_sides: float = 2.0  # look-alikes: windows this many target sides from the target ...
+    ring_count: int = 8  # ... at this many angles
+    gate_map: bool = False  # whole-gate search: one network pass over the motion gate while lost ...
+    gate_map_frames: int = 1  # ... on one lost frame in this many ...
+    gate_map_cells: int = 3  # ... the target this many feature cells across (stride 16) ...
+    gate_map_max_px: int = 320  # ... the region at most this many resized px a side (the gate is cut beyond) ...
+    gate_map_peaks: int = 3  # ... its best this-many peaks become windows of the decision filter ...
+    gate_map_min_cosine: float = 0.5  # ... those matching the target's template at least this well
+
+    def validate(self, prefix: str = "verify") -> None:
+        """Raise ValueError naming `prefix.key` of the first invalid value."""
+        _require(prefix, "min_similarity", -1 <= self.reject_similarity <= self.min_similarity <= 1,
+                 f"-1 <= reject_similarity <= min_similarity <= 1, got {self.reject_similarity}, {self.min_similarity}")
+        _require(prefix, "margin", 0 <= self.margin <= 2, f"0 <= value <= 2, got {self.margin}")
+        _require(prefix, "bar_fraction", 0 < self.bar_fraction <= 1, f"0 < value <= 1, got {self.bar_fraction}")
+        for key in ("target_slots", "learn_frames", "ring_count"):
+            value = getattr(self, key)
+            _require(prefix, key, value >= 1, f">= 1, got {value}")
+        _require(prefix, "other_slots", self.other_slots >= 0, f">= 0, got {self.other_slots}")
+        _require(prefix, "ring_sides", self.ring_sides > 0, f"> 0, got {self.ring_sides}")
+        for key in ("gate_map_frames", "gate_map_cells", "gate_map_peaks"):
+            value = getattr(self, key)
+            _require(prefix, key, value >= 1, f">= 1, got {value}")
+        _require(prefix, "gate_map_max_px", self.gate_map_max_px >= 64, f">= 64, got {self.gate_map_max_px}")
+        _require(prefix, "gate_map_min_cosine", -1 <= self.gate_map_min_cosine <= 1,
+                 f"-1 <= value <= 1, got {self.gate_map_min_cosine}")
+
+
+@dataclass(frozen=True)
 class RedetectParams:
-    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check (see their classes)."""
+    """Everything JSAR-Re adds to JSAR: monitor, search, acceptance, colour check, verifier (see their classes)."""
 
     monitor: MonitorParams = field(default_factory=MonitorParams)
     search: SearchParams = field(default_factory=SearchParams)
     accept: AcceptParams = field(default_factory=AcceptParams)
     colour: ColourParams = field(default_factory=ColourParams)
+    verify: VerifyParams = field(default_factory=VerifyParams)
 
     def validate(self, prefix: str = "redetect") -> None:
         """Raise ValueError naming the first invalid key as prefix.group.key."""
@@ -247,6 +288,7 @@ class RedetectParams:
         self.search.validate(f"{prefix}.search")
         self.accept.validate(f"{prefix}.accept")
         self.colour.validate(f"{prefix}.colour")
+        self.verify.validate(f"{prefix}.verify")
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any] | None, prefix: str = "redetect") -> "RedetectParams":
@@ -255,7 +297,7 @@ class RedetectParams:
         if mapping is None:
             return params
         if not isinstance(mapping, Mapping):
-            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour), got {mapping!r}")
+            raise ValueError(f"{prefix} must be a mapping of groups (monitor, search, accept, colour, verify), got {mapping!r}")
         groups = {f.name: getattr(params, f.name) for f in dataclasses.fields(cls)}
         replaced: dict[str, Any] = {}
         for group, values in mapping.items():

@@ -1,0 +1,175 @@
+"""The verifier: a learnt appearance check of re-detection candidates (VerifyParams).
+
+The decision filter scores a candidate by a HOG + colour-names template: a returning target that looks a
+little different scores under the bar that keeps look-alikes out. The verifier compares embeddings
+(unit vectors from an ImageNet network, jsar.learnt) instead, with two memories:
+- the target's: the selection's embedding, kept for good, and those of a few recent reliable frames;
+- the look-alikes': windows around the tracked target on reliable frames (TLD's negative expert: what
+  is near the target and is not it) and candidates the verifier refused while lost.
+A candidate's similarity to each memory is its largest cosine there; it is "target" when its target
+similarity reaches `min_similarity` and beats its look-alike similarity by `margin` (DaSiamRPN's
+distractor-aware score as a margin), "other" when it falls under `reject_similarity`, else "unsure".
+
+Conventions: boxes (x, y, w, h) px; embeddings (N, D) float32 rows of unit length.
+"""
+from __future__ import annotations
+
+import collections
+import enum
+import functools
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from jsar.redetect.params import VerifyParams
+
+
+class Embedder(Protocol):
+    """What the verifier needs of a network: unit-length embeddings of boxes in a frame."""
+
+    def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
+        """(N, D) float32 unit rows for (N, 4) boxes (x, y, w, h px) of a uint8 BGR frame."""
+        ...
+
+
+class Verdict(enum.Enum):
+    """The verifier's answer on one candidate."""
+
+    TARGET = "target"
+    UNSURE = "unsure"
+    OTHER = "other"
+
+
+@dataclass(frozen=True)
+class Look:
+    """One candidate's similarities (cosine, -1..1) to the target memory and to the look-alike memory
+    (-1 while it is empty), and the verdict they give."""
+
+    target: float
+    other: float
+    verdict: Verdict
+
+
+def max_cosine(rows: np.ndarray, memory: np.ndarray) -> np.ndarray:
+    """(N,) largest cosine of each unit row (N, D) with the unit rows of memory (M, D); -1 where M = 0."""
+    if len(memory) == 0:
+        return np.full(len(rows), -1.0, np.float32)
+    return (rows @ memory.T).max(axis=1)
+
+
+def ring_boxes(box: tuple[float, float, float, float], distance_sides: float, count: int,
+               frame_wh: tuple[int, int]) -> np.ndarray:
+    """(M, 4) boxes of `box`'s size centred `distance_sides` target sides sqrt(w*h) from its centre at
+    `count` evenly spaced angles, those whose centre lies inside the frame (x, y, w, h px)."""
+    x, y, w, h = box
+    side = float(np.sqrt(w * h))
+    angles = 2.0 * np.pi * np.arange(count) / max(count, 1)
+    cx = x + w / 2.0 + distance_sides * side * np.cos(angles)
+    cy = y + h / 2.0 + distance_sides * side * np.sin(angles)
+    inside = (cx >= 0) & (cx < frame_wh[0]) & (cy >= 0) & (cy < frame_wh[1])
+    return np.column_stack([cx - w / 2.0, cy - h / 2.0, np.full(len(cx), w), np.full(len(cx), h)])[inside]
+
+
+class AppearanceMemory:
+    """The target's and the look-alikes' embeddings; `judge` gives a candidate's Look."""
+
+    def __init__(self, params: VerifyParams, first: np.ndarray) -> None:
+        self.params = params
+        self.first = np.asarray(first, np.float32).reshape(1, -1)
+        self.recent: collections.deque[np.ndarray] = collections.deque(maxlen=max(params.target_slots - 1, 0))
+        self.others: collections.deque[np.ndarray] = collections.deque(maxlen=params.other_slots)
+
+    def target_rows(self) -> np.ndarray:
+        """(K, D) the target memory: the selection's embedding, then the recent ones."""
+        return np.vstack([self.first, *self.recent]) if self.recent else self.first
+
+    def other_rows(self) -> np.ndarray:
+        """(M, D) the look-alike memory (M may be 0)."""
+        return np.vstack(list(self.others)) if self.others else np.empty((0, self.first.shape[1]), np.float32)
+
+    def learn_target(self, embedding: np.ndarray) -> None:
+        """Add one reliable frame's target embedding (D,) (the oldest recent one goes)."""
+        if self.recent.maxlen:
+            self.recent.append(np.asarray(embedding, np.float32).reshape(-1))
+
+    def learn_others(self, embeddings: np.ndarray) -> None:
+        """Add look-alike embeddings (M, D), except those closer to the target than to nothing it knows:
+        a window that overlaps the target, or the target itself refused, must not teach the target away."""
+        rows = np.asarray(embeddings, np.float32).reshape(-1, self.first.shape[1])
+        if len(rows) == 0:
+            return
+        close = max_cosine(rows, self.target_rows()) >= self.params.min_similarity
+        for row in rows[~close]:
+            self.others.append(row)
+
+    def judge(self, embeddings: np.ndarray) -> list[Look]:
+        """The Look of each candidate embedding (N, D)."""
+        rows = np.asarray(embeddings, np.float32).reshape(-1, self.first.shape[1])
+        target = max_cosine(rows, self.target_rows())
+        other = max_cosine(rows, self.other_rows())
+        looks = []
+        for t, o in zip(target.tolist(), other.tolist()):
+            if t >= self.params.min_similarity and t - o >= self.params.margin:
+                verdict = Verdict.TARGET
+            elif t < self.params.reject_similarity:
+                verdict = Verdict.OTHER
+            else:
+                verdict = Verdict.UNSURE
+            looks.append(Look(t, o, verdict))
+        return looks
+
+
+def map_peaks(score: np.ndarray, count: int, min_value: float, spacing: float) -> list[tuple[int, int, float]]:
+    """Up to `count` (row, col, value) maxima of a score map (h, w), best first, each >= min_value and more
+    than `spacing` cells from every better one kept (greedy non-maximum suppression)."""
+    order = np.argsort(score, axis=None)[::-1]
+    kept: list[tuple[int, int, float]] = []
+    for flat in order:
+        value = float(score.flat[flat])
+        if value < min_value or len(kept) == count:
+            break
+        r, c = divmod(int(flat), score.shape[1])
+        if all((r - kr) ** 2 + (c - kc) ** 2 > spacing ** 2 for kr, kc, _ in kept):
+            kept.append((r, c, value))
+    return kept
+
+
+class NetworkEmbedder:
+    """The verifier's Embedder and the whole-gate search's maps: jsar.learnt's MobileNetV2 features."""
+
+    def __init__(self, cut: int = 16) -> None:
+        from jsar.learnt.mobilenet import FeatureNet  # the weights load here, not on importing the tracker
+        self.net = FeatureNet(cut=cut)
+
+    def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
+        """(N, D) float32 unit rows for (N, 4) boxes (x, y, w, h px) of a uint8 BGR frame."""
+        from jsar.learnt.embedding import embed
+        return embed(self.net, frame, boxes_xywh)
+
+    def template(self, frame: np.ndarray, box_xywh: tuple[float, float, float, float], cells: int
+                 ) -> tuple[np.ndarray, float]:
+        """The target's feature cells (C, th, tw) with its side sqrt(w*h) `cells` cells across, and that scale
+        (resized px per frame px)."""
+        from jsar.learnt.embedding import target_template
+        scale = cells * self.net.stride / float(np.sqrt(box_xywh[2] * box_xywh[3]))
+        return target_template(self.net, frame, box_xywh, scale), scale
+
+    def gate_peaks(self, frame: np.ndarray, region_xywh: tuple[float, float, float, float], scale: float,
+                   template: np.ndarray, count: int, min_value: float) -> list[tuple[float, float, float]]:
+        """Up to `count` (x px, y px, cosine) box centres where the template matches best in the region
+        (x, y, w, h px) resized by `scale`, one forward pass, best first, a template apart."""
+        from jsar.learnt.embedding import feature_map, match_map, peak_to_frame
+        fmap = feature_map(self.net, frame, region_xywh, scale)
+        if fmap.shape[1] < template.shape[1] or fmap.shape[2] < template.shape[2]:
+            return []
+        score = match_map(fmap, template)
+        spacing = float(max(template.shape[1:]))
+        return [(*peak_to_frame(r, c, template.shape, region_xywh, scale, self.net.stride), v)
+                for r, c, v in map_peaks(score, count, min_value, spacing)]
+
+
+@functools.lru_cache(maxsize=1)
+def shared_embedder() -> NetworkEmbedder:
+    """One network per process, shared by every tracker (it holds no per-target state)."""
+    return NetworkEmbedder()

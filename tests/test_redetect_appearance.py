@@ -1,0 +1,80 @@
+"""The verifier's memories and verdicts (jsar.redetect.appearance), on hand-made unit embeddings."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jsar.redetect.appearance import AppearanceMemory, Verdict, max_cosine, ring_boxes
+from jsar.redetect.params import RedetectParams, VerifyParams
+
+
+def unit(*values: float) -> np.ndarray:
+    row = np.asarray(values, np.float32)
+    return row / np.linalg.norm(row)
+
+
+def test_max_cosine_takes_the_closest_memory_row_and_minus_one_for_an_empty_memory():
+    memory = np.vstack([unit(1, 0, 0), unit(0, 1, 0)])
+    rows = np.vstack([unit(1, 1, 0), unit(0, 0, 1)])
+    assert max_cosine(rows, memory) == pytest.approx([np.sqrt(0.5), 0.0], abs=1e-6)
+    assert max_cosine(rows, np.empty((0, 3), np.float32)).tolist() == [-1.0, -1.0]
+
+
+def test_the_selection_itself_is_the_target_and_an_orthogonal_window_another_object():
+    memory = AppearanceMemory(VerifyParams(), unit(1, 0, 0))
+    target, other = memory.judge(np.vstack([unit(1, 0.1, 0), unit(0, 0, 1)]))
+    assert target.verdict is Verdict.TARGET and target.other == -1.0
+    assert other.verdict is Verdict.OTHER
+
+
+def test_a_look_alike_as_close_as_the_target_leaves_a_candidate_unsure_and_a_far_one_other():
+    params = VerifyParams(min_similarity=0.7, margin=0.05, reject_similarity=0.3)
+    memory = AppearanceMemory(params, unit(1, 0, 0))
+    memory.learn_others(unit(0, 1, 0)[None])
+    between = unit(1, 1, 0)  # cos 0.707 to both: close enough, but no margin
+    assert memory.judge(between[None])[0].verdict is Verdict.UNSURE
+    nearer = unit(1, 0.8, 0)  # cos 0.78 to the target, 0.62 to the look-alike
+    assert memory.judge(nearer[None])[0].verdict is Verdict.TARGET
+    far = unit(0.2, 1, 0)  # cos 0.2 to the target: under reject_similarity
+    assert memory.judge(far[None])[0].verdict is Verdict.OTHER
+
+
+def test_a_candidate_close_enough_but_without_the_margin_is_unsure():
+    params = VerifyParams(min_similarity=0.7, margin=0.3, reject_similarity=0.3)
+    memory = AppearanceMemory(params, unit(1, 0, 0))
+    memory.learn_others(unit(0.3, 1, 0)[None])  # cos 0.29 to the target: a look-alike it keeps
+    look = memory.judge(unit(1, 0.5, 0)[None])[0]
+    assert look.target == pytest.approx(0.894, abs=1e-3) and look.other == pytest.approx(0.685, abs=1e-3)
+    assert look.verdict is Verdict.UNSURE  # close enough, but only 0.21 above the look-alike
+    assert AppearanceMemory(VerifyParams(min_similarity=0.7, margin=0.2), unit(1, 0, 0)).judge(
+        unit(1, 0.5, 0)[None])[0].verdict is Verdict.TARGET  # with no look-alike learnt
+
+
+def test_look_alikes_close_to_the_target_are_not_learnt_and_the_oldest_go_first():
+    params = VerifyParams(min_similarity=0.75, other_slots=2)
+    memory = AppearanceMemory(params, unit(1, 0, 0))
+    memory.learn_others(np.vstack([unit(1, 0.2, 0), unit(0, 1, 0), unit(0, 0, 1), unit(0, 1, 1)]))
+    others = memory.other_rows()
+    assert len(others) == 2  # the first was the target's own look; of three others the oldest went
+    assert np.allclose(others, np.vstack([unit(0, 0, 1), unit(0, 1, 1)]))
+
+
+def test_the_target_memory_keeps_the_selection_and_the_latest_frames():
+    memory = AppearanceMemory(VerifyParams(target_slots=3), unit(1, 0, 0))
+    for row in (unit(0, 1, 0), unit(0, 0, 1), unit(0, 1, 1)):
+        memory.learn_target(row)
+    assert np.allclose(memory.target_rows(), np.vstack([unit(1, 0, 0), unit(0, 0, 1), unit(0, 1, 1)]))
+
+
+def test_ring_boxes_surround_the_box_at_its_size_and_drop_centres_outside_the_frame():
+    boxes = ring_boxes((10.0, 20.0, 20.0, 20.0), 2.0, 4, (200, 200))  # centre (20, 30), 40 px away
+    centres = boxes[:, :2] + boxes[:, 2:] / 2
+    assert np.allclose(centres, [[60.0, 30.0], [20.0, 70.0]])  # left (-20, 30) and up (20, -10) lie outside
+    assert np.all(boxes[:, 2:] == 20.0)
+
+
+@pytest.mark.parametrize("key, value", [("margin", -0.1), ("bar_fraction", 0.0), ("target_slots", 0),
+                                        ("ring_sides", 0.0), ("min_similarity", 1.5)])
+def test_an_invalid_verifier_setting_is_named(key, value):
+    with pytest.raises(ValueError, match=rf"redetect\.verify\.{key}"):
+        RedetectParams.from_mapping({"verify": {key: value}})

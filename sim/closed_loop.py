@@ -413,8 +413,10 @@ class ClosedLoop:
             # The daemon's config first (it opens nothing): a failure here leaves no socket or session behind.
             self.daemon = Daemon(self.workdir, daemon_overrides(cfg, self.zenoh_port),
                                  f"udpout:127.0.0.1:{self.service_port}", cfg.daemon_module)
+            # PX4's gimbal set up as on the firmware's closed loop (sim.sitl_autopilot: MNT_RANGE_PITCH 180)
             self.autopilot = MockAutopilot(VehicleConfig(flavour=cfg.flavour, start_mode=cfg.start_mode,
-                                                         start_altitude_m=cfg.altitude_m, system_id=cfg.system_id),
+                                                         start_altitude_m=cfg.altitude_m, system_id=cfg.system_id,
+                                                         px4_pitch_range_deg=180.0),
                                            self.service_port, self.gcs_port)
         try:
             self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{self.zenoh_port}",),

@@ -46,8 +46,10 @@ TAP_SYSTEM, TAP_COMPONENT = 250, 190  # the sim's own identity on the ground-sta
 STREAM_HZ = 50.0  # the tap's state streams: the scene follows the firmware to within a frame or so
 START_PITCH_DEG = -45.0  # where the operator points the camera before the selection (the mock's start)
 # PX4: take-off straight to the scene's altitude (MIS_TAKEOFF_ALT), climbing fast (the test budget); its
-# offboard-loss failsafe stays the default (Position mode after 1 s: the vehicle stops there).
-PX4_PARAMS = {"MPC_TKO_SPEED": 8.0, "MPC_Z_VEL_MAX_UP": 8.0, "MPC_Z_V_AUTO_UP": 8.0}
+# offboard-loss failsafe stays the default (Position mode after 1 s: the vehicle stops there). MNT_RANGE_PITCH
+# 180: a gimbal that looks straight down, as ArduPilot's servo gimbal here (PX4's default 90 stops the pitch at
+# -45 deg; guidance brings the vehicle to 15 m of ground range from 30 m up, 63 deg down).
+PX4_PARAMS = {"MPC_TKO_SPEED": 8.0, "MPC_Z_VEL_MAX_UP": 8.0, "MPC_Z_V_AUTO_UP": 8.0, "MNT_RANGE_PITCH": 180.0}
 
 
 def firmware_kind(flavour: str) -> str:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jsar.redetect.appearance import AppearanceMemory, Verdict, max_cosine, ring_boxes
+from jsar.redetect.appearance import AppearanceMemory, Verdict, map_peaks, max_cosine, ring_boxes
 from jsar.redetect.params import RedetectParams, VerifyParams
 
 
@@ -78,3 +78,11 @@ def test_ring_boxes_surround_the_box_at_its_size_and_drop_centres_outside_the_fr
 def test_an_invalid_verifier_setting_is_named(key, value):
     with pytest.raises(ValueError, match=rf"redetect\.verify\.{key}"):
         RedetectParams.from_mapping({"verify": {key: value}})
+
+
+def test_map_peaks_keeps_the_best_maxima_a_spacing_apart_above_the_minimum():
+    score = np.zeros((10, 10), np.float32)
+    score[2, 2], score[2, 3], score[7, 7], score[5, 5], score[9, 0] = 1.0, 0.9, 0.8, 0.3, 0.7
+    assert map_peaks(score, 3, 0.5, 2.0) == [(2, 2, 1.0), (7, 7, pytest.approx(0.8)), (9, 0, pytest.approx(0.7))]
+    assert map_peaks(score, 1, 0.5, 2.0) == [(2, 2, 1.0)]
+    assert map_peaks(score, 5, 0.75, 0.5) == [(2, 2, 1.0), (2, 3, pytest.approx(0.9)), (7, 7, pytest.approx(0.8))]

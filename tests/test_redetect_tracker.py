@@ -974,6 +974,7 @@ class _PlaceEmbedder:
     def __init__(self, targets: list[tuple[float, float]]) -> None:
         self.targets = targets
         self.calls = 0
+        self.gate_regions: list[Box] = []
 
     def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
         self.calls += 1
@@ -985,6 +986,17 @@ class _PlaceEmbedder:
             else:
                 rows.append((0.0, 1.0, 0.0) if centre[0] < 160 else (0.0, 0.0, 1.0))
         return np.asarray(rows, np.float32)
+
+    def template(self, frame: np.ndarray, box_xywh: Box, cells: int) -> tuple[np.ndarray, float]:
+        return np.ones((1, cells, cells), np.float32), 1.0
+
+    def gate_peaks(self, frame: np.ndarray, region_xywh: Box, scale: float, template: np.ndarray, count: int,
+                   min_value: float) -> list[tuple[float, float, float]]:
+        """The whole-gate search's peaks: the target's places inside the region where the target is (cosine 0.9)."""
+        self.gate_regions.append(region_xywh)
+        x, y, w, h = region_xywh
+        return [(tx, ty, 0.9) for tx, ty in self.targets if x <= tx < x + w and y <= ty < y + h
+                and frame[int(ty), int(tx)].tolist() == _target()[TARGET // 2, TARGET // 2].tolist()][:count]
 
 
 def test_a_look_alike_the_verifier_calls_another_object_is_not_taken_even_above_the_bar():
@@ -1023,3 +1035,30 @@ def test_a_target_the_verifier_recognises_is_taken_under_a_bar_it_would_not_reac
     assert len(recovered) == 1 and recovered[0] <= 45 + 8, [verified[i][0] for i in range(35, 70)]
     tx, ty = _path(69)
     assert math.dist(_centre(verified[69][1]), (tx + TARGET / 2, ty + TARGET / 2)) < 6
+
+
+def test_the_whole_gate_search_looks_where_the_target_came_back_on_the_frame_it_is_there():
+    """The target is hidden on frames 35..64 and comes back 130 px (5.4 sides) to the right, in the motion gate
+    by then. With the lattice off (the core's own window only) the whole-gate search's peak there is what
+    finds it, on the frame it is back; without either it stays lost."""
+    background = _background()
+
+    def place(index: int) -> tuple[int, int]:
+        return (230, 100) if index >= 65 else (100, 100)
+
+    def run(gate_map: bool) -> tuple[dict[int, tuple[str, Box]], _PlaceEmbedder]:
+        embedder = _PlaceEmbedder([(x + TARGET / 2, y + TARGET / 2) for x, y in (place(0), place(65))])
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"windows_per_frame": 0},
+                                                                verify={"gate_map": gate_map}), embedder=embedder)
+        tracker.init(_frame(background, place(0)), _target_box(place(0)))
+        frames = [_frame(background, None if 35 <= i < 65 else place(i)) for i in range(1, 80)]
+        return _run(tracker, frames), embedder
+
+    blind, _ = run(False)
+    assert all(blind[i][0] == "lost" for i in range(35, 80)), [blind[i][0] for i in range(60, 80)]
+    gated, embedder = run(True)
+    assert all(gated[i][0] == "lost" for i in range(35, 65))
+    assert gated[66][0] == "recovered", [gated[i][0] for i in range(60, 80)]  # pending on 65, confirmed on 66
+    assert math.dist(_centre(gated[66][1]), (242.0, 112.0)) < 6
+    assert all(gated[i][0] == "tracking" for i in range(67, 80))
+    assert len(embedder.gate_regions) == 32  # one map on every searched frame, 35..66 (verify.gate_map_frames 1)

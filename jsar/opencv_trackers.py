@@ -45,7 +45,13 @@ class OpenCVTracker:
         frame = validate_frame(frame)
         box = validate_box(box, frame.shape)
         tracker = self._factory()
-        tracker.init(as_bgr(frame), rounded_rect(box))  # type: ignore[attr-defined]
+        try:
+            tracker.init(as_bgr(frame), rounded_rect(box))  # type: ignore[attr-defined]
+        except cv2.error as exc:
+            # CSRT asserts on frames or boxes a few pixels across (a 7x5 frame, a 1-px-wide box: bench/fuzz.py's
+            # odd-size Zenoh frames); the API's contract for input it cannot take is a ValueError
+            raise ValueError(f"{self.name}: OpenCV cannot start on a {frame.shape[1]}x{frame.shape[0]} frame with "
+                             f"box {rounded_rect(box)}: {str(exc).strip().splitlines()[-1]}") from exc
         self._tracker = tracker
         self._last_box = box
 

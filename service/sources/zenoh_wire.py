@@ -24,6 +24,12 @@ from service.sources.base import is_complete_jpeg
 MAGIC = b"JFR1"
 HEADER = struct.Struct("<4s4sIIQd")
 PIXEL_FORMATS = (b"BGR3", b"GRAY", b"JPEG")
+# The largest frame side taken: 4K (3840x2160, DCI 4096x2160) fits; a 4096x4096 BGR frame is 48 MB. A JPEG's
+# size is in its own header and the decoder allocates it before reading the data: a 1 kB payload claiming
+# 30000x30000 took 5.2 GB and 31 s to decode (bench.fuzz zenoh, jpeg_bomb), so the size is checked first.
+MAX_SIDE_PX = 4096
+# JPEG start-of-frame markers (SOF0..SOF15 but DHT C4, JPG C8, DAC CC): height and width follow their length
+JPEG_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,34 @@ def encode_frame(image: np.ndarray, frame_id: int, timestamp: float, pixel_forma
     return HEADER.pack(MAGIC, pixel_format, width, height, int(frame_id), float(timestamp)) + data
 
 
+def jpeg_size(data: bytes | bytearray | memoryview) -> tuple[int, int] | None:
+    """(width, height) in pixels from a JPEG stream's frame header (SOFn), read without decoding; None when the
+    stream has no frame header before its scan data (not a JPEG, or a corrupt one)."""
+    view = memoryview(data)
+    if len(view) < 4 or view[0] != 0xFF or view[1] != 0xD8:
+        return None
+    at = 2
+    while at + 4 <= len(view):
+        if view[at] != 0xFF:
+            return None
+        marker = view[at + 1]
+        if marker == 0xFF:  # fill byte before a marker
+            at += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD7:  # markers without a length
+            at += 2
+            continue
+        if marker in (0xD9, 0xDA):  # end of image / start of scan before any frame header
+            return None
+        length = view[at + 2] << 8 | view[at + 3]
+        if marker in JPEG_SOF_MARKERS:
+            if at + 9 > len(view):
+                return None
+            return view[at + 7] << 8 | view[at + 8], view[at + 5] << 8 | view[at + 6]
+        at += 2 + length
+    return None
+
+
 def decode_frame(payload: bytes | bytearray | memoryview) -> WireFrame:
     """Parse one payload; ValueError on a bad magic, unknown format, size mismatch or corrupt JPEG."""
     view = memoryview(payload)
@@ -69,6 +103,8 @@ def decode_frame(payload: bytes | bytearray | memoryview) -> WireFrame:
         raise ValueError(f"bad frame magic {magic!r}")
     if width == 0 or height == 0:
         raise ValueError(f"frame size {width}x{height} is empty")
+    if width > MAX_SIDE_PX or height > MAX_SIDE_PX:
+        raise ValueError(f"frame size {width}x{height} exceeds {MAX_SIDE_PX} px a side")
     data = view[HEADER.size:]
     if pixel_format in (b"BGR3", b"GRAY"):
         channels = 3 if pixel_format == b"BGR3" else 1
@@ -80,7 +116,15 @@ def decode_frame(payload: bytes | bytearray | memoryview) -> WireFrame:
     elif pixel_format == b"JPEG":
         if not is_complete_jpeg(data):
             raise ValueError("truncated JPEG frame (no end-of-image marker)")
-        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        size = jpeg_size(data)
+        if size is None:
+            raise ValueError("corrupt JPEG frame (no frame header)")
+        if size != (width, height):  # checked before decoding: the decoder allocates what the JPEG claims
+            raise ValueError(f"JPEG is {size[0]}x{size[1]}, header says {width}x{height}")
+        try:
+            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        except cv2.error as exc:  # OpenCV's own limits and assertions on odd streams
+            raise ValueError(f"corrupt JPEG frame: {str(exc).strip().splitlines()[-1]}") from exc
         if image is None:
             raise ValueError("corrupt JPEG frame")
         if image.shape[:2] != (height, width):

@@ -37,7 +37,7 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (after MAVLINK20)
 
-from sim.autopilot import euler_to_quaternion, quaternion_to_pitch_yaw  # noqa: E402
+from sim.autopilot import PEER_TIMEOUT_S, euler_to_quaternion, quaternion_to_pitch_yaw  # noqa: E402
 from sim.firmware import (ArduPilotSitl, Px4Sih, _claim_instance, command, connect, firmware_missing,  # noqa: E402
                           set_message_interval, wait_message)
 from sim.vehicle_model import ARDUCOPTER_MODES, PX4_MAIN, PX4_MODES, VehicleSnapshot, wrap_pi  # noqa: E402
@@ -161,7 +161,9 @@ class SitlAutopilot:
         self.counts: dict[str, int] = {}
         self._conn: Any = None
         self._sock_gcs: Any = None
-        self._gcs_addr: tuple[str, int] | None = None
+        # ground stations heard on gcs_port (address -> monotonic time last heard): the command-line one and the
+        # web station share it, as on the mock's ground-station link
+        self._gcs_peers: dict[tuple[str, int], float] = {}
         self._codec = mavlink.MAVLink(None, srcSystem=TAP_SYSTEM, srcComponent=TAP_COMPONENT)
         self._codec.robust_parsing = True
         self._stop = threading.Event()
@@ -368,11 +370,17 @@ class SitlAutopilot:
                         break
                     if sock is fw_sock:
                         self._conn.last_address = addr
-                        if self._gcs_addr is not None:
-                            self._sock_gcs.sendto(data, self._gcs_addr)
+                        now = time.monotonic()
+                        for peer in [p for p, heard in self._gcs_peers.items() if now - heard > PEER_TIMEOUT_S]:
+                            del self._gcs_peers[peer]
+                        for peer in self._gcs_peers:
+                            try:
+                                self._sock_gcs.sendto(data, peer)
+                            except OSError:
+                                pass  # a ground station gone (ICMP unreachable): the others still get it
                         self._observe(data)
                     else:
-                        self._gcs_addr = addr
+                        self._gcs_peers[addr] = time.monotonic()
                         if self._conn.last_address is not None:
                             fw_sock.sendto(data, self._conn.last_address)
             now = time.monotonic()

@@ -467,6 +467,12 @@ def log_failures(text: str) -> dict[str, int]:
     return {marker: text.count(marker) for marker in LOG_FAILURES if marker in text}
 
 
+def failure_lines(text: str, limit: int = 6) -> list[str]:
+    """The first log lines holding a LOG_FAILURES marker (each with its traceback, cut to 3000 characters)."""
+    lines = [line for line in text.splitlines() if any(marker in line for marker in LOG_FAILURES[1:])]
+    return [line[:3000] for line in lines[:limit]]
+
+
 def zenoh_session(port: int) -> Any:
     """A Zenoh peer connected to the daemon's listen endpoint only (no multicast scouting)."""
     import zenoh
@@ -805,6 +811,7 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
         peer.close()
         code = daemon.stop()
         result["log_failures"] = log_failures(daemon.log())
+        result["log_failure_lines"] = failure_lines(daemon.log())
         result["stop_exit_code"] = code
     return result
 
@@ -938,6 +945,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
         peer.close()
         code = daemon.stop()
         result["log_failures"] = log_failures(daemon.log())
+        result["log_failure_lines"] = failure_lines(daemon.log())
         result["stop_exit_code"] = code
     return result
 

@@ -192,3 +192,27 @@ def test_the_daemon_survives_a_short_mavlink_fuzz(tmp_path: Path) -> None:
     assert result["memory"]["rss_growth_mb"] < 15, result["memory"]
     assert result["daemon_counters"]["mavlink_bad_packets"] > 1000  # the malformed inputs reached the parser
     assert math.isfinite(result["baseline"]["fps"]) and result["baseline"]["fps"] > 10, result["baseline"]
+
+
+def test_a_non_finite_attitude_or_an_impossible_position_keeps_the_last_good_pose() -> None:
+    """Regression (bench.fuzz mavlink, 100,000 inputs: 10 event=step_failed, each stopping the track): ATTITUDE
+    with NaN / infinite angles and GLOBAL_POSITION_INT off the globe from the autopilot's system reached the
+    loop's geometry (math domain error, non-finite sightings). They are ignored; finite ones still update."""
+    from service.mavlink.autopilot import AutopilotView, observe
+
+    mav = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
+    parser = dialect.MAVLink(None)
+
+    def heard(msg: object) -> object:
+        return parser.parse_buffer(msg.pack(mav))[0]
+    view = AutopilotView(system_id=1, attitude=(0.1, -0.2, 0.3), position=(47.0, 8.0, 500.0, 30.0))
+    for roll, pitch, yaw in ((float("nan"), 0, 0), (0, float("inf"), 0), (0, 0, -float("inf"))):
+        assert observe(view, heard(dialect.MAVLink_attitude_message(0, roll, pitch, yaw, 0, 0, 0)), 1.0, 1) == view
+    for lat, lon in ((2**31 - 1, 0), (0, 1_800_000_001), (-900_000_001, 0)):
+        assert observe(view, heard(dialect.MAVLink_global_position_int_message(0, lat, lon, 0, 0, 0, 0, 0, 0)),
+                       1.0, 1) == view
+    moved = observe(view, heard(dialect.MAVLink_attitude_message(0, 0.0, 0.5, 3.0, 0, 0, 0)), 1.0, 1)
+    assert moved.attitude == pytest.approx((0.0, 0.5, 3.0))
+    placed = observe(view, heard(dialect.MAVLink_global_position_int_message(0, -899_999_999, 1_799_999_999, 0, 0,
+                                                                               0, 0, 0, 0)), 1.0, 1)
+    assert placed.position[:2] == pytest.approx((-89.9999999, 179.9999999))

@@ -58,11 +58,18 @@ def observe(view: AutopilotView, msg: object, now_s: float, expected_system: int
                        custom_mode=msg.custom_mode, last_heartbeat_s=now_s)  # type: ignore[attr-defined]
     if view.system_id is None or source_system != view.system_id:
         return view
+    # A corrupt or made-up pose is ignored, the last good one kept: NaN / infinite angles from the autopilot's
+    # system reached the loop's geometry and stopped the operator's track (bench/fuzz.py, event=step_failed).
     if kind == "GLOBAL_POSITION_INT":
-        return replace(view, position=(msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0,  # type: ignore[attr-defined]
-                                       msg.relative_alt / 1000.0))  # type: ignore[attr-defined]
+        lat, lon = msg.lat / 1e7, msg.lon / 1e7  # type: ignore[attr-defined]
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            return view
+        return replace(view, position=(lat, lon, msg.alt / 1000.0, msg.relative_alt / 1000.0))  # type: ignore[attr-defined]
     if kind == "ATTITUDE":
-        return replace(view, attitude=(msg.roll, msg.pitch, msg.yaw))  # type: ignore[attr-defined]
+        angles = (msg.roll, msg.pitch, msg.yaw)  # type: ignore[attr-defined]
+        if not all(math.isfinite(a) for a in angles):
+            return view
+        return replace(view, attitude=angles)
     if kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
         q = tuple(msg.q)  # type: ignore[attr-defined]
         if not all(math.isfinite(v) for v in q):

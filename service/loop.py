@@ -112,7 +112,7 @@ class TrackingLoop:
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
-        self.counters = {"frames": 0, "selections": 0, "lost": 0, "lost_drift": 0, "recovered": 0, "tracker_errors": 0,
+        self.counters = {"frames": 0, "selections": 0, "lost": 0, "lost_drift": 0, "lost_appearance": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0,
                          "size_bounded_frames": 0}
 
@@ -374,11 +374,13 @@ class TrackingLoop:
     def _set_state(self, state: LoopState) -> None:
         if state == self.state:
             return
-        # Why a loss began, where the tracker says (JSAR-Re: "peak", or "drift" for a box off the target's colours).
+        # Why a loss began, where the tracker says (JSAR-Re: "peak", "drift" for a box off the target's colours,
+        # "appearance" for a box the verifier calls another object).
         cause = getattr(self.tracker, "loss_cause", None) if state == LoopState.LOST else None
         if state == LoopState.LOST:
             self.counters["lost"] += 1
             self.counters["lost_drift"] += cause == "drift"
+            self.counters["lost_appearance"] += cause == "appearance"
         elif self.state == LoopState.LOST:
             self.counters["recovered"] += 1
         log.info("event=track_state from=%s to=%s%s", self.state, state, f" cause={cause}" if cause else "")

@@ -78,6 +78,7 @@ COUNTER_MEANINGS = {
     "selections": "target selections applied",
     "lost": "track losses",
     "lost_drift": "of them: the box had left the target's colours while the tracker was confident (a slide caught)",
+    "lost_appearance": "of them: the verifier called the tracked box another object while the tracker was confident",
     "recovered": "recoveries after a loss",
     "tracker_errors": "tracker failures (each stops the track)",
     "resized": "frame size changes followed",

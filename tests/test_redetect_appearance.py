@@ -61,9 +61,9 @@ def test_look_alikes_close_to_the_target_are_not_learnt_and_the_oldest_go_first(
 
 def test_the_target_memory_keeps_the_selection_and_the_latest_frames():
     memory = AppearanceMemory(VerifyParams(target_slots=3), unit(1, 0, 0))
-    for row in (unit(0, 1, 0), unit(0, 0, 1), unit(0, 1, 1)):
+    for row in (unit(1, 0.2, 0), unit(1, 0.3, 0), unit(1, 0, 0.4)):
         memory.learn_target(row)
-    assert np.allclose(memory.target_rows(), np.vstack([unit(1, 0, 0), unit(0, 0, 1), unit(0, 1, 1)]))
+    assert np.allclose(memory.target_rows(), np.vstack([unit(1, 0, 0), unit(1, 0.3, 0), unit(1, 0, 0.4)]))
 
 
 def test_ring_boxes_surround_the_box_at_its_size_and_drop_centres_outside_the_frame():
@@ -86,3 +86,10 @@ def test_map_peaks_keeps_the_best_maxima_a_spacing_apart_above_the_minimum():
     assert map_peaks(score, 3, 0.5, 2.0) == [(2, 2, 1.0), (7, 7, pytest.approx(0.8)), (9, 0, pytest.approx(0.7))]
     assert map_peaks(score, 1, 0.5, 2.0) == [(2, 2, 1.0)]
     assert map_peaks(score, 5, 0.75, 0.5) == [(2, 2, 1.0), (2, 3, pytest.approx(0.9)), (7, 7, pytest.approx(0.8))]
+
+
+def test_the_target_memory_does_not_learn_a_look_it_would_call_another_object():
+    memory = AppearanceMemory(VerifyParams(reject_similarity=0.5), unit(1, 0, 0))
+    assert memory.learn_target(unit(1, 0.5, 0))  # cos 0.89: the target, changed a little
+    assert not memory.learn_target(unit(0, 1, 0))  # cos 0.45 to both: a slide onto something else
+    assert len(memory.target_rows()) == 2

@@ -1062,3 +1062,31 @@ def test_the_whole_gate_search_looks_where_the_target_came_back_on_the_frame_it_
     assert math.dist(_centre(gated[66][1]), (242.0, 112.0)) < 6
     assert all(gated[i][0] == "tracking" for i in range(67, 80))
     assert len(embedder.gate_regions) == 32  # one map on every searched frame, 35..66 (verify.gate_map_frames 1)
+
+
+def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_row_is_a_loss():
+    """The target stands still; from frame 40 the stand-in network calls it another object (as if the track had
+    slid onto a look-alike that the core and the colours accept). With the watch on (a check each frame, two in a
+    row) the track is lost on frame 41 with cause "appearance"; with the watch off (the default) it stays tracked."""
+    background = _background()
+    centre = (100 + TARGET / 2, 100 + TARGET / 2)
+
+    def run(watch_frames: int) -> tuple[dict[int, tuple[str, Box]], list[str | None]]:
+        embedder = _PlaceEmbedder([centre])
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"watch_frames": watch_frames}),
+                                embedder=embedder)
+        tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
+        results, causes = {}, []
+        for index in range(1, 50):
+            if index == 40:
+                embedder.targets = []
+            result = tracker.update(_frame(background, (100, 100)))
+            results[index] = (result.state, result.box)
+            causes.append(tracker.loss_cause)
+        return results, causes
+
+    watched, causes = run(1)
+    assert all(watched[i][0] == "tracking" for i in range(1, 41))
+    assert watched[41][0] == "lost" and causes[40] == "appearance"
+    unwatched, _ = run(0)
+    assert all(unwatched[i][0] == "tracking" for i in range(1, 50))

@@ -88,10 +88,14 @@ class AppearanceMemory:
         """(M, D) the look-alike memory (M may be 0)."""
         return np.vstack(list(self.others)) if self.others else np.empty((0, self.first.shape[1]), np.float32)
 
-    def learn_target(self, embedding: np.ndarray) -> None:
-        """Add one reliable frame's target embedding (D,) (the oldest recent one goes)."""
-        if self.recent.maxlen:
-            self.recent.append(np.asarray(embedding, np.float32).reshape(-1))
+    def learn_target(self, embedding: np.ndarray) -> bool:
+        """Add one reliable frame's target embedding (D,) (the oldest recent one goes) unless it would be
+        judged another object (a box that slid must not teach the memory its new look); whether it was added."""
+        row = np.asarray(embedding, np.float32).reshape(-1)
+        if not self.recent.maxlen or self.judge(row[None])[0].verdict is Verdict.OTHER:
+            return False
+        self.recent.append(row)
+        return True
 
     def learn_others(self, embeddings: np.ndarray) -> None:
         """Add look-alike embeddings (M, D), except those closer to the target than to nothing it knows:

@@ -97,6 +97,7 @@ class JsarReTracker:
         self.embedder = embedder
         self.appearance: AppearanceMemory | None = None  # the verifier's memories (appearance.py)
         self.reliable_frames = 0  # reliable committed frames since init (the verifier learns one in learn_frames)
+        self.away_checks = 0  # the verifier's checks in a row that called the tracked box another object
         self.gate_template: tuple[np.ndarray, float] | None = None  # the whole-gate search's (template, scale)
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
@@ -135,6 +136,7 @@ class JsarReTracker:
         self.checkpoint = None
         self.loss_cause = None
         self.reliable_frames = 0
+        self.away_checks = 0
         self.appearance = None
         self.gate_template = None
         if self.redetect.verify.enabled:
@@ -174,14 +176,17 @@ class JsarReTracker:
         loc = self.core.locate(frame)
         verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
         # Not the monitor's size limits: a box that grew onto background past max_area is what this catches.
-        drifted = self._drifted(frame, loc) and self.frame_index >= self.redetect.monitor.warmup_frames
-        if verdict.lost or drifted:
+        warm = self.frame_index >= self.redetect.monitor.warmup_frames
+        drifted = self._drifted(frame, loc) and warm
+        away = not drifted and self._looks_away(frame, loc) and warm
+        if verdict.lost or drifted or away:
             self.lost = True
-            self.loss_cause = "drift" if drifted and not verdict.lost else "peak"
+            self.loss_cause = "peak" if verdict.lost else "drift" if drifted else "appearance"
+            drifted = drifted or away
             if self.probation is not None:
                 self._refute()  # the re-acquisition did not hold: resume the search it ended
                 return self._lost_frame(frame)
-            if self.loss_cause == "drift" and self.checkpoint is not None:
+            if self.loss_cause in ("drift", "appearance") and self.checkpoint is not None:
                 loc, verdict = self._roll_back(frame, loc)
             self.search = self._new_search()
             self.before_loss = copy.deepcopy(self.core)
@@ -208,6 +213,21 @@ class JsarReTracker:
         self.share = self.anchor.share(frame, box)
         self.drift_frames = self.drift_frames + 1 if self.share < minimum else 0
         return self.drift_frames >= self.redetect.colour.drift_frames
+
+    def _looks_away(self, frame: np.ndarray, loc: Localisation) -> bool:
+        """Whether the verifier called the box at the core's detection another object on verify.watch_count
+        checks in a row, one check per verify.watch_frames tracked frames: a confident slide onto a look-alike
+        or the background that kept the target's colours."""
+        verify = self.redetect.verify
+        if self.appearance is None or self.embedder is None or verify.watch_frames == 0:
+            return False
+        if self.frame_index % verify.watch_frames:
+            return False
+        w, h = self.core.size_wh
+        box = (loc.center_xy[0] - w / 2.0, loc.center_xy[1] - h / 2.0, w, h)
+        look = self.appearance.judge(self.embedder.embed(frame, np.array([box])))[0]
+        self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
+        return self.away_checks >= verify.watch_count
 
     def _keep_checkpoint(self) -> None:
         """After a committed tracked frame: the core, decision filter and colour model become the checkpoint
@@ -540,6 +560,7 @@ class JsarReTracker:
         self.lost = False
         self.search = None
         self.drift_frames = 0
+        self.away_checks = 0
         self.loss_cause = None
         return TrackResult(box=self.core.box, score=score, state="recovered")
 

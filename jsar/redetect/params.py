@@ -246,6 +246,8 @@ class VerifyParams:
     other_slots: int = 32  # look-alike memory size (oldest out first)
     ring_sides: float = 2.0  # look-alikes: windows this many target sides from the target ...
     ring_count: int = 8  # ... at this many angles
+    watch_frames: int = 0  # while tracking, the box is checked once per this many frames (0: never) ...
+    watch_count: int = 2  # ... and "other" on this many checks in a row is a loss (a confident slide)
     gate_map: bool = False  # whole-gate search: one network pass over the motion gate while lost ...
     gate_map_frames: int = 1  # ... on one lost frame in this many ...
     gate_map_cells: int = 3  # ... the target this many feature cells across (stride 16) ...
@@ -264,7 +266,8 @@ class VerifyParams:
             _require(prefix, key, value >= 1, f">= 1, got {value}")
         _require(prefix, "other_slots", self.other_slots >= 0, f">= 0, got {self.other_slots}")
         _require(prefix, "ring_sides", self.ring_sides > 0, f"> 0, got {self.ring_sides}")
-        for key in ("gate_map_frames", "gate_map_cells", "gate_map_peaks"):
+        _require(prefix, "watch_frames", self.watch_frames >= 0, f">= 0, got {self.watch_frames}")
+        for key in ("watch_count", "gate_map_frames", "gate_map_cells", "gate_map_peaks"):
             value = getattr(self, key)
             _require(prefix, key, value >= 1, f">= 1, got {value}")
         _require(prefix, "gate_map_max_px", self.gate_map_max_px >= 64, f">= 64, got {self.gate_map_max_px}")

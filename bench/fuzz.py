@@ -36,6 +36,7 @@ daemon on N of them: exit 2 with `configuration error: KEY`, or a clean start (e
 from __future__ import annotations
 
 import argparse
+import ast
 import copy
 import json
 import math
@@ -391,11 +392,14 @@ def write_clip(folder: Path) -> Path:
 SELECTION = (0.36, 0.41, 0.64, 0.59)  # TRACK_RECTANGLE around the square, normalised
 
 
-def daemon_config(mavlink_port: int, zenoh_port: int, source: dict, tracker: str, fps: float) -> dict:
-    """The daemon under fuzz: the given source, Zenoh on loopback only (prefix `fuzz`), no preview."""
+def daemon_config(mavlink_port: int, zenoh_port: int, source: dict, tracker: str, fps: float,
+                  key_file: Path | None = None) -> dict:
+    """The daemon under fuzz: the given source, Zenoh on loopback only (prefix `fuzz`), no preview; MAVLink
+    signing with unsigned packets refused when key_file is given."""
     return {"source": {"retry_initial_s": 0.05, "retry_max_s": 0.5, "fps": fps, **source},
             "tracker": {"name": tracker, **({} if tracker.startswith("jsar") else {"range_size_band": 0})},
-            "mavlink": {"url": f"udpout:127.0.0.1:{mavlink_port}", "system_id": AUTOPILOT[0]},
+            "mavlink": {"url": f"udpout:127.0.0.1:{mavlink_port}", "system_id": AUTOPILOT[0],
+                        **({"signing": {"key_file": str(key_file)}} if key_file is not None else {})},
             "gimbal": {"backend": "ardupilot"},
             "zenoh": {"listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "fuzz"},
             "video": {"preview": {"enabled": False}},
@@ -529,7 +533,8 @@ class MavlinkPeer:
     """The benchmark's one UDP socket at the daemon's udpout destination: the autopilot's heartbeats (10 Hz),
     the ground station's commands and the fuzz all leave from it, and the daemon's packets arrive on it."""
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, key: bytes | None = None) -> None:
+        """key: sign the autopilot's and the ground station's packets with this 32-byte secret (link id 0)."""
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
         self.sock.bind(("127.0.0.1", port))
@@ -537,6 +542,10 @@ class MavlinkPeer:
         self.daemon_address: tuple[str, int] | None = None
         self.autopilot = dialect.MAVLink(None, srcSystem=AUTOPILOT[0], srcComponent=AUTOPILOT[1])
         self.gcs = dialect.MAVLink(None, srcSystem=GCS[0], srcComponent=GCS[1])
+        for mav in (self.autopilot, self.gcs) if key is not None else ():
+            mav.signing.secret_key = key
+            mav.signing.sign_outgoing = True
+            mav.signing.timestamp = int((time.time() - 1420070400) * 1e5)  # 10-us units since 2015
         self.parser = dialect.MAVLink(None)
         self.parser.robust_parsing = True
         self._cond = threading.Condition()
@@ -712,18 +721,25 @@ def git_commit() -> str:
 
 
 def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker: str, fps: float, max_s: float,
-                workdir: Path, progress: bool = True) -> dict[str, Any]:
-    """The MAVLink fuzz against the daemon as a process; the figures as a dict (see the module docstring)."""
+                workdir: Path, progress: bool = True, signing: bool = False) -> dict[str, Any]:
+    """The MAVLink fuzz against the daemon as a process; the figures as a dict (see the module docstring).
+    signing: the daemon signs and refuses unsigned packets; the benchmark's autopilot and probes sign with its
+    key, the fuzz does not (or with other keys)."""
     clip = write_clip(workdir / "clip")
     planned = list(mavlink_inputs(seed, inputs))  # made before the run: the sender only sends while it lasts
     mavlink_port, zenoh_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_STREAM)
-    peer = MavlinkPeer(mavlink_port)
+    key = bytes(random.Random(f"key{seed}").randrange(256) for _ in range(32)) if signing else None
+    key_file = None
+    if key is not None:
+        key_file = workdir / "mavlink.key"
+        key_file.write_text(key.hex())
+    peer = MavlinkPeer(mavlink_port, key)
     daemon = Daemon(workdir, daemon_config(mavlink_port, zenoh_port,
                                            {"kind": "file", "path": str(clip), "loop": True, "realtime": True},
-                                           tracker, fps))
+                                           tracker, fps, key_file))
     session = None
     result: dict[str, Any] = {"target": "mavlink", "seed": seed, "inputs_planned": inputs, "rate_per_s": rate,
-                              "tracker": tracker, "source_fps": fps, "commit": git_commit()}
+                              "tracker": tracker, "source_fps": fps, "signing": signing, "commit": git_commit()}
     try:
         if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
             raise RuntimeError(f"no packet from the daemon within 90 s; log:\n{daemon.log()[-3000:]}")
@@ -803,6 +819,7 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
             "memory": memory_verdict(rss_before, rss_after, probes.rss_mb),
             "rss_samples": probes.rss_mb,
             "daemon_counters": {k: v for k, v in (status or {}).get("counters", {}).items() if k.startswith("mavlink")},
+            "signing_status": (status or {}).get("mavlink_signing"),
         })
         track.close()
     finally:
@@ -817,7 +834,8 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
 
 
 def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: str, fps: float, max_s: float,
-              workdir: Path, query_share: float = 0.25, progress: bool = True) -> dict[str, Any]:
+              workdir: Path, query_share: float = 0.25, progress: bool = True,
+              exclude: tuple[str, ...] = ()) -> dict[str, Any]:
     """The Zenoh fuzz: camera frames published by this benchmark at `fps` with fuzz payloads interleaved on the
     same key at `rate`, and random status queries (query_share of the inputs)."""
     from service.sources.zenoh_wire import encode_frame
@@ -828,7 +846,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
     session = None
     camera_stop = threading.Event()
     result: dict[str, Any] = {"target": "zenoh", "seed": seed, "inputs_planned": inputs, "rate_per_s": rate,
-                              "tracker": tracker, "source_fps": fps, "commit": git_commit()}
+                              "tracker": tracker, "source_fps": fps, "excluded": list(exclude), "commit": git_commit()}
     camera_ids = [0]
     try:
         if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
@@ -874,7 +892,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
         watcher = threading.Thread(target=watch, args=(stop, daemon, peer, session, probes, t1), daemon=True)
         watcher.start()
         rng = random.Random(seed)
-        kinds, weights = zip(*ZENOH_FRAME_KINDS.items())
+        kinds, weights = zip(*((k, w) for k, w in ZENOH_FRAME_KINDS.items() if k not in exclude))
         counts: dict[str, int] = {}
         query_replies = 0
         query_errors = 0
@@ -1002,7 +1020,12 @@ def mutate_config(rng: random.Random, base: dict, kind: str) -> str | bytes:
                        and not isinstance(get_path(doc, p), bool)]
             path = rng.choice(numbers)
             current = get_path(doc, path)
-        set_path(doc, path, rng.choice((-current, current * 1e6, -1, 0, current + 1e9, -1e-9, 256, 65536, 99999)))
+        candidates = [-current, -1, 0, -1e-9, 256, 65536, 99999]
+        try:
+            candidates += [current * 1e6, current + 1e9]
+        except OverflowError:  # an earlier mutation ("several") left a 400-digit number here
+            pass
+        set_path(doc, path, rng.choice(candidates))
     elif kind == "unknown_key":
         parents = [p for p in [()] + paths if isinstance(get_path(doc, p), dict)]
         parent = get_path(doc, rng.choice(parents))
@@ -1113,6 +1136,15 @@ def names_a_key(message: str, doc: Any, schema: set[str]) -> bool:
     path = message.split(": ", 1)[0]
     if not path or len(path) > 400:
         return False
+    quoted = re.fullmatch(r"(?:(.*)\.)?('.*'|\".*\")", path)  # an unknown key shown quoted: `gimbal.'kp '`
+    if quoted and ": unknown key" in message:
+        parent = quoted.group(1) or ""
+        try:
+            key = ast.literal_eval(quoted.group(2))
+        except (ValueError, SyntaxError):
+            return False
+        node_ok = parent == "" or parent in schema or resolves(doc, parent)
+        return node_ok and resolves(doc, f"{parent}.{key}" if parent else key)
     return path in schema or re.sub(r"\[\d+\]", "", path) in schema or resolves(doc, path)
 
 
@@ -1250,16 +1282,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=20.0, help="the camera's frame rate")
     parser.add_argument("--max-s", type=float, default=600.0, help="bound on the fuzz's wall time (s)")
     parser.add_argument("--processes", type=int, default=12, help="config: daemon starts on mutated files")
+    parser.add_argument("--signing", action="store_true", help="mavlink: the daemon signs and refuses unsigned "
+                        "packets; the benchmark's autopilot and probes sign")
+    parser.add_argument("--exclude", default="", help="zenoh: frame input kinds left out, comma-separated (e.g. "
+                        "odd_size_frame: valid frames of other sizes, which stop or restart the track by design)")
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="jsar-fuzz-") as tmp:
         workdir = Path(tmp)
         if args.target == "mavlink":
             result = run_mavlink(args.inputs or 100_000, args.seed, args.rate or 2500.0, args.baseline_s,
-                                 args.tracker, args.fps, args.max_s, workdir)
+                                 args.tracker, args.fps, args.max_s, workdir, signing=args.signing)
         elif args.target == "zenoh":
+            exclude = tuple(k for k in args.exclude.split(",") if k)
+            unknown = [k for k in exclude if k not in ZENOH_FRAME_KINDS]
+            if unknown:
+                parser.error(f"--exclude: unknown kind {unknown[0]!r}; kinds: {', '.join(ZENOH_FRAME_KINDS)}")
             result = run_zenoh(args.inputs or 20_000, args.seed, args.rate or 400.0, args.baseline_s, args.tracker,
-                               args.fps, args.max_s, workdir)
+                               args.fps, args.max_s, workdir, exclude=exclude)
         else:
             result = run_config(args.inputs or 5000, args.seed, args.processes, args.max_s, workdir)
     result["command"] = "python -m bench.fuzz " + " ".join(sys.argv[1:] if argv is None else argv)

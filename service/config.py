@@ -562,7 +562,9 @@ def _build(cls: type, raw: object, path: str) -> Any:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(map(str, raw)) - set(fields))
     if unknown:
-        raise ConfigError(f"{_join(path, unknown[0])}: unknown key (known: {', '.join(fields)})")
+        # an empty key, or one with spaces or dots, is quoted: the path must show which key it is
+        name = unknown[0] if unknown[0].isidentifier() else repr(unknown[0])
+        raise ConfigError(f"{_join(path, name)}: unknown key (known: {', '.join(fields)})")
     hints = typing.get_type_hints(cls)
     values: dict[str, Any] = {}
     for name, f in fields.items():

@@ -114,3 +114,14 @@ def test_check_config_file_reports_a_traceback_as_a_crash(tmp_path: Path) -> Non
     assert outcome == "error" and message.startswith("tracker.params"), message
     outcome, message = check_config_file(tmp_path, SCHEMA)
     assert outcome == "error" and message.startswith("cannot read config file"), message
+
+
+@pytest.mark.parametrize("doc, shown", [({"": 1}, "'': unknown key"), ({"gimbal": {"kp ": 1}}, "gimbal.'kp ': unknown key"),
+                                        ({"camera": {"a.b": 1}}, "camera.'a.b': unknown key")])
+def test_an_unknown_key_that_is_empty_or_odd_is_shown_quoted(doc: dict, shown: str) -> None:
+    """Regression (bench.fuzz config, 4 of 5,000: `? '' : 2147483648`): the message began `: unknown key`,
+    naming nothing."""
+    with pytest.raises(ConfigError) as caught:
+        config_from_mapping(doc)
+    assert str(caught.value).startswith(shown), str(caught.value)
+    assert names_a_key(str(caught.value), doc, SCHEMA)

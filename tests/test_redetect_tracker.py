@@ -1067,7 +1067,7 @@ def test_the_whole_gate_search_looks_where_the_target_came_back_on_the_frame_it_
 def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_row_is_a_loss():
     """The target stands still; from frame 40 the stand-in network calls it another object (as if the track had
     slid onto a look-alike that the core and the colours accept). With the watch on (a check each frame, two in a
-    row) the track is lost on frame 41 with cause "appearance"; with the watch off (the default) it stays tracked."""
+    row) the track is lost on frame 41 with cause "appearance"; with the watch off it stays tracked."""
     background = _background()
     centre = (100 + TARGET / 2, 100 + TARGET / 2)
 

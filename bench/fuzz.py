@@ -833,9 +833,26 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
     return result
 
 
+def tcp_garbage(port: int, rng: random.Random, connections: int) -> dict[str, int]:
+    """Open `connections` TCP connections to the daemon's Zenoh listen port, each sending 0..2000 random bytes
+    (a Zenoh-looking length prefix half the time) before closing: the transport's own parsing of a stranger."""
+    counts = {"sent": 0, "refused": 0}
+    for _ in range(connections):
+        data = bytes(rng.randint(0, 255) for _ in range(rng.randint(0, 2000)))
+        if rng.random() < 0.5:
+            data = struct.pack("<H", len(data)) + data  # Zenoh's TCP framing: a 16-bit length before each batch
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=1.0) as sock:
+                sock.sendall(data)
+            counts["sent"] += 1
+        except OSError:
+            counts["refused"] += 1
+    return counts
+
+
 def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: str, fps: float, max_s: float,
               workdir: Path, query_share: float = 0.25, progress: bool = True,
-              exclude: tuple[str, ...] = ()) -> dict[str, Any]:
+              exclude: tuple[str, ...] = (), garbage_connections: int = 0) -> dict[str, Any]:
     """The Zenoh fuzz: camera frames published by this benchmark at `fps` with fuzz payloads interleaved on the
     same key at `rate`, and random status queries (query_share of the inputs)."""
     from service.sources.zenoh_wire import encode_frame
@@ -925,6 +942,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
             sent += 1
             if progress and sent % 2000 == 0:
                 print(f"  {sent} inputs, {time.monotonic() - t1:.0f} s, rss {rss_mb(daemon.proc.pid)} MB", flush=True)
+        garbage = tcp_garbage(zenoh_port, rng, garbage_connections) if daemon.alive() else {}
         t2 = time.monotonic()
         stop.set()
         watcher.join()
@@ -940,7 +958,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
         status = query_status(session, 3.0) if alive_after else None
         result.update({
             "inputs_sent": sent, "by_kind": counts, "fuzz_s": round(t2 - t1, 1),
-            "query_replies": query_replies, "query_errors_local": query_errors,
+            "query_replies": query_replies, "query_errors_local": query_errors, "tcp_garbage": garbage,
             "camera_frames_published": camera_ids[0],
             "crashes": 0 if alive_after else 1, "exit_code": None if alive_after else daemon.proc.returncode,
             "hangs": int(not (after_command is not None and status is not None)),
@@ -1286,6 +1304,8 @@ def main(argv: list[str] | None = None) -> int:
                         "packets; the benchmark's autopilot and probes sign")
     parser.add_argument("--exclude", default="", help="zenoh: frame input kinds left out, comma-separated (e.g. "
                         "odd_size_frame: valid frames of other sizes, which stop or restart the track by design)")
+    parser.add_argument("--tcp-garbage", type=int, default=0, help="zenoh: after the fuzz, this many TCP "
+                        "connections to the daemon's Zenoh port sending random bytes")
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="jsar-fuzz-") as tmp:
@@ -1299,7 +1319,8 @@ def main(argv: list[str] | None = None) -> int:
             if unknown:
                 parser.error(f"--exclude: unknown kind {unknown[0]!r}; kinds: {', '.join(ZENOH_FRAME_KINDS)}")
             result = run_zenoh(args.inputs or 20_000, args.seed, args.rate or 400.0, args.baseline_s, args.tracker,
-                               args.fps, args.max_s, workdir, exclude=exclude)
+                               args.fps, args.max_s, workdir, exclude=exclude,
+                               garbage_connections=args.tcp_garbage)
         else:
             result = run_config(args.inputs or 5000, args.seed, args.processes, args.max_s, workdir)
     result["command"] = "python -m bench.fuzz " + " ".join(sys.argv[1:] if argv is None else argv)

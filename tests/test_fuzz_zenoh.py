@@ -98,11 +98,12 @@ def test_decode_frame_raises_only_value_error_on_any_payload(fmt: bytes, width: 
 
 def test_the_daemon_survives_a_short_zenoh_fuzz(tmp_path: Path) -> None:
     """1,500 inputs at 250 a second: malformed frames of every kind on fuzz/camera/frame between the camera's
-    frames (csrt, 20 fps), and random status queries. The daemon keeps running, answers every probe, logs no
+    frames (csrt, 20 fps), and random status queries; then 200 TCP connections sending random bytes to its Zenoh
+    port. The daemon keeps running, answers every probe, logs no
     failure (corrupt frames are counted, not crashes), keeps its memory, tracks again afterwards."""
     result = run_zenoh(inputs=1500, seed=4, rate=250.0, baseline_s=4.0, tracker="csrt", fps=20.0, max_s=25.0,
-                       workdir=tmp_path, progress=False)
-    assert result["inputs_sent"] == 1500, result
+                       workdir=tmp_path, progress=False, garbage_connections=200)
+    assert result["inputs_sent"] == 1500 and result["tcp_garbage"] == {"sent": 200, "refused": 0}, result
     assert result["crashes"] == 0 and result["hangs"] == 0 and result["stop_exit_code"] == 0, result
     assert result["log_failures"] == {}, result["log_failures"]
     during = result["during"]

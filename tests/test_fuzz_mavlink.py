@@ -181,7 +181,7 @@ def test_the_daemon_survives_a_short_mavlink_fuzz(tmp_path: Path) -> None:
                          workdir=tmp_path, progress=False)
     assert result["inputs_sent"] == 5000 and result["kernel_dropped"] == 0, result
     assert result["crashes"] == 0 and result["hangs"] == 0 and result["stop_exit_code"] == 0, result
-    assert result["log_failures"] == {}, result["log_failures"]
+    assert result["log_failures"] == {}, result["log_failure_lines"]
     during = result["during"]
     assert during["selection_probes_answered"] == during["selection_probes"] > 0, during
     assert during["status_answered"] == during["status_queries"] > 0, during
@@ -215,3 +215,26 @@ def test_a_non_finite_attitude_or_an_impossible_position_keeps_the_last_good_pos
     placed = observe(view, heard(dialect.MAVLink_global_position_int_message(0, -899_999_999, 1_799_999_999, 0, 0,
                                                                                0, 0, 0, 0)), 1.0, 1)
     assert placed.position[:2] == pytest.approx((-89.9999999, 179.9999999))
+
+
+def test_a_ground_estimate_past_the_horizon_or_the_pole_is_none_and_geo_status_encodes() -> None:
+    """Regression (bench.fuzz mavlink: event=message_handling_failed, struct.error 'i' format): a grazing ray from
+    a made-up height (GLOBAL_POSITION_INT relative_alt up to 2,147 km) put the ground target thousands of km
+    away, past the pole, and CAMERA_TRACKING_GEO_STATUS could not encode its latitude. Beyond the horizon there
+    is no estimate; a valid one still encodes, its longitude wrapped."""
+    import numpy as np
+
+    from service.control.geo import VehiclePose, locate_on_ground
+    from service.mavlink import messages
+
+    grazing = np.array([1.0, 0.0, 2e-6])
+    high = VehiclePose(89.9, 179.99, 2_000_000.0, 1_900_000.0, 0.0, 0.0, 0.0)
+    assert locate_on_ground(high, grazing) is None
+    assert locate_on_ground(VehiclePose(47.0, 8.0, 600.0, 100.0, 0.0, 0.0, 0.0), grazing) is None  # past 35.7 km
+    east = np.array([0.0, 0.8, 0.6])
+    target = locate_on_ground(VehiclePose(10.0, 179.9999, 600.0, 100.0, 0.0, 0.0, 0.0), east)
+    assert target is not None and -180.0 <= target.lon_deg < -179.99 and target.ground_range_m == pytest.approx(133.3, abs=0.1)
+    mav = dialect.MAVLink(None, srcSystem=1, srcComponent=100)
+    packet = messages.tracking_geo_status(mav, 2, target, 600.0).pack(mav)
+    decoded = dialect.MAVLink(None).parse_buffer(packet)[0]
+    assert decoded.lon == round(target.lon_deg * 1e7)

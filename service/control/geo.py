@@ -112,15 +112,23 @@ def camera_ray_ned(yaw_error: float, pitch_error: float, gimbal: GimbalAttitude,
 
 
 def locate_on_ground(vehicle: VehiclePose, ray_ned: np.ndarray) -> GroundTarget | None:
-    """Intersect the ray with flat ground `height_m` below the vehicle; None if it points above the horizon."""
+    """Intersect the ray with flat ground `height_m` below the vehicle; None if it points above the horizon, or
+    meets the flat ground beyond the real horizon (sqrt(2 R h): a grazing ray from a made-up height put the
+    target thousands of km away, at a latitude past the pole that MAVLink's int32 degE7 could not carry, and
+    the geo status raised; bench/fuzz.py), or at a latitude beyond +-90 deg. Longitude wrapped to [-180, 180)."""
     if vehicle.height_m <= 0 or ray_ned[2] <= 1e-6:
         return None
     scale = vehicle.height_m / ray_ned[2]
     north, east = float(ray_ned[0] * scale), float(ray_ned[1] * scale)
+    ground_range = math.hypot(north, east)
+    if not ground_range <= math.sqrt(2.0 * EARTH_RADIUS_M * vehicle.height_m):
+        return None
     lat = vehicle.lat_deg + math.degrees(north / EARTH_RADIUS_M)
-    lon = vehicle.lon_deg + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(vehicle.lat_deg))))
-    return GroundTarget(lat, lon, vehicle.alt_amsl_m - vehicle.height_m, math.hypot(north, east),
-                        math.atan2(east, north))
+    cos_lat = math.cos(math.radians(vehicle.lat_deg))
+    if not -90.0 <= lat <= 90.0 or cos_lat <= 1e-9:
+        return None
+    lon = (vehicle.lon_deg + math.degrees(east / (EARTH_RADIUS_M * cos_lat)) + 180.0) % 360.0 - 180.0
+    return GroundTarget(lat, lon, vehicle.alt_amsl_m - vehicle.height_m, ground_range, math.atan2(east, north))
 
 
 def ground_px_per_m(vehicle: VehiclePose, ray_ned: np.ndarray, yaw_error: float, pitch_error: float,

@@ -6,7 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from jsar.redetect.colour_check import (GREYS, HUES, SATURATIONS, AnchorColours, ColourModel, bhattacharyya, histogram,
+import jsar
+
+from jsar.redetect.colour_check import (DARK_BIN, GREYS, HUES, SATURATIONS, AnchorColours, ColourModel, bhattacharyya, histogram,
                                       hue_histogram, inner_box, region_pixels, target_colours)
 from jsar.redetect.params import RedetectParams
 
@@ -171,7 +173,8 @@ def test_hue_histogram_bins_by_hue_and_saturation_and_puts_greys_apart():
     assert counts.shape == (HUES * SATURATIONS + GREYS,) and counts.sum() == pytest.approx(1.0)
     assert counts[SATURATIONS - 1] == pytest.approx(0.5)  # red, bright or in shade: hue 0, saturated
     assert counts[HUES * SATURATIONS:].sum() == pytest.approx(0.5)  # grey and a pale tint: no hue
-    assert hue_histogram(np.array([0, 255], np.uint8)).tolist() == [0.5, 0.0, 0.0, 0.5]  # grey frames: levels
+    grey_frame = hue_histogram(np.array([0, 255], np.uint8))  # a grey frame's pixels: the grey levels alone
+    assert grey_frame.shape == counts.shape and grey_frame[DARK_BIN:].tolist() == [0.5, 0.0, 0.0, 0.5]
     assert hue_histogram(np.empty((0, 3), np.uint8)) is None
 
 
@@ -181,3 +184,16 @@ def test_the_anchor_keeps_a_target_in_shade():
     shaded = frame.copy()
     shaded[40:80, 60:100] = (shaded[40:80, 60:100] * 0.5).astype(np.uint8)  # the target and its road at half light
     assert anchor.share(shaded, LOOSE) == pytest.approx(1.0)
+
+
+def test_jsar_re_tracks_a_grey_frame():
+    """A grey camera (H x W frames) is tracked, the drift check reading grey levels (found by the Zenoh
+    fuzzer: the dark bin lay past a grey histogram's end, so init raised IndexError)."""
+    rng = np.random.default_rng(0)
+    frame = (rng.random((120, 160)) * 255).astype(np.uint8)
+    frame[40:70, 60:90] = 230
+    tracker = jsar.create("jsar-re")
+    tracker.init(frame, (60.0, 40.0, 30.0, 30.0))
+    for _ in range(5):
+        result = tracker.update(frame)
+        assert result.state == "tracking" and abs(result.box[0] - 60.0) < 2 and abs(result.box[1] - 40.0) < 2

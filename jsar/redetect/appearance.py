@@ -139,6 +139,11 @@ def map_peaks(score: np.ndarray, count: int, min_value: float, spacing: float) -
     return kept
 
 
+def as_bgr(frame: np.ndarray) -> np.ndarray:
+    """A uint8 frame as BGR (H, W, 3): a grey frame's level in all three channels (the network wants colour)."""
+    return np.repeat(frame[:, :, None], 3, axis=2) if frame.ndim == 2 else frame
+
+
 class NetworkEmbedder:
     """The verifier's Embedder and the whole-gate search's maps: jsar.learnt's MobileNetV2 features."""
 
@@ -149,7 +154,7 @@ class NetworkEmbedder:
     def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
         """(N, D) float32 unit rows for (N, 4) boxes (x, y, w, h px) of a uint8 BGR frame."""
         from jsar.learnt.embedding import embed
-        return embed(self.net, frame, boxes_xywh)
+        return embed(self.net, as_bgr(frame), boxes_xywh)
 
     def template(self, frame: np.ndarray, box_xywh: tuple[float, float, float, float], cells: int
                  ) -> tuple[np.ndarray, float]:
@@ -157,14 +162,14 @@ class NetworkEmbedder:
         (resized px per frame px)."""
         from jsar.learnt.embedding import target_template
         scale = cells * self.net.stride / float(np.sqrt(box_xywh[2] * box_xywh[3]))
-        return target_template(self.net, frame, box_xywh, scale), scale
+        return target_template(self.net, as_bgr(frame), box_xywh, scale), scale
 
     def gate_peaks(self, frame: np.ndarray, region_xywh: tuple[float, float, float, float], scale: float,
                    template: np.ndarray, count: int, min_value: float) -> list[tuple[float, float, float]]:
         """Up to `count` (x px, y px, cosine) box centres where the template matches best in the region
         (x, y, w, h px) resized by `scale`, one forward pass, best first, a template apart."""
         from jsar.learnt.embedding import feature_map, match_map, peak_to_frame
-        fmap = feature_map(self.net, frame, region_xywh, scale)
+        fmap = feature_map(self.net, as_bgr(frame), region_xywh, scale)
         if fmap.shape[1] < template.shape[1] or fmap.shape[2] < template.shape[2]:
             return []
         score = match_map(fmap, template)

@@ -140,13 +140,13 @@ MIN_LIT = 0.05  # a box with fewer pixels outside DARK_BIN shows no colours
 
 def hue_histogram(pixels: np.ndarray) -> np.ndarray | None:
     """Histogram (HUES * SATURATIONS + GREYS,) of BGR uint8 pixels (N, 3) over hue x saturation, greys apart
-    by value, summing to 1; grey pixels (N,) by level in GREYS bins (None for no pixels). Hue ignores
-    brightness: a target driving into shade keeps its bins, which fixed RGB levels do not."""
+    by value, summing to 1; a grey frame's pixels (N,) fill the grey bins alone (None for no pixels). Hue
+    ignores brightness: a target driving into shade keeps its bins, which fixed RGB levels do not."""
     if len(pixels) == 0:
         return None
     if pixels.ndim == 1:
-        index = (pixels.astype(np.int32) * GREYS) >> 8
-        return np.bincount(index, minlength=GREYS).astype(np.float64) / len(pixels)
+        index = HUES * SATURATIONS + ((pixels.astype(np.int32) * GREYS) >> 8)
+        return np.bincount(index, minlength=HUES * SATURATIONS + GREYS).astype(np.float64) / len(pixels)
     hsv = cv2.cvtColor(np.ascontiguousarray(pixels, dtype=np.uint8).reshape(-1, 1, 3), cv2.COLOR_BGR2HSV)
     hue, sat, val = (hsv[:, 0, k].astype(np.int32) for k in range(3))
     chromatic = (sat >= MIN_SATURATION) & (val >= MIN_VALUE)

@@ -379,12 +379,13 @@ class JsarReTracker:
             margin = self.redetect.accept.switch_margin * own.score
             candidates = [c for c in candidates if c.score >= margin
                           or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
-        minimum = self.redetect.colour.min_match
+        minimum, over_match = self.redetect.colour.min_match, self.redetect.verify.over_colour_match
         looks = self._looks(frame, candidates, bar)
-        # The verifier's "target" stands in for the colour check: the embedding sees the colours too, and the
-        # check refused targets whose box held other colours (a wakeboarder in spray).
-        taken = search.decide(candidates, bar, lambda c: (self._verified(looks, c)
-                                                          or self._colour_passes(frame, (c.x, c.y), minimum)),
+        # The verifier's "target" stands in for the colour model's match (the embedding sees the colours too,
+        # and the match refused targets whose box held other colours: a wakeboarder in spray), never for the
+        # selection's colours (the drift check's: what slid onto grass must not come back through it).
+        taken = search.decide(candidates, bar, lambda c: self._colour_passes(
+                                  frame, (c.x, c.y), 0.0 if self._verified(looks, c) and over_match else minimum),
                               lambda c: self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
         self._learn_refused(candidates, bar, looks)
         best = max(candidates, key=lambda c: c.score)

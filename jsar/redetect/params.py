@@ -240,7 +240,8 @@ class VerifyParams:
     min_similarity: float = 0.6  # "target": cosine to the target memory at least this ...
     margin: float = 0.05  # ... and this above the cosine to the look-alike memory
     reject_similarity: float = 0.55  # "other": cosine to the target memory under this
-    bar_fraction: float = 0.6  # a "target" candidate's bar: this x the acceptance bar (1: no lower bar)
+    bar_fraction: float = 0.6  # a "target" candidate's bar: this x the acceptance bar (1: no lower bar) ...
+    over_colour_match: bool = True  # ... and it needs no colour-model match (the selection's colours still)
     target_slots: int = 6  # target memory: the selection plus this many minus one recent reliable frames ...
     learn_frames: int = 10  # ... one per this many reliable frames, with the look-alikes around it
     other_slots: int = 32  # look-alike memory size (oldest out first)

@@ -31,6 +31,10 @@ frames it learns and while lost.
 - Every way out of a loss through the decision filter (the core confident again, a candidate taken)
   also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
   score alone took occluders and look-alikes of other colours.
+- The verifier (appearance.py, params.VerifyParams) judges candidates by a learnt embedding against the
+  target's and the look-alikes' memories: one it calls another object is refused, one it calls the target
+  passes a lower bar without the colour model's match (the selection's colours are still needed); while
+  tracking, the box it calls another object on a few checks in a row is a loss ("appearance").
 
 Additions beyond the paper and their measured effect: docs/method.md and the ablation
 (`python -m bench.ablation`).
@@ -182,7 +186,6 @@ class JsarReTracker:
         if verdict.lost or drifted or away:
             self.lost = True
             self.loss_cause = "peak" if verdict.lost else "drift" if drifted else "appearance"
-            drifted = drifted or away
             if self.probation is not None:
                 self._refute()  # the re-acquisition did not hold: resume the search it ended
                 return self._lost_frame(frame)

@@ -729,10 +729,14 @@ def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_
         _redetect(accept=ungated, colour={"min_match": 0.0, "core_min_match": 0.0, "drift_share": 0.0}), _distractor())
     taken = [i for i in range(35, 60) if unchecked[i][0] == "recovered"]
     assert taken and math.dist(_centre(unchecked[taken[0]][1]), (262.0, 112.0)) < 6, taken
-    # With it the look-alike's colours refuse it; the target, back where it was, is taken up again.
-    checked = _run_with_static_look_alike(_redetect(accept=ungated), _distractor())
+    # With it the look-alike's colours refuse it; the target, back where it was, is taken up again. The
+    # verifier's "target" must not stand in for the colour match here: the network calls this object of the
+    # target's layout in other colours the target (the override's blind spot: results-tracker.md, issue 45).
+    checked = _run_with_static_look_alike(_redetect(accept=ungated, verify={"over_colour_match": False}), _distractor())
     assert all(checked[i][0] == "lost" for i in range(35, 60)), [checked[i][0] for i in range(35, 60)]
     assert checked[61][0] == "recovered" and math.dist(_centre(checked[61][1]), (112.0, 112.0)) < 3  # core, 2 frames
+    overridden = _run_with_static_look_alike(_redetect(accept=ungated), _distractor())
+    assert any(overridden[i][0] == "recovered" for i in range(35, 60)), "the blind spot is gone: update the docs"
 
 
 def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target_was_does_not_end_the_loss():
@@ -742,7 +746,8 @@ def test_the_core_confident_again_on_an_object_of_other_colours_where_the_target
 
     def run(core_min_match: float, drift_share: float) -> dict[int, tuple[str, Box]]:
         colour = {"core_min_match": core_min_match, "drift_share": drift_share}
-        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(colour=colour))
+        # The colour checks alone: the verifier's "target" would stand in for the search's colour match.
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(colour=colour, verify={"over_colour_match": False}))
         tracker.init(frame(0), _target_box((100, 100)))
         return _run(tracker, [frame(i) for i in range(1, 70)])
 

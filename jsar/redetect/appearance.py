@@ -98,8 +98,8 @@ class AppearanceMemory:
         return True
 
     def learn_others(self, embeddings: np.ndarray) -> None:
-        """Add look-alike embeddings (M, D), except those closer to the target than to nothing it knows:
-        a window that overlaps the target, or the target itself refused, must not teach the target away."""
+        """Add look-alike embeddings (M, D), except those within min_similarity of the target memory: a window
+        that overlaps the target, or the target itself refused, must not teach the target away."""
         rows = np.asarray(embeddings, np.float32).reshape(-1, self.first.shape[1])
         if len(rows) == 0:
             return

@@ -1,4 +1,7 @@
-"""Shared test fixtures: the real-data root and its sequences, loopback port allocation."""
+"""Shared test fixtures: the real-data root and its sequences, loopback port allocation, and the
+`firmware` marker (tests against the real autopilot firmware: skipped with the reason where it is
+missing, failed in CI; one xdist worker runs them all, one after the other, so no two firmware
+processes compete for the CPU)."""
 from __future__ import annotations
 
 import os
@@ -8,6 +11,36 @@ from pathlib import Path
 os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink import
 
 import pytest
+
+
+def require(missing: str | None) -> None:
+    """Skip with the reason `missing` (a peer the test needs is absent) outside CI; fail in CI (env CI set)."""
+    if missing is None:
+        return
+    if os.environ.get("CI"):
+        pytest.fail(f"CI needs it: {missing}")
+    pytest.skip(missing)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "firmware(*kinds): runs real autopilot firmware ('arducopter', 'px4')")
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the group marks
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("firmware"):
+            item.add_marker(pytest.mark.slow)
+            item.add_marker(pytest.mark.xdist_group("firmware"))
+
+
+@pytest.hookimpl(tryfirst=True)  # before the test's fixtures start anything
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    from sim.firmware import firmware_missing
+
+    marker = item.get_closest_marker("firmware")
+    for kind in marker.args if marker else ():
+        require(firmware_missing(kind))
 
 
 @pytest.fixture(scope="session")

@@ -15,14 +15,12 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-import pytest
-
 os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect  # noqa: E402
 
 from sim.daemon import write_config  # noqa: E402
-from sim.firmware import firmware_missing, free_udp_port  # noqa: E402
+from sim.firmware import free_udp_port  # noqa: E402
 from tests.service_peers import Recorder  # noqa: E402
 from tests.test_service_sources import scene  # noqa: E402
 
@@ -30,16 +28,6 @@ REPO = Path(__file__).resolve().parents[1]
 FRAME_SIZE = (320, 240)  # px
 TARGET_PX = (250.0, 70.0)  # right of and above the image centre (160, 120): yaw right, pitch up
 TRACK_RECTANGLE, STOP_TRACKING, SET_INTERVAL = 2005, 2010, 511
-
-
-def require_firmware(kind: str) -> None:
-    """Skip with the reason when firmware `kind` is missing, outside CI only; in CI (env CI set) fail."""
-    missing = firmware_missing(kind)
-    if missing is None:
-        return
-    if os.environ.get("CI"):
-        pytest.fail(f"CI needs the autopilot firmware: {missing}")
-    pytest.skip(missing)
 
 
 def target_image(visible: bool = True) -> Any:

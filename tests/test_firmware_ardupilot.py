@@ -11,7 +11,7 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 
@@ -22,7 +22,7 @@ from service.mavlink.messages import follow_target  # noqa: E402
 from sim.firmware import COPTER_BRAKE, COPTER_GUIDED, ArduPilotSitl, connect, euler_deg  # noqa: E402
 from tests.firmware_peers import (FRAME_SIZE, SET_INTERVAL, STOP_TRACKING, TARGET_PX, TRACK_RECTANGLE,  # noqa: E402
                                   DaemonProcess, FramePump, Station, WireTap, free_port, free_tcp_port,
-                                  require_firmware, target_rectangle)
+                                  target_rectangle)
 
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 HFOV_DEG = 70.0  # config.yaml's camera.hfov_deg
@@ -151,13 +151,7 @@ def _no_angle_rate_mix(tap: WireTap) -> None:
         assert not (quaternion and rates), msg
 
 
-pytestmark = pytest.mark.slow  # real firmware processes, 10-30 s a test
-
-
-@pytest.fixture(autouse=True)
-def _firmware() -> Iterator[None]:
-    require_firmware("arducopter")
-    yield
+pytestmark = pytest.mark.firmware("arducopter")  # real firmware processes, 10-30 s a test
 
 
 def test_target_off_centre_turns_the_real_mount_towards_it_and_stop_and_loss_zero_the_rates(tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 
@@ -20,7 +20,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from sim.firmware import PX4_MAIN_OFFBOARD, PX4_MAIN_POSCTL, Px4Sih, connect, euler_deg, px4_main_mode  # noqa: E402
 from tests.firmware_peers import (SET_INTERVAL, STOP_TRACKING, TRACK_RECTANGLE, DaemonProcess, FramePump,  # noqa: E402
-                                  Station, WireTap, free_port, free_tcp_port, require_firmware, target_rectangle)
+                                  Station, WireTap, free_port, free_tcp_port, target_rectangle)
 
 GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS = 285, 281
 
@@ -112,13 +112,7 @@ class Px4Rig:
                              == self.autopilot and condition(m), timeout, since)
 
 
-pytestmark = pytest.mark.slow  # real firmware processes, 10-30 s a test
-
-
-@pytest.fixture(autouse=True)
-def _firmware() -> Iterator[None]:
-    require_firmware("px4")
-    yield
+pytestmark = pytest.mark.firmware("px4")  # real firmware processes, 10-30 s a test
 
 
 def test_gimbal_claim_and_282_rates_move_the_px4_gimbal_and_stop_zeroes_them(tmp_path: Path) -> None:

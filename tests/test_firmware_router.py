@@ -21,32 +21,27 @@ import os
 import subprocess
 import time
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 
 from sim.firmware import ArduPilotSitl  # noqa: E402
+from tests.conftest import require  # noqa: E402
 from tests.firmware_peers import (REPO, TRACK_RECTANGLE, DaemonProcess, FramePump, Station, WireTap,  # noqa: E402
-                                  free_port, free_tcp_port, require_firmware, target_rectangle)
+                                  free_port, free_tcp_port, target_rectangle)
 
 MAVPROXY = Path(os.environ.get("JSAR_MAVPROXY", REPO / ".venv-mavproxy" / "bin" / "mavproxy.py"))
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 
 
-pytestmark = pytest.mark.slow  # real firmware processes, 10-30 s a test
+pytestmark = pytest.mark.firmware("arducopter")  # real firmware processes, 10-30 s a test
 
 
 @pytest.fixture(autouse=True)
-def _firmware_and_mavproxy() -> Iterator[None]:
-    require_firmware("arducopter")
-    if not MAVPROXY.exists():
-        reason = f"MAVProxy is not installed at {MAVPROXY} (`make mavproxy`; JSAR_MAVPROXY names another)"
-        if os.environ.get("CI"):
-            pytest.fail(f"CI needs MAVProxy: {reason}")
-        pytest.skip(reason)
-    yield
+def _mavproxy() -> None:
+    require(None if MAVPROXY.exists() else
+            f"MAVProxy is not installed at {MAVPROXY} (`make mavproxy`; JSAR_MAVPROXY names another)")
 
 
 class MavProxyRouter:

@@ -397,14 +397,8 @@ def test_the_web_stations_mavlink_side_signs_with_the_keygen_key(
     assert "Traceback" not in log
 
 
-def sitl_missing() -> str | None:
-    from sim.firmware import firmware_missing
-
-    return firmware_missing("arducopter")
-
-
 @pytest.mark.skipif(not MAVPROXY.exists(), reason=f"MAVProxy is not installed at {MAVPROXY} (`make mavproxy`)")
-@pytest.mark.skipif(sitl_missing() is not None, reason=str(sitl_missing()))
+@pytest.mark.firmware("arducopter")
 def test_one_passphrase_signs_arducopter_the_camera_and_mavproxy(tmp_path: Path) -> None:
     """The deployment's key workflow on the real firmware (ArduCopter SITL, tests' ../shared/sitl): keygen's
     passphrase goes to ArduPilot by MAVProxy's `signing setup` (SETUP_SIGNING on SERIAL0, the link it never

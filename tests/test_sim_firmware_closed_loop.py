@@ -28,22 +28,11 @@ from sim.closed_loop import ClosedLoop, ClosedLoopConfig, RunResult
 from sim.scene import SceneConfig
 from sim.summary import BAR_IN_VIEW, verdict
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.firmware("arducopter", "px4")
 
 DURATION_S = 20.0
 CENTRED_BAR = 0.85
 FLAVOURS = ("ardupilot", "px4")
-
-
-def require_firmware(flavour: str) -> None:
-    """Skip (outside CI) or fail (CI) when the flavour's firmware is not here."""
-    from sim.sitl_autopilot import firmware_unavailable
-    missing = firmware_unavailable(flavour)
-    if missing is None:
-        return
-    if os.environ.get("CI"):
-        pytest.fail(f"CI needs the firmware: {missing}")
-    pytest.skip(missing)
 
 
 def run(flavour: str) -> tuple[RunResult, list[str], float]:
@@ -59,8 +48,6 @@ def run(flavour: str) -> tuple[RunResult, list[str], float]:
 
 @pytest.fixture(scope="module")
 def runs() -> dict[str, tuple[RunResult, list[str], float]]:
-    for flavour in FLAVOURS:
-        require_firmware(flavour)
     with ThreadPoolExecutor(max_workers=len(FLAVOURS)) as pool:
         futures = {flavour: pool.submit(run, flavour) for flavour in FLAVOURS}
         return {flavour: future.result() for flavour, future in futures.items()}

@@ -1,22 +1,15 @@
-"""The web station's server (Starlette on uvicorn): one page, one WebSocket per page.
+"""The web station's server (Starlette on uvicorn): one page, one WebSocket per page; with a token
+(gcs.web.auth) every route needs it (`GET /login`, `POST /login`, `POST /logout` log a browser in and out).
 
-- `GET /`: the page (static/index.html + app.js + style.css: plain HTML and JS, no build step).
-- `GET /api/drones`: the drone list as JSON (also pushed to the pages every second).
-- `WS /ws`: server -> page: binary messages are preview samples as the daemon sent them (32-byte "JFR1"
-  header + JPEG; the page reads the frame id from the header), text messages are JSON
-  `{"type": "events", "events": [...]}` (track samples of the watched drone with the station's reading of
-  their confidence (gcs.confidence), its 275 status, command outcomes, camera texts) and `{"type": "drones",
-  ...}` (each drone's autopilot and gimbal as its status query reports them). Page -> server: JSON `{"type": "watch", "prefix"}`,
-  `{"type": "point", "prefix", "x", "y", "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1",
-  "y1", "id"}`, `{"type": "stop", "prefix", "id"}` (coordinates normalised 0..1, top-left origin).
-
-With a token (create_app's `token`; gcs.web.auth), every route and the WebSocket need it, and `GET /login`,
-`POST /login`, `POST /logout` log a browser in and out.
-
-Latest frame wins towards each page: a page that reads slowly gets the newest preview, the ones it
-missed are counted (`dropped_frames` in /api/drones' `pages`), nothing queues up. A WebSocket whose
-Origin is not this server's own address is refused (another site open in the operator's browser must not
-drive the drone).
+- `GET /`: the page (static/: plain HTML and JS, no build step); `GET /api/drones`: the drone list as JSON.
+- `WS /ws`, server -> page: binary messages are preview samples as the daemon sent them (32-byte "JFR1" header
+  + JPEG); text messages JSON `{"type": "events", "events": [...]}` (the watched drone's track samples with
+  the station's confidence, its 275 status, command outcomes, camera texts) and `{"type": "drones", ...}`
+  (every second). Page -> server, JSON: `{"type": "watch", "prefix"}`, `{"type": "point", "prefix", "x", "y",
+  "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1", "y1", "id"}`, `{"type": "stop", "prefix",
+  "id"}` (normalised 0..1, top-left origin); anything else closes the socket (1003).
+The newest frame wins towards each page (missed ones: `dropped_frames` in /api/drones' `pages`); a WebSocket
+from another Origin is refused (another site in the operator's browser must not drive the drone).
 """
 from __future__ import annotations
 

@@ -166,8 +166,8 @@ class TrackingLoop:
         box_norm = normalised_box(self.box, size) if self.box is not None and self.state != LoopState.IDLE else None
         pose = view.pose()
         self.publish_snapshot(TrackSnapshot(
-            state=self.state, selection=self.selection_kind if self.state != LoopState.IDLE else None, box_normalised=box_norm,
-            ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
+            state=self.state, selection=self.selection_kind if self.state != LoopState.IDLE else None,
+            box_normalised=box_norm, ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
         report = FrameReport(
             frame_id=frame.frame_id, capture_time_s=frame.capture_time_s, image_size=size,
             box=self.box if self.state != LoopState.IDLE else None, box_normalised=box_norm,

@@ -31,7 +31,8 @@ look-alikes still in reach).
 Per seed: events, re-acquired, within reach at the tracker's side and at the ground truth's, each
 also for the events that began with the box on the target, and the protocol's false
 re-initialisations; then the misses by reason (miss_breakdown); a line per event with --events, and with
---json per event why the oracle's window failed (frames per first failed test: place, bar, colour).
+--json per event why the oracle's window failed (frames per first failed test: place, bar, colour) and
+what became of it (jsar.eval.misses' Outcome).
 
     python -m bench.ceiling --from-json F [F ...]
 
@@ -44,7 +45,10 @@ import dataclasses
 import json
 import math
 import sys
+from collections.abc import Mapping
+from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 from jsar.eval.runner import cap_loaded_pools, limit_threads_env
 
@@ -54,6 +58,7 @@ import numpy as np  # noqa: E402
 
 import jsar  # noqa: E402
 from jsar.eval import dataset, longterm  # noqa: E402
+from jsar.eval.misses import EventStates  # noqa: E402
 from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
 from jsar.redetect.search import LossSearch, decayed_bar  # noqa: E402
 
@@ -226,8 +231,11 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
         entry["best_score_over_bar"] = max((look.score / look.bar for look in seen), default=None)
         # What the tracker was doing when the target came back: still searching ("lost"), or tracking
         # something it took during the event (a "recovered" frame there) or never let go of.
-        entry["state_at_return"] = states[stop] if stop < n else None
-        entry["took_during_event"] = "recovered" in states[entry["start"]:stop]
+        reported = EventStates.of(states, entry["start"], stop, window, bool(entry["on_target_before"]),
+                                  bool(entry["reacquired"]))
+        entry["outcome"] = str(reported.outcome)
+        entry["state_at_return"] = reported.at_return
+        entry["took_during_event"] = reported.took_during_absence
     return scores
 
 
@@ -242,49 +250,72 @@ def summary(entries: list[dict[str, object]]) -> dict[str, int]:
     return out
 
 
-def miss_reason(entry: dict[str, object]) -> str:
-    """Why a missed event (an entry of run_sequence's) was missed, the first that holds: "tracking" (the
-    tracker was following something else when the target came back), "bar" (the oracle's window stayed
-    under the bar on every frame), "colour" (it passed place and bar wherever it was looked at, and the
-    colour check refused it there), "other"."""
-    tests = entry["failed_tests"]
-    assert isinstance(tests, dict)
-    best = entry["best_score_over_bar"]
-    if entry["state_at_return"] != "lost":
-        return "tracking"
-    if best is not None and float(best) < 1.0:  # type: ignore[arg-type]
-        return "bar"
-    if entry["recognised_frames_tracker"] == 0 and tests["colour"] > 0 and tests["place"] == tests["bar"] == 0:
-        return "colour"
-    return "other"
+class MissReason(StrEnum):
+    """Why a missed event was missed, the first that holds (miss_reason)."""
+
+    TRACKING = "tracking"  # not lost when the target came back: following something else (EventStates.at_return)
+    BAR = "bar"  # the oracle's window stayed under the bar on every frame
+    COLOUR = "colour"  # it passed place and bar wherever it was looked at, and the colour check refused it there
+    OTHER = "other"
 
 
-def lay_most(entry: dict[str, object]) -> str:
+@dataclasses.dataclass(frozen=True)
+class ProbedEvent:
+    """What run_sequence found of one event (its JSON entry, typed): the tracker's reading (jsar.eval.misses'
+    EventStates), whether within reach at the tracker's side, and the oracle's window's tests."""
+
+    reacquired: bool
+    reach_tracker: bool
+    state_at_return: str | None
+    took_during_event: bool
+    recognised_frames_tracker: int
+    failed_tests: dict[str, int]  # frames per first failed test: place, bar, colour
+    target_for_search: dict[str, int]  # returned frames per SEARCH_PLACES
+    best_score_over_bar: float | None
+
+    @classmethod
+    def from_json(cls, entry: Mapping[str, Any]) -> ProbedEvent:
+        """The fields of one of run_sequence's event entries (or a saved --json's)."""
+        return cls(**{f.name: entry[f.name] for f in dataclasses.fields(cls)})
+
+
+def miss_reason(event: ProbedEvent) -> MissReason:
+    """Why a missed event was missed (MissReason: the first that holds)."""
+    if event.state_at_return != "lost":
+        return MissReason.TRACKING
+    if event.best_score_over_bar is not None and event.best_score_over_bar < 1.0:
+        return MissReason.BAR
+    tests = event.failed_tests
+    if event.recognised_frames_tracker == 0 and tests["colour"] > 0 and tests["place"] == tests["bar"] == 0:
+        return MissReason.COLOUR
+    return MissReason.OTHER
+
+
+def lay_most(event: ProbedEvent) -> str:
     """Where the target lay for the lost search on most of the event's returned frames (ties: the farther)."""
-    places = entry["target_for_search"]
-    assert isinstance(places, dict)
-    return max(SEARCH_PLACES, key=lambda place: places[place])
+    return max(SEARCH_PLACES, key=lambda place: event.target_for_search[place])
 
 
-def miss_breakdown(entries: list[dict[str, object]]) -> str:
+def miss_breakdown(events: list[ProbedEvent]) -> str:
     """The events not re-acquired, by miss_reason (for "bar": the best frame's score over the bar, median and
     quartiles) and, for those still lost at the return, by lay_most with how many were within reach."""
-    missed = [e for e in entries if not e["reacquired"]]
+    missed = [e for e in events if not e.reacquired]
     reasons = [miss_reason(e) for e in missed]
-    tracking = [e for e, r in zip(missed, reasons) if r == "tracking"]
-    taken = sum(bool(e["took_during_event"]) for e in tracking)
-    best = [float(e["best_score_over_bar"]) for e, r in zip(missed, reasons) if r == "bar"]  # type: ignore[arg-type]
+    tracking = [e for e, r in zip(missed, reasons) if r == MissReason.TRACKING]
+    taken = sum(e.took_during_event for e in tracking)
+    best = [float(e.best_score_over_bar) for e, r in zip(missed, reasons)
+            if r == MissReason.BAR and e.best_score_over_bar is not None]
     quartiles = (" (best frame over the bar: median {1:.2f}, quartiles {0:.2f}-{2:.2f})".format(
         *np.percentile(best, [25, 50, 75])) if best else "")
-    lost = [e for e in missed if e["state_at_return"] == "lost"]
-    where = [(lay_most(e), bool(e["reach_tracker"])) for e in lost]
+    lost = [e for e in missed if e.state_at_return == "lost"]
+    where = [(lay_most(e), e.reach_tracker) for e in lost]
     places = ", ".join(f"{place} {sum(p == place for p, _ in where)} "
                        f"({sum(p == place and reach for p, reach in where)} within reach)"
                        for place in reversed(SEARCH_PLACES))
     return (f"missed {len(missed)}: tracking something else at the return {len(tracking)} (taken during the "
-            f"event {taken}); under the bar on every frame {reasons.count('bar')}{quartiles}; refused by the "
-            f"colour check {reasons.count('colour')}; other {reasons.count('other')}. Lost at the return "
-            f"{len(lost)}, the target on most frames: {places}")
+            f"event {taken}); under the bar on every frame {reasons.count(MissReason.BAR)}{quartiles}; refused by "
+            f"the colour check {reasons.count(MissReason.COLOUR)}; other {reasons.count(MissReason.OTHER)}. Lost at "
+            f"the return {len(lost)}, the target on most frames: {places}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -310,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
                 parser.error(f"--from-json: {path} has no {', '.join(sorted(missing))} "
                              "(written by an older bench.ceiling)")
             pooled.extend(events)
-        print(miss_breakdown(pooled))
+        print(miss_breakdown([ProbedEvent.from_json(e) for e in pooled]))
         return 0
     if args.data_root is None:
         parser.error("data_root is required (or --from-json)")
@@ -355,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{counts['on_target_reach_tracker']} / {counts['on_target_reach_groundtruth']}; false re-initialisations "
           f"{counts['false_reinit_absent']} + {counts['false_reinit_wrong_object']} of {counts['absent_frames']} "
           f"absent frames")
-    print(miss_breakdown(entries))
+    print(miss_breakdown([ProbedEvent.from_json(e) for e in entries]))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"seed": args.seed, "search": args.search, "summary": counts,

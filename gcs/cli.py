@@ -1,23 +1,12 @@
-"""Ground-station CLI on mavsdk 4.x: list cameras, select a target (point / rectangle), print the
-tracking status, stop tracking. An independent MAVLink implementation (MAVSDK's C++ core), so using
-it against the service proves interoperability with a stack we did not write.
-
-It talks to the system that carries the camera, with or without an autopilot on the link: on a bench
-with only the camera component (the daemon announces the provisional system id until it hears an
-autopilot) it works the same. A link with nothing on it, or no camera, ends with a one-line error
-(exit status 2), not a traceback.
-
-mavsdk's Camera plugin covers discovery (camera_list) and the three commands (track_point,
-track_rectangle, track_stop). It has no tracking-status subscription and no way to set a message
-interval, so those two use mavsdk's MavlinkDirect plugin (still mavsdk, not pymavlink):
-MAV_CMD_SET_MESSAGE_INTERVAL for CAMERA_TRACKING_IMAGE_STATUS (275) through `send_command`, and a
-`subscribe_message("CAMERA_TRACKING_IMAGE_STATUS")`. mavsdk's own log lines go to Python logging
-(logger "mavsdk", DEBUG) instead of the console.
+"""Ground-station CLI on mavsdk 4.x (MAVSDK's C++ core: a MAVLink stack we did not write, so it proves the
+service interoperates): list cameras, select a target, print the tracking status (275, through mavsdk's
+MavlinkDirect plugin: the Camera plugin has none), stop. With or without an autopilot on the link; no link
+or no camera: a one-line error, exit status 2.
 
     jsar-gcs --url udpout://127.0.0.1:14550 list          # or python -m gcs.cli ...
     jsar-gcs --url udpout://127.0.0.1:14550 rect 0.45 0.40 0.55 0.60 --watch 5
-    jsar-gcs --url udpout://127.0.0.1:14550 status --watch 5
     jsar-gcs --url udpout://127.0.0.1:14550 point 0.5 0.5 --radius 0.03
+    jsar-gcs --url udpout://127.0.0.1:14550 status --watch 5
     jsar-gcs --url udpout://127.0.0.1:14550 stop
     jsar-gcs --url udpin://0.0.0.0:14550 list             # bench: the daemon sends to this port
 """

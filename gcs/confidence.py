@@ -1,15 +1,13 @@
 """The track's confidence for an operator, from the daemon's public track samples (`<prefix>/track`).
 
-A sample's `score` is the tracker's raw response peak: about 0.01-0.06 for JSAR / JSAR-Re depending on the
-target, 1 or 0 for OpenCV's CSRT / KCF. No operator can read that scale, and no fixed threshold suits every
-target. So the station shows the score as a percentage of the best score of the current lock: 100 % = as sure
-as this lock has been, and below LOW_CONFIDENCE of it the page marks the track "low confidence" (amber), while
-the daemon may still report tracking. That is how a drifting or false lock shows before the tracker itself
-declares the target lost (its own monitor compares the peak with a reference that follows it down slowly).
+A sample's `score` is the tracker's raw peak (about 0.01-0.06 for JSAR / JSAR-Re, 1 or 0 for CSRT / KCF): no
+operator can read that scale and no fixed threshold suits every target, so the station shows it as a
+percentage of the best score of the current lock, and below LOW_CONFIDENCE the page marks the track "low
+confidence" (a drifting or false lock shows before the tracker declares the target lost).
 
 A lock begins when the samples go from idle / lost (or nothing) to tracking / recovered, and when this
-station's own track command is accepted (a new selection while tracking); the reference then starts again.
-A selection made elsewhere while tracking (another ground station) is not seen: the reference carries over.
+station's own track command is accepted; a selection made by another ground station while tracking is not
+seen (the reference carries over).
 """
 from __future__ import annotations
 

@@ -1,16 +1,15 @@
 """`python -m gcs.router`: a Zenoh router (zenoh-python in router mode), for a fleet without Eclipse's zenohd.
 
-Each drone's daemon connects to it (config.yaml `zenoh.connect: ["tcp/ROUTER:7447"]`, its own
-`zenoh.prefix`), and so does the web station (`--zenoh tcp/ROUTER:7447 --zenoh-mode client`): the
-router forwards every drone's telemetry, status and preview to the station.
+Every drone's daemon (config.yaml `zenoh.connect: ["tcp/ROUTER:7447"]`, its own `zenoh.prefix`) and the web
+station (`--zenoh tcp/ROUTER:7447 --zenoh-mode client`) connect to it; it forwards every drone's telemetry,
+status and preview to the station.
 
     python -m gcs.router --listen tcp/0.0.0.0:7447
-    python -m gcs.router --listen tls/0.0.0.0:7447 --tls-ca ca.crt --tls-cert router.crt --tls-key router.key \
+    python -m gcs.router --listen tls/0.0.0.0:7447 --tls-ca ca.crt --tls-cert router.crt --tls-key router.key \\
         --access router-access.yaml
 
-With TLS (docs/security.md), every daemon and station must show a certificate from the same CA; `--access`
-takes a YAML (or JSON) file holding Zenoh's access_control section (the keys of config.yaml's zenoh.access:
-enabled, default_permission, rules, subjects, policies), which Zenoh checks at start.
+TLS (docs/security.md): every peer shows a certificate from the same CA; `--access` is a YAML (or JSON) file
+with Zenoh's access_control section (config.yaml's zenoh.access keys), checked at start.
 """
 from __future__ import annotations
 

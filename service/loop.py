@@ -97,7 +97,7 @@ class TrackingLoop:
         self.coast_params = CoastParams.from_config(config.gimbal)
         self.hfov = math.radians(config.camera.hfov_deg)
         self.state = LoopState.IDLE
-        self.mode: SelectionKind | None = None  # how the current target was selected
+        self.selection_kind: SelectionKind | None = None  # how the current target was selected (point / rectangle)
         self.tracker: Tracker | None = None
         self.box: tuple[float, float, float, float] | None = None
         self.tracked_size: tuple[int, int] | None = None
@@ -166,8 +166,8 @@ class TrackingLoop:
         box_norm = normalised_box(self.box, size) if self.box is not None and self.state != LoopState.IDLE else None
         pose = view.pose()
         self.publish_snapshot(TrackSnapshot(
-            state=self.state, selection=self.mode if self.state != LoopState.IDLE else None, box_normalised=box_norm,
-            ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
+            state=self.state, selection=self.selection_kind if self.state != LoopState.IDLE else None,
+            box_normalised=box_norm, ground=command.ground, vehicle_alt_amsl_m=pose.alt_amsl_m if pose else None))
         report = FrameReport(
             frame_id=frame.frame_id, capture_time_s=frame.capture_time_s, image_size=size,
             box=self.box if self.state != LoopState.IDLE else None, box_normalised=box_norm,
@@ -189,13 +189,13 @@ class TrackingLoop:
             return "stopped" if self._stop_tracking("stop requested") else None
         self.counters["selections"] += 1
         if isinstance(selection, TrackRectangle):
-            box, mode, how = rectangle_box(selection, size), SelectionKind.RECTANGLE, "rectangle"
+            box, kind, how = rectangle_box(selection, size), SelectionKind.RECTANGLE, "rectangle"
             if self.config.camera.rectangle_fit:
                 fitted, outcome = fitted_rectangle_box(image, box, self.config.camera)
                 how = "rectangle+fitted" if fitted is not None else f"rectangle,{outcome}"
                 box = fitted or box
         elif isinstance(selection, TrackPoint):
-            box, mode, how = point_box(selection, size, self.config.camera), SelectionKind.POINT, "point"
+            box, kind, how = point_box(selection, size, self.config.camera), SelectionKind.POINT, "point"
             if self.config.camera.point_proposal:
                 proposal = proposal_box(image, selection, box, self.config.camera.min_box_px)
                 how = "point+proposal" if proposal is not None else "point,no_proposal_qualified"
@@ -208,7 +208,7 @@ class TrackingLoop:
         except ValueError as exc:
             log.error('event=track_init_failed box=%s reason="%s"', _fmt_box(box), exc)
             return "stopped" if self._stop_tracking("init failed") else None
-        self.tracker, self.box, self.tracked_size, self.mode = tracker, box, size, mode
+        self.tracker, self.box, self.tracked_size, self.selection_kind = tracker, box, size, kind
         self.state = LoopState.TRACKING
         self._reset_controller()
         self._reset_coast()
@@ -250,7 +250,7 @@ class TrackingLoop:
             log.info("event=track_stopped reason=%s", why.replace(" ", "_"))
         self.tracker, self.box, self.tracked_size = None, None, None
         self.size_memory = SizeMemory()
-        self.state, self.mode = LoopState.IDLE, None
+        self.state, self.selection_kind = LoopState.IDLE, None
         self._reset_controller()
         self._reset_coast()
         return was_active

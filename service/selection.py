@@ -1,30 +1,12 @@
-"""Operator selection (pure): a normalised point or rectangle -> initial tracker box in pixels.
+"""Operator selection (pure): a normalised point or rectangle -> initial tracker box, (x, y, w, h) pixels,
+top-left origin.
 
-Boxes are (x, y, w, h) pixels, top-left origin. A rectangle's normalised corners are scaled by the
-image size. A point becomes a square of side 2 * radius * image width centred on it (radius 0 ->
-camera.default_point_radius), at least camera.min_box_px, kept inside the image. With
-camera.point_proposal (the default) the box is instead the EdgeBoxes object proposal
-(jsar.redetect.proposals) around the object under the click: proposals are generated for object
-sides of 1/4, 1/2 and 1 x the square's (a click says where the object is, not how big; never below
-camera.min_box_px, which a smaller box would be grown to anyway), each in a search square of
-PROPOSAL_SEARCH_FACTOR = 5 x that side around the point (3 x cut off a tall object clicked away from
-its middle) keeping SELECTION_MAX_BOXES = 300 boxes (of the 30 the re-detection keeps, few held the
-point). Those containing the point are scored by EdgeBoxes score x exp(-d^2)^2, d the point's offset
-from the box centre in half-sizes (an operator clicks near an object's middle), and the best wins;
-when none contains the point, object sides of 2 and then 4 x the square's are tried, then the square
-is used (and the caller logs which one was chosen). Either box always contains the clicked point.
-
-A dragged rectangle (camera.rectangle_fit, the default) is fitted to the object inside it: EdgeBoxes
-proposals for object sides of RECTANGLE_SIDE_FRACTIONS x sqrt(its area) in a square of 1.2 x its longer
-side around its centre; a proposal fits when at least camera.rectangle_fit_min_inside of its area lies in
-the rectangle and it covers at least camera.rectangle_fit_min_area_fraction of the rectangle; the best
-fitting one by EdgeBoxes score x exp(-d^2) (d: the rectangle's centre from the proposal's, in
-half-sizes), clipped to the rectangle and grown to camera.min_box_px inside it, replaces the rectangle
-when the rectangle is loose: its area is at least camera.rectangle_loose_area_ratio x the box's, and no
-proposal that is the rectangle itself (IoU >= RECTANGLE_SAME_IOU) scores as well; and the box's colours
-stand out from its surround (colour_contrast >= camera.rectangle_fit_min_contrast; a rectangle on plain
-ground finds proposals in the noise). Otherwise the operator's rectangle is kept. Measured on the
-shared sequences: `python -m bench.click` (clicks and drags).
+A point becomes a square of side 2 * radius * image width around it (radius 0: camera.default_point_radius,
+at least camera.min_box_px, inside the image), or with camera.point_proposal the best-scoring EdgeBoxes
+proposal holding the point near its middle (a click says where the object is, not how big); either box
+contains the point. A rectangle is scaled by the image size and, with camera.rectangle_fit, replaced by the
+proposal of the object inside it when it is loose and that object stands out from its surround. The rules
+and their measurements (`python -m bench.click`): docs/service.md, Selection.
 """
 from __future__ import annotations
 

@@ -183,7 +183,7 @@ class FrameRecord:
         return math.hypot(self.truth.target.north - self.vehicle_ne[0], self.truth.target.east - self.vehicle_ne[1])
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunResult:
     """Everything a run produced, for assertions and the demo summary."""
 
@@ -387,6 +387,24 @@ def _distance_text(record: FrameRecord) -> str:
     return f"  dist {distance:5.1f} m" if math.isfinite(distance) else ""
 
 
+@dataclass
+class RunProgress:
+    """A run under way: what ClosedLoop.run collects frame by frame. Times in seconds."""
+
+    dt: float  # frame period, simulated
+    writer: "cv2.VideoWriter | None"  # the annotated video, if asked for
+    start_wall: float  # time.monotonic() at the first run frame
+    firmware_start: float  # the firmware's clock then (0 with the mock)
+    drops: list[tuple[float, float]]  # link drops still to come: (start_s, duration_s)
+    modes: list[tuple[float, str]]  # the pilot's mode switches still to come: (time_s, mode)
+    records: list[FrameRecord] = field(default_factory=list)
+    pending: list[tuple[int, FrameRecord, np.ndarray | None]] = field(default_factory=list)  # real time: matched later
+    rss: list[tuple[float, int]] = field(default_factory=list)  # (time_s, daemon RSS KiB)
+    cpu: list[tuple[float, float]] = field(default_factory=list)  # (time_s, daemon CPU s)
+    next_rss: float = 0.0  # simulated time of the next RSS / CPU sample
+    skipped: int = 0  # firmware: frames dropped because the loop ran more than a frame late
+
+
 class ClosedLoop:
     """Owns the mock autopilot, the Zenoh camera, the daemon and the scene for one run."""
 
@@ -580,101 +598,137 @@ class ClosedLoop:
         cfg = self.cfg
         selection = self.select_target()
         startup_frames = self.frame_id  # every frame so far came before the run (ids count from 1)
-        dt = 1.0 / cfg.fps
         frames = int(round(cfg.duration_s * cfg.fps))
+        progress = self._begin_run()
+        step = self._lockstep_frame if cfg.pace == "lockstep" else self._realtime_frame
+        for k in range(frames):
+            t = (k + 1) * progress.dt  # simulated time after the init frame
+            self._operator_events(progress, t)
+            self._sample_usage(progress, t)
+            if not self._firmware_ready(progress, t):
+                progress.skipped += 1
+                continue
+            step(progress, k, t)
+            if live and (k % 10 == 0 or k == frames - 1):
+                shown = [pending[1] for pending in progress.pending[-1:]] or progress.records
+                self._print_status(k, frames, progress.start_wall, shown)
+            if not self.daemon.alive():
+                break
+        return self._end_run(progress, selection, startup_frames, live)
+
+    def _begin_run(self) -> RunProgress:
+        """Open the video, let the init frame's command act for one frame period (as every run frame's
+        does) and start the clocks."""
+        cfg = self.cfg
         writer = None
         if cfg.video_path is not None:
             cfg.video_path.parent.mkdir(parents=True, exist_ok=True)
             writer = cv2.VideoWriter(str(cfg.video_path), cv2.VideoWriter_fourcc(*"MJPG"), cfg.fps,
                                      (cfg.camera.width, cfg.camera.height))
-        records: list[FrameRecord] = []
-        pending: list[tuple[int, FrameRecord, np.ndarray | None]] = []  # realtime: matched later
-        rss: list[tuple[float, int]] = []
-        cpu: list[tuple[float, float]] = []
-        drops = sorted(cfg.link_drops)
-        modes = sorted(cfg.operator_modes)
-        next_rss = 0.0
-        skipped = 0
-        # the init frame's command acts for one frame period, like every run frame's
+        dt = 1.0 / cfg.fps
         self.autopilot.step(dt)
         if cfg.pace == "lockstep":
             self.autopilot.send_state_now()
-        start_wall = time.monotonic()
-        firmware_start = self.autopilot.firmware_time_s() if not self.autopilot.lockstep else 0.0
-        for k in range(frames):
-            t = (k + 1) * dt  # simulated time after the init frame
-            while drops and drops[0][0] <= t:
-                self.autopilot.drop_link(drops.pop(0)[1])
-            while modes and modes[0][0] <= t:
-                mode = modes.pop(0)[1]
-                try:
-                    self.autopilot.request_mode(mode)
-                except ValueError as exc:
-                    with self.autopilot.lock:
-                        self.autopilot.events.append((t, f"operator switch to {mode} refused: {exc}"))
-            if t >= next_rss and self.daemon.alive():
-                rss.append((t, self.daemon.rss_kib()))
-                cpu.append((t, self.daemon.cpu_s()))
-                next_rss += cfg.rss_every_s
-            if not self.autopilot.lockstep:
-                # firmware: frames keep to the firmware's own clock (real time, or cfg.speedup times it); a frame
-                # the loop is more than a frame late for is dropped, as a real camera's would be
-                if self.autopilot.firmware_time_s() - firmware_start > t + dt:
-                    skipped += 1
-                    continue
-                self.autopilot.wait_firmware_time(firmware_start + t, 5.0 * dt / cfg.speedup + 1.0)
-            snap = self.autopilot.snapshot()
-            frame, truth = self.scene.render(pose_from_vehicle(snap.north, snap.east, snap.down, snap.yaw,
-                                                               snap.gimbal_pitch, snap.gimbal_yaw), t)
-            gimbal_before = self.gimbal_outputs()
-            frame_id = self.publish(frame, t)
-            record = FrameRecord(frame_id, t, truth, None, None, None, (snap.north, snap.east),
-                                 math.hypot(snap.v_north, snap.v_east), snap.mode,
-                                 self.autopilot.link_is_down("service"))
-            if cfg.pace == "lockstep":
-                sample = self.camera.telemetry.wait_frame(frame_id, cfg.telemetry_timeout_s)
-                if sample is not None and int(sample["frame_id"]) == frame_id:
-                    self._fill(record, sample)
-                    if sample.get("state") != "idle" and not record.link_down:
-                        self.wait_gimbal_output(gimbal_before, frame_id)
-                if writer is not None:
-                    writer.write(annotate(frame, record))
-                records.append(record)
-                self.autopilot.step(dt)
-                self.autopilot.send_state_now()
-                if cfg.lockstep_realtime_floor:
-                    delay = start_wall + (k + 1) * dt - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)  # pacing (see lockstep_realtime_floor), not synchronisation
-            else:
-                pending.append((frame_id, record, frame if writer is not None else None))
-                self._collect(pending, records, writer, final=False)
-                delay = start_wall + (k + 1) * dt - time.monotonic() if self.autopilot.lockstep else 0.0
-                if delay > 0:
-                    self.camera.telemetry.wait_frame(frame_id, delay)  # pacing; returns early on telemetry
-                    remaining = start_wall + (k + 1) * dt - time.monotonic()
-                    if remaining > 0:
-                        time.sleep(remaining)  # pacing a real-time camera, not synchronisation
-                self.autopilot.step(dt)
-            if live and (k % 10 == 0 or k == frames - 1):
-                self._print_status(k, frames, start_wall, [p[1] for p in pending[-1:]] or records)
-            if not self.daemon.alive():
-                break
-        wall = time.monotonic() - start_wall
-        if cfg.pace == "realtime":
+        return RunProgress(dt=dt, writer=writer, start_wall=time.monotonic(),
+                           firmware_start=self.autopilot.firmware_time_s() if not self.autopilot.lockstep else 0.0,
+                           drops=sorted(cfg.link_drops), modes=sorted(cfg.operator_modes))
+
+    def _operator_events(self, progress: RunProgress, t: float) -> None:
+        """The link drops and the pilot's mode switches due by simulated time t."""
+        while progress.drops and progress.drops[0][0] <= t:
+            self.autopilot.drop_link(progress.drops.pop(0)[1])
+        while progress.modes and progress.modes[0][0] <= t:
+            mode = progress.modes.pop(0)[1]
+            try:
+                self.autopilot.request_mode(mode)
+            except ValueError as exc:
+                with self.autopilot.lock:
+                    self.autopilot.events.append((t, f"operator switch to {mode} refused: {exc}"))
+
+    def _sample_usage(self, progress: RunProgress, t: float) -> None:
+        """The daemon's RSS and CPU time every cfg.rss_every_s of simulated time."""
+        if t >= progress.next_rss and self.daemon.alive():
+            progress.rss.append((t, self.daemon.rss_kib()))
+            progress.cpu.append((t, self.daemon.cpu_s()))
+            progress.next_rss += self.cfg.rss_every_s
+
+    def _firmware_ready(self, progress: RunProgress, t: float) -> bool:
+        """Firmware: frames keep to the firmware's own clock (real time, or cfg.speedup times it): wait for
+        time t on it; False for a frame the loop is more than a frame late for, dropped as a real camera's
+        would be. The mock: True at once."""
+        if self.autopilot.lockstep:
+            return True
+        if self.autopilot.firmware_time_s() - progress.firmware_start > t + progress.dt:
+            return False
+        self.autopilot.wait_firmware_time(progress.firmware_start + t, 5.0 * progress.dt / self.cfg.speedup + 1.0)
+        return True
+
+    def _shoot(self, t: float) -> tuple[np.ndarray, FrameRecord, int]:
+        """Render and publish run frame at simulated time t from the vehicle's pose now: the frame, its record
+        (no telemetry yet) and the gimbal output count just before it was published."""
+        snap = self.autopilot.snapshot()
+        frame, truth = self.scene.render(pose_from_vehicle(snap.north, snap.east, snap.down, snap.yaw,
+                                                           snap.gimbal_pitch, snap.gimbal_yaw), t)
+        gimbal_before = self.gimbal_outputs()
+        frame_id = self.publish(frame, t)
+        record = FrameRecord(frame_id=frame_id, time_s=t, truth=truth, state=None, box=None, latency_ms=None,
+                             vehicle_ne=(snap.north, snap.east), vehicle_speed=math.hypot(snap.v_north, snap.v_east),
+                             mode=snap.mode, link_down=self.autopilot.link_is_down("service"))
+        return frame, record, gimbal_before
+
+    def _lockstep_frame(self, progress: RunProgress, k: int, t: float) -> None:
+        """One lockstep frame: publish, wait for its telemetry and gimbal command, then step the mock."""
+        frame, record, gimbal_before = self._shoot(t)
+        sample = self.camera.telemetry.wait_frame(record.frame_id, self.cfg.telemetry_timeout_s)
+        if sample is not None and int(sample["frame_id"]) == record.frame_id:
+            self._fill(record, sample)
+            if sample.get("state") != "idle" and not record.link_down:
+                self.wait_gimbal_output(gimbal_before, record.frame_id)
+        if progress.writer is not None:
+            progress.writer.write(annotate(frame, record))
+        progress.records.append(record)
+        self.autopilot.step(progress.dt)
+        self.autopilot.send_state_now()
+        if self.cfg.lockstep_realtime_floor:
+            delay = progress.start_wall + (k + 1) * progress.dt - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)  # pacing (see lockstep_realtime_floor), not synchronisation
+
+    def _realtime_frame(self, progress: RunProgress, k: int, t: float) -> None:
+        """One real-time frame: publish, take in the telemetry that has come, keep the frame rate (the mock;
+        firmware keeps its own clock), step the mock."""
+        frame, record, _ = self._shoot(t)
+        progress.pending.append((record.frame_id, record, frame if progress.writer is not None else None))
+        self._collect(progress.pending, progress.records, progress.writer, final=False)
+        due = progress.start_wall + (k + 1) * progress.dt
+        delay = due - time.monotonic() if self.autopilot.lockstep else 0.0
+        if delay > 0:
+            self.camera.telemetry.wait_frame(record.frame_id, delay)  # pacing; returns early on telemetry
+            remaining = due - time.monotonic()
+            if remaining > 0:
+                time.sleep(remaining)  # pacing a real-time camera, not synchronisation
+        self.autopilot.step(progress.dt)
+
+    def _end_run(self, progress: RunProgress, selection: str, startup_frames: int, live: bool) -> RunResult:
+        """Take in the last telemetry (real time), close the video, ask the daemon for its counters."""
+        wall = time.monotonic() - progress.start_wall
+        if self.cfg.pace == "realtime":
             self.camera.telemetry.wait_frame(self.frame_id, 2.0)
-            self._collect(pending, records, writer, final=True)
-        if writer is not None:
-            writer.release()
+            self._collect(progress.pending, progress.records, progress.writer, final=True)
+        if progress.writer is not None:
+            progress.writer.release()
         if live:
             print(flush=True)
-        status = self.camera.status(2.0) if self.daemon.alive() else None
+        status = (self.camera.status(2.0) if self.daemon.alive() else None) or {}
         last = self.camera.telemetry.last or {}
-        return RunResult(records, cfg.camera.width, cfg.camera.height, rss, wall,
-                         int(last.get("dropped_frames", 0) or 0), (status or {}).get("counters", {}),
-                         self.daemon.alive(), None if self.daemon.alive() else self.daemon.process.returncode,
-                         selection, self.gimbal_command_timeouts, (status or {}).get("mavlink_refusals", []), cpu,
-                         startup_frames, skipped)
+        alive = self.daemon.alive()
+        return RunResult(records=progress.records, width=self.cfg.camera.width, height=self.cfg.camera.height,
+                         rss_kib=progress.rss, wall_s=wall, dropped_frames=int(last.get("dropped_frames", 0) or 0),
+                         counters=status.get("counters", {}), daemon_alive=alive,
+                         daemon_exit=None if alive else self.daemon.process.returncode,
+                         selection_result=selection, gimbal_command_timeouts=self.gimbal_command_timeouts,
+                         refusals=status.get("mavlink_refusals", []), cpu_s=progress.cpu,
+                         startup_frames=startup_frames, skipped_frames=progress.skipped)
 
     def _collect(self, pending: list, records: list[FrameRecord], writer: "cv2.VideoWriter | None",
                  final: bool) -> None:

@@ -93,7 +93,7 @@ def test_bad_commands_are_denied_and_change_nothing(rig: Rig) -> None:
     rig.gcs.command_long(TRACK_RECT, [0.55, 0.2, 0.8, 0.5, 0, 0, 0], target=CAM)
     assert rig.gcs.wait_ack(TRACK_RECT, 1).result == ACCEPTED
     assert rig.wait_tracking()
-    tracker, mode = rig.service.loop.tracker, rig.service.loop.mode
+    tracker, kind = rig.service.loop.tracker, rig.service.loop.selection_kind
     bad_long = [
         (TRACK_POINT, [NAN, 0.5, 0.1, 0, 0, 0, 0]),
         (TRACK_POINT, [1.5, 0.5, 0.1, 0, 0, 0, 0]),
@@ -110,7 +110,7 @@ def test_bad_commands_are_denied_and_change_nothing(rig: Rig) -> None:
         acks[command] += 1
     rig.gcs.command_int(TRACK_RECT, 0.1, NAN, 0.3, 0.4, 0, 0, 0, target=CAM)  # COMMAND_INT too
     assert rig.gcs.wait_ack(TRACK_RECT, acks[TRACK_RECT]).result == DENIED
-    assert rig.service.loop.tracker is tracker and rig.service.loop.mode == mode
+    assert rig.service.loop.tracker is tracker and rig.service.loop.selection_kind == kind
     assert rig.service.loop.state in ("tracking", "recovered", "lost")
     assert rig.service.selections.take(0.0) is None  # nothing was queued for the loop
     # STOP via COMMAND_INT ends tracking

@@ -478,8 +478,16 @@ def test_soak_needs_enough_samples():
     assert latency_quarters([10.0] * 20 + [30.0] * 20) == (10.0, 30.0)
 
 
+def run_result(records: list, width: int, height: int, **fields: object) -> "RunResult":
+    """A RunResult of `records` from a run that ended well: 1 s, nothing dropped, the daemon alive."""
+    from sim.closed_loop import RunResult
+    ended_well: dict = {"rss_kib": [], "wall_s": 1.0, "dropped_frames": 0, "counters": {}, "daemon_alive": True,
+                        "daemon_exit": None, "selection_result": "SUCCESS"}
+    return RunResult(records=records, width=width, height=height, **{**ended_well, **fields})
+
+
 def test_run_summary_measures_the_car_from_the_box_while_lost():
-    from sim.closed_loop import FrameRecord, RunResult
+    from sim.closed_loop import FrameRecord
     from sim.scene import GroundTruth, TargetPose
 
     def record(t, state, box, car_x, visible=1.0, in_view=1.0):
@@ -490,10 +498,9 @@ def test_run_summary_measures_the_car_from_the_box_while_lost():
     records = [record(0.0, "tracking", box, 100.0), record(1.0, "lost", box, 130.0), record(2.0, "lost", box, 160.0),
                record(3.0, "lost", box, 200.0, visible=0.2), record(4.0, "lost", None, 100.0),
                record(4.5, None, None, 100.0), record(5.0, "lost", box, 220.0)]
-    result = RunResult(records, 640, 480, [], 1.0, 0, {}, True, None, "SUCCESS")
+    result = run_result(records, 640, 480)
     # in view: at least half of the car inside the image, occluded (frame 3 s) or not
-    left = RunResult(records + [record(6.0, "tracking", box, 900.0, visible=0.0, in_view=0.3)], 640, 480, [], 1.0, 0,
-                     {}, True, None, "SUCCESS")
+    left = run_result(records + [record(6.0, "tracking", box, 900.0, visible=0.0, in_view=0.3)], 640, 480)
     assert result.in_view_ratio() == 1.0 and left.in_view_ratio() == pytest.approx(7 / 8)
     # a hidden car, a frame without a box and an unanswered frame do not count; the loss began at 1 s
     assert result.lost_car_to_box_px() == [30.0, 60.0, 120.0]
@@ -534,14 +541,14 @@ def test_annotated_frame_has_a_legend_and_a_clean_status_line():
 
 # ----- demo summary ------------------------------------------------------------------------------
 def test_demo_summary_explains_every_figure_and_reads_polling_as_normal():
-    from sim.closed_loop import FrameRecord, RunResult
+    from sim.closed_loop import FrameRecord
     from sim.scene import GroundTruth, TargetPose
     from sim.summary import camera_command_rows, counter_rows, format_rows, run_rows
 
     truth = GroundTruth((90.0, 90.0, 20.0, 20.0), 1.0, 1.0, TargetPose(0.0, 0.0, 0.0, 5.0))
     records = [FrameRecord(k, k / 30, truth, "tracking", (90.0, 90.0, 20.0, 20.0), 10.0, (0.0, 0.0), 0.0,
                            "GUIDED", False) for k in range(30)]
-    result = RunResult(records, 200, 200, [], 1.0, 0, {}, True, None, "SUCCESS")
+    result = run_result(records, 200, 200)
     rows = run_rows(result.summary())
     assert rows and all(meaning for _, _, meaning in rows), [key for key, _, meaning in rows if not meaning]
     counters = {"frames": 900, "mavlink_commands": 130, "mavlink_accepted": 5, "mavlink_rejected": 125,
@@ -621,15 +628,15 @@ def _run(frames: list[tuple[float, str | None, tuple | None, float, float]], ali
          width: int = 640, height: int = 480):
     """A RunResult of frames (time_s, state, box, car_x, in_view): a 40x20 px car at (car_x, 240), visible
     whenever in view; ten startup frames."""
-    from sim.closed_loop import FrameRecord, RunResult
+    from sim.closed_loop import FrameRecord
     from sim.scene import GroundTruth, TargetPose
 
     records = []
     for k, (t, state, box, car_x, in_view) in enumerate(frames):
         truth = GroundTruth((car_x - 20.0, 230.0, 40.0, 20.0), in_view, in_view, TargetPose(0.0, 0.0, 0.0, 5.0))
         records.append(FrameRecord(k + 11, t, truth, state, box, 10.0, (0.0, 0.0), 0.0, "GUIDED", False))
-    return RunResult(records, width, height, [], 10.0, 0, {}, alive, None if alive else -9, "SUCCESS",
-                     startup_frames=10)
+    return run_result(records, width, height, wall_s=10.0, daemon_alive=alive, daemon_exit=None if alive else -9,
+                      startup_frames=10)
 
 
 def _on(car_x: float) -> tuple[float, float, float, float]:

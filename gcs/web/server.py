@@ -1,22 +1,15 @@
-"""The web station's server (Starlette on uvicorn): one page, one WebSocket per page.
+"""The web station's server (Starlette on uvicorn): one page, one WebSocket per page; with a token
+(gcs.web.auth) every route needs it (`GET /login`, `POST /login`, `POST /logout` log a browser in and out).
 
-- `GET /`: the page (static/index.html + app.js + style.css: plain HTML and JS, no build step).
-- `GET /api/drones`: the drone list as JSON (also pushed to the pages every second).
-- `WS /ws`: server -> page: binary messages are preview samples as the daemon sent them (32-byte "JFR1"
-  header + JPEG; the page reads the frame id from the header), text messages are JSON
-  `{"type": "events", "events": [...]}` (track samples of the watched drone with the station's reading of
-  their confidence (gcs.confidence), its 275 status, command outcomes, camera texts) and `{"type": "drones",
-  ...}` (each drone's autopilot and gimbal as its status query reports them). Page -> server: JSON `{"type": "watch", "prefix"}`,
-  `{"type": "point", "prefix", "x", "y", "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1",
-  "y1", "id"}`, `{"type": "stop", "prefix", "id"}` (coordinates normalised 0..1, top-left origin).
-
-With a token (create_app's `token`; gcs.web.auth), every route and the WebSocket need it, and `GET /login`,
-`POST /login`, `POST /logout` log a browser in and out.
-
-Latest frame wins towards each page: a page that reads slowly gets the newest preview, the ones it
-missed are counted (`dropped_frames` in /api/drones' `pages`), nothing queues up. A WebSocket whose
-Origin is not this server's own address is refused (another site open in the operator's browser must not
-drive the drone).
+- `GET /`: the page (static/: plain HTML and JS, no build step); `GET /api/drones`: the drone list as JSON.
+- `WS /ws`, server -> page: binary messages are preview samples as the daemon sent them (32-byte "JFR1" header
+  + JPEG); text messages JSON `{"type": "events", "events": [...]}` (the watched drone's track samples with
+  the station's confidence, its 275 status, command outcomes, camera texts) and `{"type": "drones", ...}`
+  (every second). Page -> server, JSON: `{"type": "watch", "prefix"}`, `{"type": "point", "prefix", "x", "y",
+  "radius", "id"}`, `{"type": "rect", "prefix", "x0", "y0", "x1", "y1", "id"}`, `{"type": "stop", "prefix",
+  "id"}` (normalised 0..1, top-left origin); anything else closes the socket (1003).
+The newest frame wins towards each page (missed ones: `dropped_frames` in /api/drones' `pages`); a WebSocket
+from another Origin is refused (another site in the operator's browser must not drive the drone).
 """
 from __future__ import annotations
 
@@ -32,11 +25,13 @@ from typing import Any, AsyncIterator
 from urllib.parse import urlsplit
 
 from starlette.applications import Starlette
+from starlette.endpoints import WebSocketEndpoint
 from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
+from starlette.types import Receive, Scope, Send
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from gcs.confidence import ConfidenceGauge
@@ -85,51 +80,48 @@ class Page:
     tasks: set = field(default_factory=set)  # commands in flight (referenced until done)
 
 
-class Hub:
-    """Between the Zenoh / MAVLink threads and the pages (everything here runs on the event loop)."""
+class Feed:
+    """The connected pages and what goes to each: filled from the Zenoh / MAVLink threads through `hop`,
+    everything else runs on the event loop."""
 
     def __init__(self) -> None:
-        self.loop: asyncio.AbstractEventLoop | None = None  # set when the server starts
+        self.loop: asyncio.AbstractEventLoop | None = None  # the server's, while it runs
         self.pages: set[Page] = set()
-        self.directory: DroneDirectory | None = None
-        self.station: MavlinkStation | None = None
         self.gauges: dict[str, ConfidenceGauge] = {}  # per drone prefix, fed every track sample (on the loop)
 
-    # called from the Zenoh / MAVLink threads: hop onto the loop (nothing to do before the server runs)
-    def _hop(self, callback: Any, *args: Any) -> None:
+    def hop(self, callback: Any, *args: Any) -> None:
+        """From another thread: call back on the loop (dropped while no server runs)."""
         loop = self.loop
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(callback, *args)
 
+    # the Zenoh directory's callbacks (on Zenoh's threads)
     def on_track(self, prefix: str, sample: dict[str, Any]) -> None:
-        self._hop(self._track, prefix, finite(sample))
+        self.hop(self._track, prefix, finite(sample))
 
     def on_preview(self, prefix: str, frame: PreviewFrame, payload: bytes) -> None:
-        self._hop(self._frame_for, prefix, payload)
-
-    def on_status(self, status: ImageStatus) -> None:
-        self._hop(self._camera_event, status.system_id, status.component_id,
-                  {"type": "status275", "status": finite(status.as_json())})
-
-    def on_text(self, system_id: int, component_id: int, severity: int, text: str) -> None:
-        self._hop(self._camera_event, system_id, component_id,
-                  {"type": "text", "system_id": system_id, "component_id": component_id, "severity": severity,
-                   "text": text})
+        self.hop(self._frame_for, prefix, payload)
 
     # on the loop
     def _track(self, prefix: str, sample: dict[str, Any]) -> None:
         confidence = self.gauges.setdefault(prefix, ConfidenceGauge()).update(sample)
-        self._event_for(prefix, {"type": "track", "prefix": prefix, "sample": sample, "confidence": confidence})
+        self.event_for(prefix, {"type": "track", "prefix": prefix, "sample": sample, "confidence": confidence})
 
     def new_lock(self, prefix: str) -> None:
         """This station's track command was accepted: the drone's confidence starts a new reference."""
         self.gauges.setdefault(prefix, ConfidenceGauge()).new_lock()
 
-    def _event_for(self, prefix: str, event: dict[str, Any]) -> None:
+    def event_for(self, prefix: str, event: dict[str, Any]) -> None:
+        """Queue an event for the pages watching `prefix`."""
         for page in self.pages:
             if page.watching == prefix:
                 page.events.append(event)
                 page.wake.set()
+
+    def event_for_all(self, event: dict[str, Any]) -> None:
+        for page in self.pages:
+            page.events.append(event)
+            page.wake.set()
 
     def _frame_for(self, prefix: str, payload: bytes) -> None:
         for page in self.pages:
@@ -139,14 +131,46 @@ class Hub:
                 page.frame = payload
                 page.wake.set()
 
-    def _camera_event(self, system_id: int, component_id: int, event: dict[str, Any]) -> None:
-        assert self.directory is not None
+
+@dataclass(frozen=True)
+class CameraRelay:
+    """The MAVLink station's callbacks (on its threads): a camera's 275 status and texts go to the pages
+    watching the drone with that camera's MAVLink ids."""
+
+    feed: Feed
+    directory: DroneDirectory
+
+    def on_status(self, status: ImageStatus) -> None:
+        self.feed.hop(self._deliver, status.system_id, status.component_id,
+                      {"type": "status275", "status": finite(status.as_json())})
+
+    def on_text(self, system_id: int, component_id: int, severity: int, text: str) -> None:
+        self.feed.hop(self._deliver, system_id, component_id,
+                      {"type": "text", "system_id": system_id, "component_id": component_id, "severity": severity,
+                       "text": text})
+
+    def _deliver(self, system_id: int, component_id: int, event: dict[str, Any]) -> None:
         for drone in self.directory.summaries():
             if (drone["system_id"], drone["component_id"]) == (system_id, component_id):
-                self._event_for(drone["prefix"], {**event, "prefix": drone["prefix"]})
+                self.feed.event_for(drone["prefix"], {**event, "prefix": drone["prefix"]})
+
+
+@dataclass(frozen=True)
+class Hub:
+    """The station's Zenoh directory and MAVLink station, and the pages they feed (built by build_hub)."""
+
+    feed: Feed
+    directory: DroneDirectory
+    station: MavlinkStation
+    background: set[asyncio.Task] = field(default_factory=set)  # referenced until done (the loop keeps weak ones)
+
+    def spawn(self, coroutine: Any) -> None:
+        """Run a coroutine on the loop in the background."""
+        task = asyncio.create_task(coroutine)
+        self.background.add(task)
+        task.add_done_callback(self.background.discard)
 
     def drones_message(self) -> dict[str, Any]:
-        assert self.directory is not None and self.station is not None
         drones = self.directory.summaries()
         for drone in drones:
             drone["mavlink_heard"] = (drone["system_id"] is not None
@@ -185,7 +209,6 @@ def number(message: dict[str, Any], name: str) -> float:
 
 async def run_command(hub: Hub, message: dict[str, Any]) -> dict[str, Any]:
     """Carry out a page's point / rect / stop on the drone it names; the outcome as an `ack` event."""
-    assert hub.directory is not None and hub.station is not None
     prefix = str(message.get("prefix"))
     kind = message.get("type")
     base = {"type": "ack", "id": message.get("id"), "prefix": prefix,
@@ -206,7 +229,7 @@ async def run_command(hub: Hub, message: dict[str, Any]) -> dict[str, Any]:
     log.info("event=command prefix=%s command=%s result=%s reason=%s", prefix, base["command"],
              outcome.result_name, outcome.reason)
     if outcome.accepted and kind != "stop":
-        hub.new_lock(prefix)
+        hub.feed.new_lock(prefix)
         # as QGroundControl does after a track command: ask for the camera's 275 (2 Hz)
         await asyncio.to_thread(station.request_status, system_id, component_id, 0.5, 0.0)
     return {**base, **outcome.as_json(), "command": base["command"]}
@@ -214,7 +237,6 @@ async def run_command(hub: Hub, message: dict[str, Any]) -> dict[str, Any]:
 
 async def ask_status(hub: Hub, prefix: str) -> None:
     """Ask the watched drone's camera for its 275 at 2 Hz (not more than every 10 s)."""
-    assert hub.directory is not None and hub.station is not None
     try:
         system_id, component_id = hub.directory.target(prefix)
     except LookupError:
@@ -222,122 +244,149 @@ async def ask_status(hub: Hub, prefix: str) -> None:
     await asyncio.to_thread(hub.station.request_status, system_id, component_id)
 
 
-def create_app(hub: Hub, token: str | None = None) -> Starlette:
-    """The Starlette app serving `hub` (built with build_hub; closed by its owner after the server stops);
-    with a token, every request and the WebSocket need it (gcs.web.auth)."""
-    state: dict[str, Any] = {"hub": hub}
-    background: set[asyncio.Task] = set()  # referenced until done (the loop keeps only weak references)
+async def index(_request: Request) -> Response:
+    """GET /: the page."""
+    return FileResponse(str(STATIC / "index.html"), headers={"Cache-Control": "no-store"})
 
-    def spawn(coroutine: Any) -> None:
-        task = asyncio.create_task(coroutine)
-        background.add(task)
-        task.add_done_callback(background.discard)
 
-    async def index(_request: Request) -> Response:
-        return FileResponse(str(STATIC / "index.html"), headers={"Cache-Control": "no-store"})
+async def drones(request: Request) -> Response:
+    """GET /api/drones: the drone list and, per page, what it watches and its frames sent / dropped."""
+    hub: Hub = request.app.state.hub
+    body = hub.drones_message()
+    body["pages"] = [{"watching": p.watching, "frames_sent": p.frames_sent, "dropped_frames": p.dropped_frames}
+                     for p in hub.feed.pages]
+    return JSONResponse(body)
 
-    async def drones(_request: Request) -> Response:
-        hub: Hub = state["hub"]
-        body = hub.drones_message()
-        body["pages"] = [{"watching": p.watching, "frames_sent": p.frames_sent, "dropped_frames": p.dropped_frames}
-                         for p in hub.pages]
-        return JSONResponse(body)
 
-    async def socket(websocket: WebSocket) -> None:
-        hub: Hub = state["hub"]
+class PageSocket(WebSocketEndpoint):
+    """WS /ws: one page's WebSocket (messages in the module's docstring)."""
+
+    encoding = None  # text or bytes as sent: a page sends JSON text, anything else closes the socket (1003)
+
+    def __init__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        super().__init__(scope, receive, send)
+        self.page: Page | None = None  # None until accepted (never, for a foreign Origin)
+        self.sender: asyncio.Task | None = None
+
+    async def on_connect(self, websocket: WebSocket) -> None:
+        hub: Hub = websocket.app.state.hub
         if not same_origin(websocket.headers.get("origin"), websocket.headers.get("host")):
             log.warning("event=websocket_refused origin=%s host=%s", websocket.headers.get("origin"),
                         websocket.headers.get("host"))
             await websocket.close(code=1008)
             return
         await websocket.accept()
-        page = Page(websocket)
-        hub.pages.add(page)
+        page = self.page = Page(websocket)
+        hub.feed.pages.add(page)
         page.events.append(hub.drones_message())
         page.wake.set()
-        sender = asyncio.create_task(page_sender(page))
+        self.sender = asyncio.create_task(page_sender(page))
+
+    async def on_receive(self, websocket: WebSocket, data: str | bytes) -> None:
+        hub: Hub = websocket.app.state.hub
+        page = self.page
+        if page is None:
+            return
         try:
-            while True:
-                message = json.loads(await websocket.receive_text())
-                kind = message.get("type") if isinstance(message, dict) else None
-                if kind == "watch":
-                    prefix = str(message.get("prefix"))
-                    if prefix not in {d["prefix"] for d in hub.directory.summaries()}:
-                        page.events.append({"type": "text", "prefix": prefix, "severity": 4,
-                                            "text": f"no drone {prefix!r} on the Zenoh network"})
-                        page.wake.set()
-                        continue
-                    if page.watching is not None:
-                        await asyncio.to_thread(hub.directory.unwatch, page.watching)
-                    page.watching, page.frame = prefix, None
-                    await asyncio.to_thread(hub.directory.watch, prefix)
-                    spawn(ask_status(hub, prefix))
-                elif kind in ("point", "rect", "stop"):
-                    async def answer(message: dict[str, Any] = message) -> None:
-                        page.events.append(await run_command(hub, message))
-                        page.wake.set()
-                    task = asyncio.create_task(answer())
-                    page.tasks.add(task)
-                    task.add_done_callback(page.tasks.discard)
-                else:
-                    log.warning("event=page_message_unknown message=%.200s", message)
-        except (WebSocketDisconnect, RuntimeError):
-            pass
-        except json.JSONDecodeError:
+            if not isinstance(data, str):
+                raise ValueError("a binary message")
+            message = json.loads(data)
+        except ValueError:  # json.JSONDecodeError is one
             await websocket.close(code=1003)
-        finally:
-            sender.cancel()
-            for task in page.tasks:
-                task.cancel()
-            hub.pages.discard(page)
-            if page.watching is not None:
-                await asyncio.to_thread(hub.directory.unwatch, page.watching)
-
-    async def ticker(hub: Hub) -> None:
-        """Every second: the drone list to every page, and the watched cameras' 275 asked for."""
-        while True:
-            await asyncio.sleep(1.0)  # a periodic refresh, not a synchronisation
-            message = hub.drones_message()
-            for page in hub.pages:
-                page.events.append(message)
+            return
+        kind = message.get("type") if isinstance(message, dict) else None
+        if kind == "watch":
+            await self.watch(hub, page, str(message.get("prefix")))
+        elif kind in ("point", "rect", "stop"):
+            async def answer() -> None:
+                page.events.append(await run_command(hub, message))
                 page.wake.set()
-            for prefix in {p.watching for p in hub.pages if p.watching is not None}:
-                spawn(ask_status(hub, prefix))
+            task = asyncio.create_task(answer())
+            page.tasks.add(task)
+            task.add_done_callback(page.tasks.discard)
+        else:
+            log.warning("event=page_message_unknown message=%.200s", message)
 
-    @contextlib.asynccontextmanager
-    async def lifespan(_app: Starlette) -> AsyncIterator[None]:
-        hub.loop = asyncio.get_running_loop()
-        tick = asyncio.create_task(ticker(hub))
-        try:
-            yield
-        finally:
-            tick.cancel()
-            hub.loop = None
+    @staticmethod
+    async def watch(hub: Hub, page: Page, prefix: str) -> None:
+        """The page watches drone `prefix` from now on (a text event if there is no such drone)."""
+        if prefix not in {d["prefix"] for d in hub.directory.summaries()}:
+            page.events.append({"type": "text", "prefix": prefix, "severity": 4,
+                                "text": f"no drone {prefix!r} on the Zenoh network"})
+            page.wake.set()
+            return
+        if page.watching is not None:
+            await asyncio.to_thread(hub.directory.unwatch, page.watching)
+        page.watching, page.frame = prefix, None
+        await asyncio.to_thread(hub.directory.watch, prefix)
+        hub.spawn(ask_status(hub, prefix))
 
-    routes = [Route("/", index), Route("/api/drones", drones), WebSocketRoute("/ws", socket),
-              Mount("/static", StaticFiles(directory=str(STATIC)), name="static")]
+    async def on_disconnect(self, websocket: WebSocket, close_code: int) -> None:
+        hub: Hub = websocket.app.state.hub
+        page = self.page
+        if page is None:
+            return
+        if self.sender is not None:
+            self.sender.cancel()
+        for task in page.tasks:
+            task.cancel()
+        hub.feed.pages.discard(page)
+        if page.watching is not None:
+            await asyncio.to_thread(hub.directory.unwatch, page.watching)
+
+
+async def ticker(hub: Hub) -> None:
+    """Every second: the drone list to every page, and the watched cameras' 275 asked for."""
+    while True:
+        await asyncio.sleep(1.0)  # a periodic refresh, not a synchronisation
+        hub.feed.event_for_all(hub.drones_message())
+        for prefix in {p.watching for p in hub.feed.pages if p.watching is not None}:
+            hub.spawn(ask_status(hub, prefix))
+
+
+@contextlib.asynccontextmanager
+async def lifespan(app: Starlette) -> AsyncIterator[None]:
+    """While the server runs: the hub's callbacks reach the loop, and the ticker ticks."""
+    hub: Hub = app.state.hub
+    hub.feed.loop = asyncio.get_running_loop()
+    tick = asyncio.create_task(ticker(hub))
+    try:
+        yield
+    finally:
+        tick.cancel()
+        hub.feed.loop = None
+
+
+ROUTES = [Route("/", index), Route("/api/drones", drones), WebSocketRoute("/ws", PageSocket),
+          Mount("/static", StaticFiles(directory=str(STATIC)), name="static")]
+
+
+def create_app(hub: Hub, token: str | None = None) -> Starlette:
+    """The Starlette app serving `hub` (built with build_hub; closed by its owner after the server stops);
+    with a token, every request and the WebSocket need it (gcs.web.auth)."""
     middleware = [Middleware(TokenAuth, token=token)] if token is not None else []
-    return Starlette(routes=routes, lifespan=lifespan, middleware=middleware)
+    app = Starlette(routes=ROUTES, lifespan=lifespan, middleware=middleware)
+    app.state.hub = hub
+    return app
 
 
 def build_hub(zenoh_settings: ZenohSettings, mavlink_urls: list[str], system_id: int = 255,
               component_id: int = 190, signing_key: bytes | None = None) -> Hub:
-    """The Hub with its MAVLink station (signing what it sends with signing_key, if given) and Zenoh directory
+    """The Hub with its Zenoh directory and MAVLink station (signing what it sends with signing_key, if given)
     open; ConnectionError naming what failed."""
-    hub = Hub()
-    hub.station = MavlinkStation(mavlink_urls, system_id, component_id, on_status=hub.on_status, on_text=hub.on_text,
-                                 signing_key=signing_key)
+    feed = Feed()
+    directory = DroneDirectory(zenoh_settings, on_track=feed.on_track, on_preview=feed.on_preview)
+    cameras = CameraRelay(feed, directory)
     try:
-        hub.directory = DroneDirectory(zenoh_settings, on_track=hub.on_track, on_preview=hub.on_preview)
+        station = MavlinkStation(mavlink_urls, system_id, component_id, on_status=cameras.on_status,
+                                 on_text=cameras.on_text, signing_key=signing_key)
     except BaseException:
-        hub.station.close()
+        directory.close()
         raise
-    return hub
+    return Hub(feed, directory, station)
 
 
 def close_hub(hub: Hub) -> None:
     """Close the Zenoh session and the MAVLink links."""
-    if hub.directory is not None:
-        hub.directory.close()
-    if hub.station is not None:
-        hub.station.close()
+    hub.directory.close()
+    hub.station.close()

@@ -38,6 +38,7 @@ import math
 import sys
 from collections import Counter
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +46,65 @@ import numpy as np
 from jsar.eval import longterm, metrics, report
 
 FALSE_KINDS = ("taken while absent", "moved while lost", "jumped while tracking", "taken wrong")
-OUTCOMES = ("re-acquired", "began off target", "took during absence", "took wrong after", "stayed lost",
-            "never lost", "other")
+
+
+class Outcome(StrEnum):
+    """What became of a long-term event, in the order they are tried (the module's docstring: when each applies)."""
+
+    REACQUIRED = "re-acquired"
+    BEGAN_OFF_TARGET = "began off target"
+    TOOK_DURING_ABSENCE = "took during absence"
+    TOOK_WRONG_AFTER = "took wrong after"
+    STAYED_LOST = "stayed lost"
+    NEVER_LOST = "never lost"
+    OTHER = "other"
+
+
+@dataclass(frozen=True)
+class EventStates:
+    """What the tracker reported around one long-term event: its states on the absent frames (`during`) and on
+    the scoring window's frames after the target came back (`after`), whether its box was on the target on the
+    frame before, and whether the protocol counted the event re-acquired."""
+
+    during: tuple[str, ...]
+    after: tuple[str, ...]
+    on_target_before: bool
+    reacquired: bool
+
+    @classmethod
+    def of(cls, states: list[str], start: int, stop: int, window: int, on_target_before: bool,
+           reacquired: bool) -> EventStates:
+        """The event [start, stop) absent of a run's per-frame states; window = the frames after the return in
+        which a re-acquisition counts."""
+        return cls(tuple(states[start:stop]), tuple(states[stop:min(stop + window, len(states))]),
+                   on_target_before, reacquired)
+
+    @property
+    def at_return(self) -> str | None:
+        """The state on the target's first frame back (None: the run ended before it)."""
+        return self.after[0] if self.after else None
+
+    @property
+    def took_during_absence(self) -> bool:
+        """It reported "recovered" while the target was absent."""
+        return "recovered" in self.during
+
+    @property
+    def outcome(self) -> Outcome:
+        """The first outcome that applies."""
+        if self.reacquired:
+            return Outcome.REACQUIRED
+        if not self.on_target_before:
+            return Outcome.BEGAN_OFF_TARGET
+        if self.took_during_absence:
+            return Outcome.TOOK_DURING_ABSENCE
+        if "recovered" in self.after:
+            return Outcome.TOOK_WRONG_AFTER
+        if self.after and all(s == "lost" for s in self.after):
+            return Outcome.STAYED_LOST
+        if all(s == "tracking" for s in self.during + self.after):
+            return Outcome.NEVER_LOST
+        return Outcome.OTHER
 
 
 @dataclass(frozen=True)
@@ -58,34 +116,19 @@ class EventOutcome:
     kind: str
     start: int
     stop: int
-    outcome: str
+    outcome: Outcome
     from_loss_sides: float
     from_box_sides: float
 
 
 def classify_event(boxes: np.ndarray, states: list[str], groundtruth: np.ndarray, start: int, stop: int,
-                   on_target_before: bool, reacquired: bool, window: int) -> tuple[str, float, float]:
+                   on_target_before: bool, reacquired: bool, window: int) -> tuple[Outcome, float, float]:
     """(outcome, from_loss_sides, from_box_sides) of the event [start, stop) absent; boxes and groundtruth
     (N, 4) x, y, w, h px, states per frame ("tracking" / "lost" / "recovered"), window = the frames after the
     return in which a re-acquisition counts. Distances NaN when a box or the returning target is missing."""
     if start < 1 or stop >= len(boxes):
         raise ValueError(f"event [{start}, {stop}) needs a frame before it and one after it in {len(boxes)} frames")
-    after = states[stop:min(stop + window, len(states))]
-    during = states[start:stop]
-    if reacquired:
-        outcome = "re-acquired"
-    elif not on_target_before:
-        outcome = "began off target"
-    elif "recovered" in during:
-        outcome = "took during absence"
-    elif "recovered" in after:
-        outcome = "took wrong after"
-    elif after and all(s == "lost" for s in after):
-        outcome = "stayed lost"
-    elif all(s == "tracking" for s in during + after):
-        outcome = "never lost"
-    else:
-        outcome = "other"
+    outcome = EventStates.of(states, start, stop, window, on_target_before, reacquired).outcome
     before = boxes[start - 1]
     side = math.sqrt(before[2] * before[3]) if before[2] > 0 and before[3] > 0 else math.nan
     loss_place, last_place, back = metrics.centres(np.array([before, boxes[stop - 1], groundtruth[stop]]))
@@ -185,9 +228,10 @@ def summary_lines(outcomes: list[EventOutcome], near_sides: float = 1.5) -> list
     """A count per outcome and, for re-acquired and missed events that began on target, where the target came
     back: the median distances and how many came back within near_sides of the loss place / of the box."""
     counts = Counter(o.outcome for o in outcomes)
-    lines = [f"{len(outcomes)} events: " + ", ".join(f"{name} {counts[name]}" for name in OUTCOMES if counts[name])]
-    groups = {"re-acquired": [o for o in outcomes if o.outcome == "re-acquired"],
-              "missed (began on target)": [o for o in outcomes if o.outcome not in ("re-acquired", "began off target")]}
+    lines = [f"{len(outcomes)} events: " + ", ".join(f"{name} {counts[name]}" for name in Outcome if counts[name])]
+    groups = {"re-acquired": [o for o in outcomes if o.outcome == Outcome.REACQUIRED],
+              "missed (began on target)": [o for o in outcomes
+                                           if o.outcome not in (Outcome.REACQUIRED, Outcome.BEGAN_OFF_TARGET)]}
     for name, group in groups.items():
         if not group:
             continue
@@ -203,14 +247,14 @@ def summary_lines(outcomes: list[EventOutcome], near_sides: float = 1.5) -> list
 def sequence_lines(outcomes: list[EventOutcome]) -> list[str]:
     """Per sequence (the run's name before "+kind"), its events and the count of each outcome, the sequences
     with the most misses first."""
-    by_sequence: dict[str, Counter] = {}
+    by_sequence: dict[str, Counter[Outcome]] = {}
     for o in outcomes:
         by_sequence.setdefault(o.run.split("+")[0], Counter())[o.outcome] += 1
-    order = sorted(by_sequence, key=lambda name: (by_sequence[name]["re-acquired"] - sum(by_sequence[name].values()),
+    order = sorted(by_sequence, key=lambda name: (by_sequence[name][Outcome.REACQUIRED] - by_sequence[name].total(),
                                                   name))
     width = max(len(name) for name in order) if order else 0
     return [f"{name:{width}s} {sum(by_sequence[name].values()):4d} events: "
-            + ", ".join(f"{outcome} {by_sequence[name][outcome]}" for outcome in OUTCOMES if by_sequence[name][outcome])
+            + ", ".join(f"{outcome} {by_sequence[name][outcome]}" for outcome in Outcome if by_sequence[name][outcome])
             for name in order]
 
 
@@ -251,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"error: {exc}") from exc
     if args.events:
         for prefix, o in zip(files, outcomes):
-            if o.outcome != "re-acquired":
+            if o.outcome != Outcome.REACQUIRED:
                 print(f"{prefix + o.run:40s} [{o.start}, {o.stop}) {o.outcome:20s} came back "
                       f"{o.from_loss_sides:5.2f} sides from the loss place, {o.from_box_sides:5.2f} from the box")
     for line in summary_lines(outcomes):

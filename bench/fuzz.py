@@ -62,6 +62,8 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from pymavlink.dialects.v20 import all as dialect  # noqa: E402
 
+from sim.ports import free_port  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MAVLINK20": "1"}
 AUTOPILOT = (1, 1)  # the system the daemon is configured for (mavlink.system_id), its autopilot component
@@ -347,12 +349,6 @@ def zenoh_query_input(rng: random.Random, prefix: str) -> tuple[str, str, bytes 
 
 
 # --- the daemon as a process ---------------------------------------------------------------------------------
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def scene(size: tuple[int, int], centre: tuple[float, float], side: int = 40, seed: int = 7) -> np.ndarray:
     """A textured background (fixed seed) with a bright checkered square at `centre` (pixels), BGR uint8."""
     import cv2

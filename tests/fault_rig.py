@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from sim.daemon import Daemon, deep_merge
+from sim.ports import free_tcp_port, free_udp_port
 from sim.zenoh_link import SimCamera, ZenohEndpoints
-from tests.conftest import free_tcp_port, free_udp_port
 from tests.service_peers import AutopilotPeer, GroundStation, Received, camera_handshake
 
 PREFIX = "faults"

@@ -20,7 +20,6 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as dialect  # noqa: E402
 
 from sim.daemon import write_config  # noqa: E402
-from sim.firmware import free_udp_port  # noqa: E402
 from tests.service_peers import Recorder  # noqa: E402
 from tests.test_service_sources import scene  # noqa: E402
 
@@ -279,15 +278,3 @@ class Station:
     def of(self, kind: str, since: float = 0.0) -> list[tuple[float, Any]]:
         """(arrival time, message) of every `kind` received at or after `since`."""
         return [(r.at, r.msg) for r in self.received.of(kind) if r.at >= since]
-
-
-def free_port() -> int:
-    """A loopback UDP port that was free a moment ago."""
-    return free_udp_port()
-
-
-def free_tcp_port() -> int:
-    """A loopback TCP port that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]

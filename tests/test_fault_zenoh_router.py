@@ -19,9 +19,9 @@ from typing import Any, Callable
 import numpy as np
 
 from sim.daemon import Daemon
+from sim.ports import free_tcp_port, free_udp_port
 from sim.web_station import WebStation
 from sim.zenoh_link import SimCamera, ZenohEndpoints
-from tests.conftest import free_tcp_port, free_udp_port
 from tests.zenoh_router import Router
 
 PREFIX = "jsar"

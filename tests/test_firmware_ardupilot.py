@@ -20,9 +20,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from service.control.geo import GroundTarget  # noqa: E402
 from service.mavlink.messages import follow_target  # noqa: E402
 from sim.firmware import COPTER_BRAKE, COPTER_GUIDED, ArduPilotSitl, connect, euler_deg  # noqa: E402
+from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
 from tests.firmware_peers import (FRAME_SIZE, SET_INTERVAL, STOP_TRACKING, TARGET_PX, TRACK_RECTANGLE,  # noqa: E402
-                                  DaemonProcess, FramePump, Station, WireTap, free_port, free_tcp_port,
-                                  target_rectangle)
+                                  DaemonProcess, FramePump, Station, WireTap, target_rectangle)
 
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 HFOV_DEG = 70.0  # config.yaml's camera.hfov_deg
@@ -41,7 +41,7 @@ class Rig:
     def __enter__(self) -> "Rig":
         self.firmware.__enter__()
         self.gcs = Station(self.firmware.gcs_url).start()
-        daemon_port = free_port()
+        daemon_port = free_udp_port()
         self.tap = WireTap(self.firmware.ports[1], daemon_port).start()
         zenoh_port = free_tcp_port()
         self.camera = FramePump(zenoh_port, "apfw").start()

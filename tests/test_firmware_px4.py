@@ -19,8 +19,9 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from sim.firmware import PX4_MAIN_OFFBOARD, PX4_MAIN_POSCTL, Px4Sih, connect, euler_deg, px4_main_mode  # noqa: E402
+from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
 from tests.firmware_peers import (SET_INTERVAL, STOP_TRACKING, TRACK_RECTANGLE, DaemonProcess, FramePump,  # noqa: E402
-                                  Station, WireTap, free_port, free_tcp_port, target_rectangle)
+                                  Station, WireTap, target_rectangle)
 
 GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS = 285, 281
 
@@ -43,7 +44,7 @@ class Px4Rig:
         # PX4 boots in ~5 s; udpin sends nothing before it has heard the peer
         if self.heartbeat(0.0, timeout=60.0) is None:
             raise AssertionError(f"no PX4 heartbeat\n{self.firmware.log_tail()}")
-        daemon_port = free_port()
+        daemon_port = free_udp_port()
         self.tap = WireTap(self.firmware.ports[1], daemon_port).start()
         zenoh_port = free_tcp_port()
         self.camera = FramePump(zenoh_port, "px4fw").start()

@@ -22,7 +22,7 @@ from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
                                   search_cycle, track_speed)
 from jsar.tracking.jsar_tracker import JsarTracker
-from tests.conftest import real_sequence
+from tests.helpers import real_sequence
 
 TARGET = 24  # px, side of the synthetic target
 Box = tuple[float, float, float, float]

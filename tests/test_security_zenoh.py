@@ -29,9 +29,9 @@ from service.config import ConfigError, ZenohConfig, ZenohTlsConfig, config_from
 from service.sources.zenoh_wire import encode_frame
 from service.telemetry import access_control_section, insecure_endpoints, open_session, zenoh_config
 from sim.daemon import Daemon
+from sim.ports import free_tcp_port, free_udp_port
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 from sim.web_station import WebStation
-from tests.conftest import free_tcp_port, free_udp_port
 from tests.zenoh_router import Router
 
 ROOT = Path(__file__).resolve().parent.parent

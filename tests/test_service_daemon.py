@@ -16,7 +16,7 @@ import cv2
 import pytest
 import yaml
 
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake
 from tests.test_service_sources import scene
 

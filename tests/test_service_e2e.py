@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from service.app import Service
-from tests.conftest import free_tcp_port, free_udp_port, real_sequence
+from sim.ports import free_tcp_port, free_udp_port
+from tests.helpers import real_sequence
 from tests.service_peers import AutopilotPeer, GroundStation, Recorder, RunningService, service_config
 
 SEQUENCE = "OTB_Crossing"  # 360x240, 120 frames, a pedestrian crossing from right of centre to left

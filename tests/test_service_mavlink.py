@@ -10,7 +10,7 @@ import cv2
 import pytest
 
 from service.app import Service
-from tests.conftest import free_udp_port
+from sim.ports import free_udp_port
 from tests.service_peers import AutopilotPeer, GroundStation, RunningService, service_config
 from tests.test_service_sources import scene
 

@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from service.sources.zenoh_wire import encode_frame
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 from tests.service_peers import AutopilotPeer, GroundStation
 from tests.test_service_sources import scene
 

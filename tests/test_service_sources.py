@@ -27,7 +27,7 @@ from service.sources.base import CaptureWorker, EndOfStream, Frame, LatestSlot, 
 from service.sources.file import FileReader
 from service.sources.v4l2 import V4L2Reader
 from service.sources.zenoh_wire import encode_frame
-from tests.conftest import free_tcp_port
+from sim.ports import free_tcp_port
 
 
 def scene(size: tuple[int, int], centre: tuple[float, float], side: int = 40) -> np.ndarray:

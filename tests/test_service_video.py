@@ -16,7 +16,7 @@ from service.sources.base import Frame
 from service.sources.zenoh_wire import decode_frame
 from service.video.latest_frame_worker import LatestFrameWorker, Pace, fit_size, pace_step
 from service.video.zenoh_preview import preview_payload
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 from tests.service_peers import Recorder, RunningService, service_config
 from tests.test_service_sources import scene
 

@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from service.app import Service
 from service.config import ConfigError
 from service.mavlink.commands import MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, RequestMessage, decide
-from tests.conftest import free_udp_port
+from sim.ports import free_udp_port
 from tests.service_peers import RunningService, service_config
 from tests.test_service_mavlink import AP_SYSID, CAM, REQUEST, Rig
 from tests.test_service_sources import scene

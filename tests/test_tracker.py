@@ -7,7 +7,7 @@ import pytest
 
 import jsar
 from jsar.tracking.jsar_tracker import JsarTracker, make_jsar
-from tests.conftest import real_sequence
+from tests.helpers import real_sequence
 
 
 def _background(height: int, width: int, seed: int = 0) -> np.ndarray:

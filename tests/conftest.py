@@ -1,7 +1,7 @@
-"""Shared test fixtures and hooks: the real-data root, and the `firmware` marker (tests against the real
-autopilot firmware: skipped with the reason where it is missing, failed in CI; one xdist worker runs them all,
-one after the other, so no two firmware processes compete for the CPU). Helpers that are not fixtures live in
-tests/helpers.py."""
+"""Shared test fixtures and hooks: the real-data root (every test that asks for it is marked `data`), and the
+`firmware` marker (tests against the real autopilot firmware: skipped with the reason where it is missing,
+failed in CI; one xdist worker runs them all, one after the other, so no two firmware processes compete for
+the CPU). Helpers that are not fixtures live in tests/helpers.py."""
 from __future__ import annotations
 
 import os
@@ -21,6 +21,9 @@ def pytest_configure(config: pytest.Config) -> None:
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the group marks
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
+        # every test that reaches the shared data (asks for data_root, itself or through its fixtures) is `data`
+        if "data_root" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.data)
         if item.get_closest_marker("firmware"):
             item.add_marker(pytest.mark.slow)
             item.add_marker(pytest.mark.xdist_group("firmware"))

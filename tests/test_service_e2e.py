@@ -35,7 +35,6 @@ def write_video(folder: Path, path: Path) -> tuple[int, int, int]:
     return len(images), width, height
 
 
-@pytest.mark.data
 @pytest.mark.slow
 def test_track_rectangle_on_a_real_sequence_end_to_end(data_root: Path, tmp_path: Path) -> None:
     import zenoh

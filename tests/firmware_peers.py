@@ -20,6 +20,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as dialect  # noqa: E402
 
 from sim.daemon import write_config  # noqa: E402
+from tests.helpers import Background  # noqa: E402
 from tests.service_peers import Recorder  # noqa: E402
 from tests.test_service_sources import scene  # noqa: E402
 
@@ -35,27 +36,20 @@ def target_image(visible: bool = True) -> Any:
     return scene(FRAME_SIZE, TARGET_PX, 30) if visible else scene(FRAME_SIZE, (-100.0, -100.0), 0)
 
 
-class FramePump:
+class FramePump(Background):
     """The camera: publishes target_image(visible) over Zenoh at `fps` (wall clock) on a thread; set
     `visible` False to take the target out of view (the track is then lost)."""
 
     def __init__(self, zenoh_port: int, prefix: str, fps: float = 20.0) -> None:
         from sim.zenoh_link import SimCamera, ZenohEndpoints
 
+        super().__init__(self._run, join_s=2.0)
         self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{zenoh_port}",), prefix=prefix))
         self.period = 1.0 / fps
         self.visible = True
         self._images = {True: target_image(True), False: target_image(False)}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
 
-    def start(self) -> "FramePump":
-        self._thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
+    def release(self) -> None:
         self.camera.close()
 
     def _run(self) -> None:
@@ -72,7 +66,7 @@ def target_rectangle() -> list[float]:
     return [(x - 17) / w, (y - 17) / h, (x + 17) / w, (y + 17) / h]
 
 
-class WireTap:
+class WireTap(Background):
     """A UDP relay between a firmware link and the daemon, recording what the daemon sends.
 
     The firmware sends (udpclient) to `firmware_port`; the tap forwards that to the daemon's udpin port
@@ -81,6 +75,7 @@ class WireTap:
     it in `to_daemon`."""
 
     def __init__(self, firmware_port: int, daemon_port: int) -> None:
+        super().__init__(self._down, self._up)
         self.firmware_port, self.daemon_port = firmware_port, daemon_port
         self.outer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # faces the firmware
         self.outer.bind(("127.0.0.1", firmware_port))
@@ -95,19 +90,8 @@ class WireTap:
         self.to_daemon = Recorder()  # what reached the daemon (parsed as it passed)
         self._down_parser = dialect.MAVLink(None)
         self._down_parser.robust_parsing = True
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._down, daemon=True),
-                         threading.Thread(target=self._up, daemon=True)]
 
-    def start(self) -> "WireTap":
-        for thread in self._threads:
-            thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(1.0)
+    def release(self) -> None:
         self.outer.close()
         self.inner.close()
 
@@ -198,29 +182,19 @@ class DaemonProcess:
             return "(no log)"
 
 
-class Station:
+class Station(Background):
     """A pymavlink ground station on a firmware link (the test's view): a receiver thread keeps every
     message in `received` (Recorder), a heartbeat thread sends GCS heartbeats at 1 Hz."""
 
     def __init__(self, url: str, system: int = 255, component: int = 190) -> None:
         from pymavlink import mavutil
 
+        super().__init__(self._receive, self._beat)
         self.conn = mavutil.mavlink_connection(url, source_system=system, source_component=component)
         self.received = Recorder()
         self._send_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._receive, daemon=True),
-                         threading.Thread(target=self._beat, daemon=True)]
 
-    def start(self) -> "Station":
-        for thread in self._threads:
-            thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(1.0)
+    def release(self) -> None:
         self.conn.close()
 
     def _receive(self) -> None:

@@ -1,11 +1,15 @@
-"""Shared test helpers that are not fixtures: skip-or-fail on a missing peer, and the real sequences.
+"""Shared test helpers that are not fixtures: skip-or-fail on a missing peer, the real sequences, background
+threads that run until close(), and the drone's local camera over Zenoh.
 
 (Loopback ports come from sim.ports; the fixtures and hooks stay in tests/conftest.py.)"""
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
+from typing import Any, Callable, Self
 
+import numpy as np
 import pytest
 
 
@@ -27,3 +31,45 @@ def real_sequence(data_root: Path, name: str):
     if not folder.is_dir():
         pytest.skip(f"sequence {name} is not under JSAR_DATA_ROOT")
     return load_sequence(folder)
+
+
+class Background:
+    """Daemon threads running `targets` (each loops until `_stop` is set): start() starts them; close() sets
+    `_stop`, waits up to join_s seconds for each, then release() frees what they used."""
+
+    def __init__(self, *targets: Callable[[], None], join_s: float = 1.0) -> None:
+        self._stop = threading.Event()
+        self._threads = [threading.Thread(target=target, daemon=True) for target in targets]
+        self._join_s = join_s
+
+    def start(self) -> Self:
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(self._join_s)
+        self.release()
+
+    def release(self) -> None:
+        """What the threads used (sockets, connections), freed once they stopped; nothing here."""
+
+
+class LocalCamera(Background):
+    """The drone's own camera on a sim.zenoh_link.SimCamera (`sim`): a grey 160x120 frame 15 times a second,
+    ids from 1; runs from construction until close()."""
+
+    def __init__(self, sim: Any) -> None:
+        super().__init__(self._run, join_s=5.0)
+        self.sim = sim
+        self.image = np.full((120, 160, 3), 90, np.uint8)
+        self.frame_id = 0
+        self.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.frame_id += 1
+            self.sim.publish(self.image, self.frame_id)
+            self._stop.wait(1 / 15)  # camera pacing, not synchronisation

@@ -16,10 +16,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tests.fault_rig import ACTIVE, ERROR, REPORT_BOUND_S, FaultRig, log_time
+from tests.fault_rig import ACTIVE, ERROR, REPORT_BOUND_S, TARGET, FaultRig, Feeder, Publisher, log_time
 from tests.test_service_sources import scene
 
-TARGET = (0.35, 0.3, 0.65, 0.7)  # normalised rectangle around the square of a 160x120 scene(.., (80, 60), 24)
 
 
 def write_frames(folder: Path, count: int, suffix: str = ".png") -> list[Path]:
@@ -116,35 +115,6 @@ def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: P
     assert code == 0, rig.daemon.log_tail()
 
 
-class Publisher:
-    """Publishes frames from the test thread on the rig's Zenoh session at `fps` (pacing like a camera)."""
-
-    def __init__(self, rig: FaultRig, fps: float = 15.0) -> None:
-        assert rig.sim is not None
-        self.sim = rig.sim
-        self.period = 1.0 / fps
-        self.frame_id = 0
-        self.next_s = time.monotonic()
-
-    def publish(self, image: np.ndarray) -> float:
-        """Send one frame at the next period; returns when it was sent (time.monotonic())."""
-        wait_s = self.next_s - time.monotonic()
-        if wait_s > 0:
-            time.sleep(wait_s)  # camera pacing, not synchronisation
-        self.next_s = max(self.next_s + self.period, time.monotonic())
-        self.frame_id += 1
-        self.sim.publish(image, self.frame_id)
-        return time.monotonic()
-
-    def publish_raw(self, payload: bytes) -> float:
-        wait_s = self.next_s - time.monotonic()
-        if wait_s > 0:
-            time.sleep(wait_s)  # camera pacing, not synchronisation
-        self.next_s = max(self.next_s + self.period, time.monotonic())
-        self.sim._publisher.put(payload)  # noqa: SLF001 - garbage on the frame key, as a broken camera sends
-        return time.monotonic()
-
-
 def garbage_payloads(count: int, seed: int = 42) -> list[bytes]:
     """Corrupt frames for the Zenoh source: random bytes, a bad magic, a short BGR3 body, a truncated JPEG,
     a header claiming 0x0, in turn (fixed seed)."""
@@ -173,20 +143,12 @@ def test_garbage_on_the_zenoh_frame_source(tmp_path: Path) -> None:
             assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
             camera.publish(good)
         started = [camera.frame_id]
-        import threading
-        stop = threading.Event()
-
-        def stream() -> None:  # frames keep coming during the handshake and the selection
-            while not stop.is_set():
-                camera.publish(good)
-        feeder = threading.Thread(target=stream, daemon=True)
-        feeder.start()
+        feeder = Feeder(camera, lambda i: good).start()  # frames keep coming during the handshake and the selection
         try:
             rig.meet_camera()
             rig.select(TARGET)
         finally:
-            stop.set()
-            feeder.join(5.0)
+            feeder.close()
         garbage = garbage_payloads(20)
         first_bad = camera.publish_raw(garbage[0])
         for payload in garbage[1:]:
@@ -227,17 +189,8 @@ def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Pa
             camera.publish(scene((160, 120), (80, 60), 24))
         small = lambda i: scene((160, 120), (80 + (i % 6) - 3, 60), 24)  # noqa: E731
         large = lambda i: scene((320, 240), (160 + 2 * ((i % 6) - 3), 120), 48)  # noqa: E731
-        import threading
-        stop = threading.Event()
         size = ["small"]
-
-        def stream() -> None:
-            i = 0
-            while not stop.is_set():
-                camera.publish(small(i) if size[0] == "small" else large(i))
-                i += 1
-        feeder = threading.Thread(target=stream, daemon=True)
-        feeder.start()
+        feeder = Feeder(camera, lambda i: small(i) if size[0] == "small" else large(i)).start()
         try:
             rig.meet_camera()
             rig.select(TARGET)
@@ -252,8 +205,7 @@ def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Pa
             assert settled is not None
             later = [rig.wait_track(lambda s: s["image_size"] == [320, 240], 5.0) for _ in range(15)]
         finally:
-            stop.set()
-            feeder.join(5.0)
+            feeder.close()
         for sample in [settled, *later]:
             assert sample is not None and sample["state"] in ("tracking", "recovered")
             x, y, w, h = sample["box_px"]

@@ -1,7 +1,7 @@
 """Helpers for the tests against real autopilot firmware (no tests here): finding the firmware (skip
 outside CI, fail in CI), a synthetic target held off centre published as camera frames over Zenoh (the
 test decides when it leaves the view), the daemon as a process on a firmware link, a wire tap that
-records what the daemon sends, and a ground station.
+records what the daemon sends, a ground station, and FirmwareRig: all of them with the firmware as one context.
 
 The firmware itself is started by sim.firmware (ArduPilotSitl, Px4Sih)."""
 from __future__ import annotations
@@ -20,6 +20,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as dialect  # noqa: E402
 
 from sim.daemon import write_config  # noqa: E402
+from sim.firmware import euler_deg  # noqa: E402
+from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
 from tests.helpers import Background  # noqa: E402
 from tests.service_peers import Recorder  # noqa: E402
 from tests.test_service_sources import scene  # noqa: E402
@@ -132,6 +134,17 @@ class WireTap(Background):
         return [r.msg for r in self.from_daemon.of(kind) if r.at >= since]
 
 
+def terminate(process: subprocess.Popen[bytes], grace_s: float) -> None:
+    """SIGTERM a still running `process`, SIGKILL it after grace_s seconds; returns once it is gone."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5.0)
+
+
 class DaemonProcess:
     """`python -m service` with frames from Zenoh (a FramePump listening on zenoh_port) on a MAVLink URL,
     config = config.yaml + overrides; log in
@@ -166,13 +179,8 @@ class DaemonProcess:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(5.0)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5.0)
+        if self.process is not None:
+            terminate(self.process, 5.0)
 
     def log_tail(self, lines: int = 30) -> str:
         """The end of the daemon's log (for failure messages)."""
@@ -252,3 +260,76 @@ class Station(Background):
     def of(self, kind: str, since: float = 0.0) -> list[tuple[float, Any]]:
         """(arrival time, message) of every `kind` received at or after `since`."""
         return [(r.at, r.msg) for r in self.received.of(kind) if r.at >= since]
+
+
+class FirmwareRig:
+    """Real firmware (sim.firmware.ArduPilotSitl or Px4Sih, its second link for the daemon) + ground station +
+    tap + camera frames + daemon, as one context: a subclass's __enter__ enters the firmware, sets `autopilot`
+    and `camera_id` ((system, component)), starts `gcs` and then start_daemon()."""
+
+    name = "the firmware"  # in failure messages
+
+    def __init__(self, firmware: Any, tmp_path: Path, overrides: dict[str, Any], prefix: str) -> None:
+        self.firmware, self.tmp_path, self.overrides, self.prefix = firmware, tmp_path, overrides, prefix
+
+    def start_daemon(self) -> None:
+        """The tap on the firmware's second link, the camera frames, and the daemon behind the tap."""
+        daemon_port = free_udp_port()
+        self.tap = WireTap(self.firmware.ports[1], daemon_port).start()
+        zenoh_port = free_tcp_port()
+        self.camera = FramePump(zenoh_port, self.prefix).start()
+        self.daemon = DaemonProcess(self.tmp_path, zenoh_port, self.prefix, f"udpin:127.0.0.1:{daemon_port}",
+                                    self.overrides).__enter__()
+
+    def __exit__(self, *exc: object) -> None:
+        for close in (lambda: self.daemon.__exit__(None, None, None), self.camera.close, self.tap.close,
+                      self.gcs.close, self.firmware.close):
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - tear down the rest
+                pass
+
+    def diagnostics(self) -> str:
+        return f"daemon log:\n{self.daemon.log_tail()}\nfirmware log:\n{self.firmware.log_tail(1500)}"
+
+    def stream_to_gcs(self, msg_id: int, hz: float, timeout: float = 15.0) -> Any:
+        """Ask the autopilot for `msg_id` on the ground-station link until it arrives (ArduPilot acknowledges
+        but does not act on requests in its first seconds); the first one."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            since = time.monotonic()
+            assert self.gcs.command(self.autopilot, SET_INTERVAL, [msg_id, 1e6 / hz]).result == 0
+            msg = self.gcs.wait(lambda m: m.get_msgId() == msg_id, 2.0, since)
+            if msg is not None:
+                return msg
+        raise AssertionError(f"{self.name} sent no message {msg_id} within {timeout} s")
+
+    def meet_camera(self, timeout: float = 60.0) -> None:
+        """The daemon's camera heartbeat reaches the ground station through the autopilot."""
+        beat = self.gcs.wait(lambda m: m.get_type() == "HEARTBEAT"
+                             and (m.get_srcSystem(), m.get_srcComponent()) == self.camera_id, timeout)
+        assert beat is not None, f"no camera heartbeat routed by {self.name}\n{self.diagnostics()}"
+
+    def select(self, timeout: float = 20.0) -> float:
+        """TRACK_RECTANGLE around the target to the camera until ACCEPTED (TEMPORARILY_REJECTED while no
+        frame has arrived); the monotonic time of the acceptance."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            ack = self.gcs.command(self.camera_id, TRACK_RECTANGLE, target_rectangle() + [0])
+            if ack.result == 0:
+                return time.monotonic()
+            assert ack.result == 1, f"TRACK_RECTANGLE answered {ack.result}"  # 1: TEMPORARILY_REJECTED
+            self.gcs.wait(lambda m: False, 0.5)  # a frame's time for the camera to start
+        raise AssertionError(f"TRACK_RECTANGLE not accepted within {timeout} s\n{self.diagnostics()}")
+
+    def mount_after(self, seconds: float) -> tuple[float, float]:
+        """The mount's reported (pitch, yaw) deg at least `seconds` from now (waits on the status stream)."""
+        since = time.monotonic() + seconds
+        status = self.gcs.wait(lambda m: m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS", seconds + 5.0, since)
+        assert status is not None, "GIMBAL_DEVICE_ATTITUDE_STATUS stopped"
+        _, pitch, yaw = euler_deg(status.q)
+        return pitch, yaw
+
+    def setpoints(self, since: float = 0.0) -> list[Any]:
+        """SET_POSITION_TARGET_LOCAL_NED the daemon sent since `since`."""
+        return self.tap.sent("SET_POSITION_TARGET_LOCAL_NED", since)

@@ -29,7 +29,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from sim.firmware import ArduPilotSitl  # noqa: E402
 from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
 from tests.firmware_peers import (REPO, TRACK_RECTANGLE, DaemonProcess, FramePump, Station, WireTap,  # noqa: E402
-                                  target_rectangle)
+                                  target_rectangle, terminate)
 from tests.helpers import require  # noqa: E402
 
 MAVPROXY = Path(os.environ.get("JSAR_MAVPROXY", REPO / ".venv-mavproxy" / "bin" / "mavproxy.py"))
@@ -61,13 +61,7 @@ class MavProxyRouter:
                                             env={**os.environ, "MAVLINK20": "1", "HOME": str(workdir)})
 
     def close(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(10.0)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5.0)
+        terminate(self.process, 10.0)
 
     def log_tail(self) -> str:
         return self.log_path.read_text(errors="replace")[-1500:]

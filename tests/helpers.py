@@ -1,5 +1,5 @@
-"""Shared test helpers that are not fixtures: skip-or-fail on a missing peer, the real sequences, background
-threads that run until close(), and the drone's local camera over Zenoh.
+"""Shared test helpers that are not fixtures: skip-or-fail on a missing peer, frame folders, the real sequences,
+background threads that run until close(), and the drone's local camera over Zenoh.
 
 (Loopback ports come from sim.ports; the fixtures and hooks stay in tests/conftest.py.)"""
 from __future__ import annotations
@@ -20,6 +20,18 @@ def require(missing: str | None) -> None:
     if os.environ.get("CI"):
         pytest.fail(f"CI needs it: {missing}")
     pytest.skip(missing)
+
+
+def write_square_frames(folder: Path, count: int, start: tuple[float, float], side: int = 20) -> Path:
+    """`count` 160x120 PNG frames of bench.fuzz.scene in `folder`, 0000.png on: the square (side pixels) at
+    `start` (centre, pixels) moving 1 px left a frame; the folder."""
+    import cv2
+
+    from bench.fuzz import scene
+
+    for i in range(count):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (start[0] - i, start[1]), side))
+    return folder
 
 
 def real_sequence(data_root: Path, name: str):

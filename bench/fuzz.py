@@ -54,7 +54,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink
 
@@ -716,6 +716,19 @@ def git_commit() -> str:
         return "unknown"
 
 
+def paced(items: Iterable[Any], rate: float, deadline: float, daemon: Daemon) -> Iterator[Any]:
+    """`items` one every 1/rate seconds while the daemon lives, until `deadline` (time.monotonic() s)."""
+    period, next_at = 1.0 / rate, time.monotonic()
+    for item in items:
+        if not daemon.alive() or time.monotonic() > deadline:
+            return
+        now = time.monotonic()
+        if next_at > now:
+            time.sleep(next_at - now)  # pacing the sender, not waiting for the daemon
+        next_at += period
+        yield item
+
+
 class Probing:
     """The probes (see watch) on a thread from `started` (monotonic s) until stop()."""
 
@@ -829,16 +842,7 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
         counts: dict[str, int] = {}
         sent_bytes = 0
         sent = 0
-        period = 1.0 / rate
-        next_at = time.monotonic()
-        deadline = t1 + max_s
-        for kind, data in planned:
-            if not daemon.alive() or time.monotonic() > deadline:
-                break
-            now = time.monotonic()
-            if next_at > now:
-                time.sleep(next_at - now)  # pacing the sender, not waiting for the daemon
-            next_at += period
+        for kind, data in paced(planned, rate, t1 + max_s, daemon):
             peer.send_raw(data)
             counts[kind] = counts.get(kind, 0) + 1
             sent += 1
@@ -930,17 +934,8 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
         counts: dict[str, int] = {}
         query_replies = 0
         query_errors = 0
-        period = 1.0 / rate
-        next_at = time.monotonic()
-        deadline = t1 + max_s
         sent = 0
-        for n in range(inputs):
-            if not daemon.alive() or time.monotonic() > deadline:
-                break
-            now = time.monotonic()
-            if next_at > now:
-                time.sleep(next_at - now)
-            next_at += period
+        for n in paced(range(inputs), rate, t1 + max_s, daemon):
             if rng.random() < query_share:
                 key, params, payload, encoding = zenoh_query_input(rng, "fuzz")
                 counts["query"] = counts.get("query", 0) + 1

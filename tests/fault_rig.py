@@ -51,7 +51,9 @@ def base_overrides(zenoh_port: int) -> dict[str, Any]:
 
 
 class FaultRig:
-    """Autopilot peer + ground station + the daemon process + a Zenoh observer / camera; close() stops all."""
+    """Autopilot peer + ground station + the daemon process + a Zenoh observer / camera; close() stops all.
+    As a context (`with FaultRig(...).start() as rig:`), closed at the end, where a block that passed also
+    needs the daemon's clean exit (code 0)."""
 
     def __init__(self, workdir: Path, source: str | None, overrides: dict[str, Any] | None = None,
                  module: str = "service", env: dict[str, str] | None = None,
@@ -70,6 +72,14 @@ class FaultRig:
         self.sim = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{self.zenoh_port}",), prefix=PREFIX))
         self.daemon.on_exit(self.sim.telemetry.mark_source_gone)
         return self
+
+    def __enter__(self) -> "FaultRig":
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        code = self.close()
+        if kind is None:
+            assert code == 0, self.daemon.log_tail()
 
     def restart(self) -> None:
         """Start the daemon again after it ended (killed, or stopped): same config, its log appended to."""
@@ -192,6 +202,16 @@ class Publisher:
         self._pace()
         self.sim._publisher.put(payload)  # noqa: SLF001 - garbage on the frame key, as a broken camera sends
         return time.monotonic()
+
+
+def publish_until_tracked(rig: FaultRig, camera: Publisher, image: np.ndarray, timeout_s: float = 120.0) -> None:
+    """Publish `image` until the daemon's first track sample (it subscribed and tracks); AssertionError with its
+    log when it died or timeout_s passed first."""
+    assert rig.sim is not None
+    deadline = time.monotonic() + timeout_s
+    while rig.sim.telemetry.wait_frame(1, 0.0) is None:
+        assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
+        camera.publish(image)
 
 
 def swaying_square(i: int) -> np.ndarray:

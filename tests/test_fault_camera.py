@@ -16,7 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tests.fault_rig import ACTIVE, ERROR, REPORT_BOUND_S, TARGET, FaultRig, Feeder, Publisher, log_time
+from tests.fault_rig import (ACTIVE, ERROR, REPORT_BOUND_S, TARGET, FaultRig, Feeder, Publisher, log_time,
+                             publish_until_tracked)
 from tests.test_service_sources import scene
 
 
@@ -35,8 +36,7 @@ def write_frames(folder: Path, count: int, suffix: str = ".png") -> list[Path]:
 def test_an_image_folder_removed_and_restored(tmp_path: Path) -> None:
     frames = tmp_path / "frames"
     write_frames(frames, 30)
-    rig = FaultRig(tmp_path, str(frames)).start()
-    try:
+    with FaultRig(tmp_path, str(frames)).start() as rig:
         rig.meet_camera()
         rig.select(TARGET)
         gone = tmp_path / "frames-away"
@@ -68,9 +68,6 @@ def test_an_image_folder_removed_and_restored(tmp_path: Path) -> None:
         print(f"\nimage folder removed: 275 ERROR after {report_s:.3f} s; restored: 275 ACTIVE after {resume_s:.3f} s "
               f"(source failures {status['source']['failures']}); gimbal held at zero meanwhile")
         assert report_s < REPORT_BOUND_S
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: Path) -> None:
@@ -83,8 +80,7 @@ def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: P
     for path in bad:
         data = path.read_bytes()
         path.write_bytes(data[:len(data) // 2])
-    rig = FaultRig(tmp_path, str(frames)).start()
-    try:
+    with FaultRig(tmp_path, str(frames)).start() as rig:
         rig.meet_camera()
         rig.select(TARGET)
         began = time.monotonic()
@@ -110,9 +106,6 @@ def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: P
               f"{report_s:.3f} s after the first of a run (log), 275 ERROR, then ACTIVE again by itself")
         assert report_s < REPORT_BOUND_S
         assert rig.daemon.alive()
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def garbage_payloads(count: int, seed: int = 42) -> list[bytes]:
@@ -133,15 +126,10 @@ def garbage_payloads(count: int, seed: int = 42) -> list[bytes]:
 
 
 def test_garbage_on_the_zenoh_frame_source(tmp_path: Path) -> None:
-    rig = FaultRig(tmp_path, "zenoh").start()
-    camera = Publisher(rig)
-    good = scene((160, 120), (80, 60), 24)
-    try:
-        assert rig.sim is not None
-        deadline = time.monotonic() + 120.0
-        while rig.sim.telemetry.wait_frame(1, 0.0) is None:  # until the daemon subscribes and tracks
-            assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
-            camera.publish(good)
+    with FaultRig(tmp_path, "zenoh").start() as rig:
+        camera = Publisher(rig)
+        good = scene((160, 120), (80, 60), 24)
+        publish_until_tracked(rig, camera, good)
         started = [camera.frame_id]
         feeder = Feeder(camera, lambda i: good).start()  # frames keep coming during the handshake and the selection
         try:
@@ -170,23 +158,15 @@ def test_garbage_on_the_zenoh_frame_source(tmp_path: Path) -> None:
               f"(frames before: {started[0]})")
         assert report_s < REPORT_BOUND_S
         assert rig.daemon.alive()
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Path) -> None:
     """160x120 frames, then the same scene at 320x240 (a camera switching mode): the box is rescaled with
     the image (same field of view), the tracker re-initialised there, the change logged and counted, the
     new size announced (CAMERA_INFORMATION) and tracking goes on at the target."""
-    rig = FaultRig(tmp_path, "zenoh").start()
-    camera = Publisher(rig)
-    try:
-        assert rig.sim is not None
-        deadline = time.monotonic() + 120.0
-        while rig.sim.telemetry.wait_frame(1, 0.0) is None:  # until the daemon subscribes and tracks
-            assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
-            camera.publish(scene((160, 120), (80, 60), 24))
+    with FaultRig(tmp_path, "zenoh").start() as rig:
+        camera = Publisher(rig)
+        publish_until_tracked(rig, camera, scene((160, 120), (80, 60), 24))
         small = lambda i: scene((160, 120), (80 + (i % 6) - 3, 60), 24)  # noqa: E731
         large = lambda i: scene((320, 240), (160 + 2 * ((i % 6) - 3), 120), 48)  # noqa: E731
         size = ["small"]
@@ -221,9 +201,6 @@ def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Pa
               f"{[round(v) for v in settled['box_px']]}), logged event=frame_size_changed, counters.resized 1, "
               f"CAMERA_INFORMATION re-sent")
         assert report_s < REPORT_BOUND_S
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def test_a_v4l2_open_failing_then_succeeding(tmp_path: Path) -> None:
@@ -233,9 +210,8 @@ def test_a_v4l2_open_failing_then_succeeding(tmp_path: Path) -> None:
     device.touch()
     busy, unplugged = Path(f"{device}.busy"), Path(f"{device}.unplugged")
     busy.touch()
-    rig = FaultRig(tmp_path, None, {"source": {"kind": "v4l2", "device": str(device)}},
-                   module="tests.fake_v4l2_service").start()
-    try:
+    with FaultRig(tmp_path, None, {"source": {"kind": "v4l2", "device": str(device)}},
+                  module="tests.fake_v4l2_service").start() as rig:
         assert rig.sim is not None
         started = time.monotonic()
         deadline = started + 60.0
@@ -271,6 +247,3 @@ def test_a_v4l2_open_failing_then_succeeding(tmp_path: Path) -> None:
               f"{open_s:.3f} s after; unplugged mid-track: 275 ERROR after {report_s:.3f} s; back: 275 ACTIVE after "
               f"{resume_s:.3f} s")
         assert report_s < REPORT_BOUND_S
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()

@@ -68,6 +68,17 @@ def target_rectangle() -> list[float]:
     return [(x - 17) / w, (y - 17) / h, (x + 17) / w, (y + 17) / h]
 
 
+def record(parser: Any, data: bytes, into: Recorder) -> None:
+    """Every message `parser` (a robust pymavlink parser) finds in the datagram `data`, into `into`; a datagram
+    it chokes on records nothing (the tap forwards it all the same)."""
+    try:
+        for msg in parser.parse_buffer(data) or []:
+            if msg.get_type() != "BAD_DATA":
+                into.add(msg)
+    except Exception:  # noqa: BLE001 - forwarded anyway
+        pass
+
+
 class WireTap(Background):
     """A UDP relay between a firmware link and the daemon, recording what the daemon sends.
 
@@ -106,12 +117,7 @@ class WireTap(Background):
                 continue
             self.firmware_address = address  # a restarted firmware sends from a new port
             self.inner.sendto(data, ("127.0.0.1", self.daemon_port))
-            try:
-                for msg in self._down_parser.parse_buffer(data) or []:
-                    if msg.get_type() != "BAD_DATA":
-                        self.to_daemon.add(msg)
-            except Exception:  # noqa: BLE001 - forwarded anyway
-                pass
+            record(self._down_parser, data, self.to_daemon)
 
     def _up(self) -> None:
         """Daemon -> firmware, recorded."""
@@ -120,12 +126,7 @@ class WireTap(Background):
                 data, _ = self.inner.recvfrom(65536)
             except (socket.timeout, OSError):
                 continue
-            try:
-                for msg in self.parser.parse_buffer(data) or []:
-                    if msg.get_type() != "BAD_DATA":
-                        self.from_daemon.add(msg)
-            except Exception:  # noqa: BLE001 - a packet the parser chokes on is still forwarded
-                pass
+            record(self.parser, data, self.from_daemon)
             if self.firmware_address is not None:
                 self.outer.sendto(data, self.firmware_address)
 

@@ -30,17 +30,15 @@ FRAMES_DECODED = 24
 def free_udp_port_pair() -> int:
     """An even loopback UDP port p with p + 1 free too (RTP on p, RTCP on p + 1)."""
     for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rtp:
-            rtp.bind(("127.0.0.1", 0))
-            port = rtp.getsockname()[1]
-            if port % 2 or port >= 65535:
+        port = free_udp_port()
+        if port % 2 or port >= 65535:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rtcp:
+            try:
+                rtcp.bind(("127.0.0.1", port + 1))
+            except OSError:
                 continue
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rtcp:
-                try:
-                    rtcp.bind(("127.0.0.1", port + 1))
-                except OSError:
-                    continue
-                return port
+            return port
     raise RuntimeError("no free pair of UDP ports")
 
 

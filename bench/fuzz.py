@@ -54,13 +54,15 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink
 
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from pymavlink.dialects.v20 import all as dialect  # noqa: E402
+
+from sim.ports import free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MAVLINK20": "1"}
@@ -347,12 +349,6 @@ def zenoh_query_input(rng: random.Random, prefix: str) -> tuple[str, str, bytes 
 
 
 # --- the daemon as a process ---------------------------------------------------------------------------------
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def scene(size: tuple[int, int], centre: tuple[float, float], side: int = 40, seed: int = 7) -> np.ndarray:
     """A textured background (fixed seed) with a bright checkered square at `centre` (pixels), BGR uint8."""
     import cv2
@@ -720,6 +716,93 @@ def git_commit() -> str:
         return "unknown"
 
 
+def paced(items: Iterable[Any], rate: float, deadline: float, daemon: Daemon) -> Iterator[Any]:
+    """`items` one every 1/rate seconds while the daemon lives, until `deadline` (time.monotonic() s)."""
+    period, next_at = 1.0 / rate, time.monotonic()
+    for item in items:
+        if not daemon.alive() or time.monotonic() > deadline:
+            return
+        now = time.monotonic()
+        if next_at > now:
+            time.sleep(next_at - now)  # pacing the sender, not waiting for the daemon
+        next_at += period
+        yield item
+
+
+class Probing:
+    """The probes (see watch) on a thread from `started` (monotonic s) until stop()."""
+
+    def __init__(self, daemon: Daemon, peer: MavlinkPeer, session: Any, started: float) -> None:
+        self.probes = Probes()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=watch, args=(self._stop, daemon, peer, session, self.probes, started),
+                                        daemon=True)
+        self._thread.start()
+
+    def stop(self, after_s: float = 0.0) -> Probes:
+        """Stop probing `after_s` seconds from now; the probes."""
+        self._stop.wait(after_s)
+        self._stop.set()
+        self._thread.join()
+        return self.probes
+
+
+def daemon_session(daemon: Daemon, peer: MavlinkPeer, zenoh_port: int) -> Any:
+    """A Zenoh session on the daemon's port once the daemon's first packet reached the peer (within 90 s)."""
+    if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
+        raise RuntimeError(f"no packet from the daemon within 90 s; log:\n{daemon.log()[-3000:]}")
+    return zenoh_session(zenoh_port)
+
+
+def select_and_track(daemon: Daemon, peer: MavlinkPeer, track: TrackCounter) -> None:
+    """Select the clip's target; wait (up to 20 s) until most of the last second's frames are tracked."""
+    if not select_target(peer):
+        raise RuntimeError(f"the selection was never accepted; log:\n{daemon.log()[-3000:]}")
+    wait_for(lambda: track.window(time.monotonic() - 1.0, time.monotonic())["tracking_share"] > 0.5, 20.0)
+
+
+def fuzz_outcome(daemon: Daemon, peer: MavlinkPeer, session: Any, track: TrackCounter, max_frame_id: int | None,
+                 baseline: tuple[dict[str, Any], Probes], during: tuple[dict[str, Any], Probes],
+                 rss_before: float | None) -> tuple[dict[str, Any], dict | None]:
+    """After the fuzz: a valid command answered, the target selected and tracked again, memory once settled.
+    The result's entries common to every target (baseline / during: the track window and the probes), and the
+    daemon's last status (None when it died or no longer answers)."""
+    alive = daemon.alive()
+    command = peer.request(dialect.MAV_CMD_REQUEST_MESSAGE, [275, 0, 0, 0, 0, 0, 0], attempts=5,
+                           timeout_s=1.0) if alive else None
+    reselected = select_target(peer) if alive else False
+    settle = time.monotonic()
+    # let the last inputs' replies and any retried work finish (a camera keeps publishing) before the readings
+    time.sleep(3.0)
+    after = track.window(settle, time.monotonic(), max_frame_id=max_frame_id)
+    rss_after = rss_mb(daemon.proc.pid)
+    status = query_status(session, 3.0) if alive else None
+    (base, base_probes), (fuzzed, probes) = baseline, during
+    return {
+        "crashes": 0 if alive else 1, "exit_code": None if alive else daemon.proc.returncode,
+        "hangs": int(not (command is not None and status is not None)),
+        "command_after_fuzz": (None if command is None else
+                               {"attempt": command[0], "ms": round(command[1] * 1000, 1), "result": command[2]}),
+        "reselected_after_fuzz": reselected,
+        "baseline": {**base, **base_probes.summary()}, "during": {**fuzzed, **probes.summary()},
+        "after": after,
+        "frame_rate_ratio": round(fuzzed["fps"] / base["fps"], 3) if base["fps"] else None,
+        "memory": memory_verdict(rss_before, rss_after, probes.rss_mb),
+        "rss_samples": probes.rss_mb,
+    }, status
+
+
+def close_run(result: dict[str, Any], daemon: Daemon, peer: MavlinkPeer, session: Any) -> None:
+    """Close the session and the peer, stop the daemon; its log's failures and exit code into `result`."""
+    if session is not None:
+        session.close()
+    peer.close()
+    code = daemon.stop()
+    result["log_failures"] = log_failures(daemon.log())
+    result["log_failure_lines"] = failure_lines(daemon.log())
+    result["stop_exit_code"] = code
+
+
 def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker: str, fps: float, max_s: float,
                 workdir: Path, progress: bool = True, signing: bool = False) -> dict[str, Any]:
     """The MAVLink fuzz against the daemon as a process; the figures as a dict (see the module docstring).
@@ -741,47 +824,25 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
     result: dict[str, Any] = {"target": "mavlink", "seed": seed, "inputs_planned": inputs, "rate_per_s": rate,
                               "tracker": tracker, "source_fps": fps, "signing": signing, "commit": git_commit()}
     try:
-        if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
-            raise RuntimeError(f"no packet from the daemon within 90 s; log:\n{daemon.log()[-3000:]}")
-        session = zenoh_session(zenoh_port)
+        session = daemon_session(daemon, peer, zenoh_port)
         track = TrackCounter(session)
         if not wait_for(lambda: query_status(session, 1.0) is not None, 60.0):
             raise RuntimeError("the status query never answered")
-        if not select_target(peer):
-            raise RuntimeError(f"the selection was never accepted; log:\n{daemon.log()[-3000:]}")
-        wait_for(lambda: track.window(time.monotonic() - 1.0, time.monotonic())["tracking_share"] > 0.5, 20.0)
+        select_and_track(daemon, peer, track)
         daemon_port = peer.daemon_address[1] if peer.daemon_address else 0
         drops_before = udp_drops(daemon_port) or 0
         # the run without fuzz: same daemon, same clip, the same probes
-        base_probes = Probes()
-        stop = threading.Event()
         t0 = time.monotonic()
-        watcher = threading.Thread(target=watch, args=(stop, daemon, peer, session, base_probes, t0), daemon=True)
-        watcher.start()
-        stop.wait(baseline_s)
-        stop.set()
-        watcher.join()
+        base_probes = Probing(daemon, peer, session, t0).stop(after_s=baseline_s)
         t1 = time.monotonic()
         baseline = track.window(t0, t1)
         rss_before = rss_mb(daemon.proc.pid)
         # the fuzz
-        probes = Probes()
-        stop = threading.Event()
-        watcher = threading.Thread(target=watch, args=(stop, daemon, peer, session, probes, t1), daemon=True)
-        watcher.start()
+        probing = Probing(daemon, peer, session, t1)
         counts: dict[str, int] = {}
         sent_bytes = 0
         sent = 0
-        period = 1.0 / rate
-        next_at = time.monotonic()
-        deadline = t1 + max_s
-        for kind, data in planned:
-            if not daemon.alive() or time.monotonic() > deadline:
-                break
-            now = time.monotonic()
-            if next_at > now:
-                time.sleep(next_at - now)  # pacing the sender, not waiting for the daemon
-            next_at += period
+        for kind, data in paced(planned, rate, t1 + max_s, daemon):
             peer.send_raw(data)
             counts[kind] = counts.get(kind, 0) + 1
             sent += 1
@@ -790,46 +851,19 @@ def run_mavlink(inputs: int, seed: int, rate: float, baseline_s: float, tracker:
                 print(f"  {sent} inputs, {time.monotonic() - t1:.0f} s, rss {rss_mb(daemon.proc.pid)} MB",
                       flush=True)
         t2 = time.monotonic()
-        stop.set()
-        watcher.join()
-        fuzzed = track.window(t1, t2)
-        alive_after = daemon.alive()
-        # after: a valid command answered, the target selected and tracked again, memory once settled
-        after_command = peer.request(dialect.MAV_CMD_REQUEST_MESSAGE, [275, 0, 0, 0, 0, 0, 0], attempts=5,
-                                     timeout_s=1.0) if alive_after else None
-        reselected = select_target(peer) if alive_after else False
-        settle = time.monotonic()
-        time.sleep(3.0)  # let the last inputs' replies and any retried work finish before the memory reading
-        after = track.window(settle, time.monotonic())
-        rss_after = rss_mb(daemon.proc.pid)
-        status = query_status(session, 3.0) if alive_after else None
+        probes = probing.stop()
+        outcome, status = fuzz_outcome(daemon, peer, session, track, None, (baseline, base_probes),
+                                       (track.window(t1, t2), probes), rss_before)
         drops = (udp_drops(daemon_port) or 0) - drops_before
         result.update({
             "inputs_sent": sent, "bytes_sent": sent_bytes, "by_kind": counts, "fuzz_s": round(t2 - t1, 1),
-            "kernel_dropped": drops, "crashes": 0 if alive_after else 1,
-            "exit_code": None if alive_after else daemon.proc.returncode,
-            "hangs": int(not (after_command is not None and status is not None)),
-            "command_after_fuzz": (None if after_command is None else
-                                   {"attempt": after_command[0], "ms": round(after_command[1] * 1000, 1),
-                                    "result": after_command[2]}),
-            "reselected_after_fuzz": reselected,
-            "baseline": {**baseline, **base_probes.summary()}, "during": {**fuzzed, **probes.summary()},
-            "after": after,
-            "frame_rate_ratio": round(fuzzed["fps"] / baseline["fps"], 3) if baseline["fps"] else None,
-            "memory": memory_verdict(rss_before, rss_after, probes.rss_mb),
-            "rss_samples": probes.rss_mb,
+            "kernel_dropped": drops, **outcome,
             "daemon_counters": {k: v for k, v in (status or {}).get("counters", {}).items() if k.startswith("mavlink")},
             "signing_status": (status or {}).get("mavlink_signing"),
         })
         track.close()
     finally:
-        if session is not None:
-            session.close()
-        peer.close()
-        code = daemon.stop()
-        result["log_failures"] = log_failures(daemon.log())
-        result["log_failure_lines"] = failure_lines(daemon.log())
-        result["stop_exit_code"] = code
+        close_run(result, daemon, peer, session)
     return result
 
 
@@ -866,9 +900,7 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
                               "tracker": tracker, "source_fps": fps, "excluded": list(exclude), "commit": git_commit()}
     camera_ids = [0]
     try:
-        if not wait_for(lambda: peer.daemon_address is not None or not daemon.alive(), 90.0) or not daemon.alive():
-            raise RuntimeError(f"no packet from the daemon within 90 s; log:\n{daemon.log()[-3000:]}")
-        session = zenoh_session(zenoh_port)
+        session = daemon_session(daemon, peer, zenoh_port)
         track = TrackCounter(session)
         publisher = session.declare_publisher("fuzz/camera/frame")
         frames = [encode_frame(clip_frame(i), 0, 0.0) for i in range(CLIP_FRAMES)]
@@ -890,40 +922,20 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
         cam.start()
         if not wait_for(lambda: (query_status(session, 1.0) or {}).get("source", {}).get("frames", 0) > 0, 60.0):
             raise RuntimeError(f"no frame reached the daemon; log:\n{daemon.log()[-3000:]}")
-        if not select_target(peer):
-            raise RuntimeError(f"the selection was never accepted; log:\n{daemon.log()[-3000:]}")
-        wait_for(lambda: track.window(time.monotonic() - 1.0, time.monotonic())["tracking_share"] > 0.5, 20.0)
-        base_probes = Probes()
-        stop = threading.Event()
+        select_and_track(daemon, peer, track)
         t0 = time.monotonic()
-        watcher = threading.Thread(target=watch, args=(stop, daemon, peer, session, base_probes, t0), daemon=True)
-        watcher.start()
-        stop.wait(baseline_s)
-        stop.set()
-        watcher.join()
+        base_probes = Probing(daemon, peer, session, t0).stop(after_s=baseline_s)
         t1 = time.monotonic()
         baseline = track.window(t0, t1, max_frame_id=2**40)
         rss_before = rss_mb(daemon.proc.pid)
-        probes = Probes()
-        stop = threading.Event()
-        watcher = threading.Thread(target=watch, args=(stop, daemon, peer, session, probes, t1), daemon=True)
-        watcher.start()
+        probing = Probing(daemon, peer, session, t1)
         rng = random.Random(seed)
         kinds, weights = zip(*((k, w) for k, w in ZENOH_FRAME_KINDS.items() if k not in exclude))
         counts: dict[str, int] = {}
         query_replies = 0
         query_errors = 0
-        period = 1.0 / rate
-        next_at = time.monotonic()
-        deadline = t1 + max_s
         sent = 0
-        for n in range(inputs):
-            if not daemon.alive() or time.monotonic() > deadline:
-                break
-            now = time.monotonic()
-            if next_at > now:
-                time.sleep(next_at - now)
-            next_at += period
+        for n in paced(range(inputs), rate, t1 + max_s, daemon):
             if rng.random() < query_share:
                 key, params, payload, encoding = zenoh_query_input(rng, "fuzz")
                 counts["query"] = counts.get("query", 0) + 1
@@ -944,45 +956,19 @@ def run_zenoh(inputs: int, seed: int, rate: float, baseline_s: float, tracker: s
                 print(f"  {sent} inputs, {time.monotonic() - t1:.0f} s, rss {rss_mb(daemon.proc.pid)} MB", flush=True)
         garbage = tcp_garbage(zenoh_port, rng, garbage_connections) if daemon.alive() else {}
         t2 = time.monotonic()
-        stop.set()
-        watcher.join()
-        fuzzed = track.window(t1, t2, max_frame_id=2**40)
-        alive_after = daemon.alive()
-        after_command = peer.request(dialect.MAV_CMD_REQUEST_MESSAGE, [275, 0, 0, 0, 0, 0, 0], attempts=5,
-                                     timeout_s=1.0) if alive_after else None
-        reselected = select_target(peer) if alive_after else False
-        settle = time.monotonic()
-        time.sleep(3.0)  # the camera keeps publishing: the tracked rate after the fuzz, memory once settled
-        after = track.window(settle, time.monotonic(), max_frame_id=2**40)
-        rss_after = rss_mb(daemon.proc.pid)
-        status = query_status(session, 3.0) if alive_after else None
+        probes = probing.stop()
+        outcome, status = fuzz_outcome(daemon, peer, session, track, 2**40, (baseline, base_probes),
+                                       (track.window(t1, t2, max_frame_id=2**40), probes), rss_before)
         result.update({
             "inputs_sent": sent, "by_kind": counts, "fuzz_s": round(t2 - t1, 1),
             "query_replies": query_replies, "query_errors_local": query_errors, "tcp_garbage": garbage,
-            "camera_frames_published": camera_ids[0],
-            "crashes": 0 if alive_after else 1, "exit_code": None if alive_after else daemon.proc.returncode,
-            "hangs": int(not (after_command is not None and status is not None)),
-            "command_after_fuzz": (None if after_command is None else
-                                   {"attempt": after_command[0], "ms": round(after_command[1] * 1000, 1),
-                                    "result": after_command[2]}),
-            "reselected_after_fuzz": reselected,
-            "baseline": {**baseline, **base_probes.summary()}, "during": {**fuzzed, **probes.summary()},
-            "after": after,
-            "frame_rate_ratio": round(fuzzed["fps"] / baseline["fps"], 3) if baseline["fps"] else None,
-            "memory": memory_verdict(rss_before, rss_after, probes.rss_mb),
-            "rss_samples": probes.rss_mb,
+            "camera_frames_published": camera_ids[0], **outcome,
             "source": (status or {}).get("source"),
         })
         track.close()
     finally:
         camera_stop.set()
-        if session is not None:
-            session.close()
-        peer.close()
-        code = daemon.stop()
-        result["log_failures"] = log_failures(daemon.log())
-        result["log_failure_lines"] = failure_lines(daemon.log())
-        result["stop_exit_code"] = code
+        close_run(result, daemon, peer, session)
     return result
 
 

@@ -39,17 +39,12 @@ from pymavlink.dialects.v20 import common as dialect  # noqa: E402
 
 import jsar  # noqa: E402
 from jsar.api import SideBoundedTracker  # noqa: E402
+from sim.ports import free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT, FPS = 640, 480, 30.0
 IDLE_S = 3.0  # measured before the selection: decoding, telemetry and MAVLink without tracking
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MAVLINK20": "1"}
-
-
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def prepare_video(sequence: Path, out: Path, max_frames: int) -> tuple[Path, np.ndarray]:

@@ -75,16 +75,20 @@ def tls_from_args(args: argparse.Namespace, option: str = "--zenoh-tls") -> Zeno
     return ZenohTls(ca or "", cert or "", key or "", not getattr(args, f"{dest}_no_verify_name"), option)
 
 
-def endpoint_is_loopback(endpoint: str) -> bool:
-    """True when a Zenoh endpoint `proto/HOST:PORT` (`?metadata`, `#config` allowed) names a loopback host."""
-    address = endpoint.partition("/")[2].split("?")[0].split("#")[0]
-    host = (address.rsplit(":", 1)[0] if ":" in address else address).strip("[]")
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and localhost."""
     if host == "localhost":
         return True
     try:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+def endpoint_is_loopback(endpoint: str) -> bool:
+    """True when a Zenoh endpoint `proto/HOST:PORT` (`?metadata`, `#config` allowed) names a loopback host."""
+    address = endpoint.partition("/")[2].split("?")[0].split("#")[0]
+    return is_loopback((address.rsplit(":", 1)[0] if ":" in address else address).strip("[]"))
 
 
 def check_endpoints(endpoints: tuple[str, ...] | list[str], tls: ZenohTls | None, option: str) -> list[str]:

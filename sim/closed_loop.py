@@ -38,6 +38,7 @@ import jsar
 from jsar.api import SideBoundedTracker
 from sim.autopilot import MockAutopilot
 from sim.daemon import Daemon, deep_merge
+from sim.ports import free_port  # also imported from here by sim.demo and the tests
 from sim.scene import CameraConfig, CameraPose, GroundTruth, Scene, SceneConfig, pose_from_vehicle
 from sim.vehicle_model import VehicleConfig
 from sim.zenoh_link import SimCamera, ZenohEndpoints
@@ -67,14 +68,6 @@ class World(Protocol):
     time t (s after the init frame) from a camera pose (sim.scene.Scene is one)."""
 
     def render(self, pose: CameraPose, t: float) -> tuple[np.ndarray, GroundTruth]: ...
-
-
-def free_port(kind: int) -> int:
-    """A loopback port of socket type `kind` that was free a moment ago."""
-    import socket
-    with socket.socket(socket.AF_INET, kind) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @dataclass(frozen=True)

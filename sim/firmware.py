@@ -40,7 +40,6 @@ import math
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import tempfile
 import time
@@ -49,6 +48,8 @@ from typing import Any, Callable
 
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink's MAVLink 2 dialect (gimbal messages) must load first
 from pymavlink import mavutil  # noqa: E402
+
+from sim.ports import free_udp_port  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 M = mavutil.mavlink
@@ -78,13 +79,6 @@ def firmware_missing(kind: str) -> str | None:
     if not os.access(path, os.X_OK):
         return f"{path} is not executable"
     return None
-
-
-def free_udp_port() -> int:
-    """A loopback UDP port that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def connect(url: str, source_system: int = 255, source_component: int = 190) -> Any:

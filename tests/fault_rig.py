@@ -6,6 +6,7 @@ ground station behind it, the daemon (`sim.daemon.Daemon`, any --source) listeni
 port, and a Zenoh session (`sim.zenoh_link.SimCamera`) that reads its telemetry and status and can publish
 camera frames. The ground station asks for CAMERA_TRACKING_IMAGE_STATUS (275) every STATUS_INTERVAL_S,
 so a fault's report in 275 is timed to within that interval; waits are on received messages (Recorder).
+`Publisher` paces frames onto the rig's Zenoh camera key like a camera; `Feeder` does it on a thread.
 """
 from __future__ import annotations
 
@@ -15,10 +16,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from sim.daemon import Daemon, deep_merge
+from sim.ports import free_tcp_port, free_udp_port
 from sim.zenoh_link import SimCamera, ZenohEndpoints
-from tests.conftest import free_tcp_port, free_udp_port
+from tests.helpers import Background
 from tests.service_peers import AutopilotPeer, GroundStation, Received, camera_handshake
+from tests.test_service_sources import scene
 
 PREFIX = "faults"
 SYSTEM_ID = 3
@@ -29,6 +34,7 @@ REPORT_BOUND_S = 1.0  # issue 42: a fault is reported within a second
 SET_MESSAGE_INTERVAL, TRACK_RECTANGLE, STOP_TRACKING = 511, 2005, 2010
 ACCEPTED = 0
 IDLE, ACTIVE, ERROR, COASTING = 0, 1, 2, 8  # CAMERA_TRACKING_STATUS_FLAGS
+TARGET = (0.35, 0.3, 0.65, 0.7)  # normalised rectangle around the square of a 160x120 scene(.., (80, 60), 24)
 
 
 def base_overrides(zenoh_port: int) -> dict[str, Any]:
@@ -45,7 +51,9 @@ def base_overrides(zenoh_port: int) -> dict[str, Any]:
 
 
 class FaultRig:
-    """Autopilot peer + ground station + the daemon process + a Zenoh observer / camera; close() stops all."""
+    """Autopilot peer + ground station + the daemon process + a Zenoh observer / camera; close() stops all.
+    As a context (`with FaultRig(...).start() as rig:`), closed at the end, where a block that passed also
+    needs the daemon's clean exit (code 0)."""
 
     def __init__(self, workdir: Path, source: str | None, overrides: dict[str, Any] | None = None,
                  module: str = "service", env: dict[str, str] | None = None,
@@ -64,6 +72,14 @@ class FaultRig:
         self.sim = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{self.zenoh_port}",), prefix=PREFIX))
         self.daemon.on_exit(self.sim.telemetry.mark_source_gone)
         return self
+
+    def __enter__(self) -> "FaultRig":
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        code = self.close()
+        if kind is None:
+            assert code == 0, self.daemon.log_tail()
 
     def restart(self) -> None:
         """Start the daemon again after it ended (killed, or stopped): same config, its log appended to."""
@@ -155,3 +171,63 @@ def log_time(line: str) -> float:
     """The Unix time (s) of a daemon log line (`ts=YYYY-mm-ddTHH:MM:SS.mmmZ ...`)."""
     stamp = line.split(" ", 1)[0].removeprefix("ts=").rstrip("Z")
     return datetime.strptime(stamp, "%Y-%m-%dT%H:%M:%S.%f").replace(tzinfo=timezone.utc).timestamp()
+
+
+class Publisher:
+    """Publishes frames from the calling thread on the rig's Zenoh session at `fps` (pacing like a camera)."""
+
+    def __init__(self, rig: FaultRig, fps: float = 15.0) -> None:
+        assert rig.sim is not None
+        self.sim = rig.sim
+        self.period = 1.0 / fps
+        self.frame_id = 0
+        self.next_s = time.monotonic()
+
+    def _pace(self) -> None:
+        """Wait for the next period (time.monotonic())."""
+        wait_s = self.next_s - time.monotonic()
+        if wait_s > 0:
+            time.sleep(wait_s)  # camera pacing, not synchronisation
+        self.next_s = max(self.next_s + self.period, time.monotonic())
+
+    def publish(self, image: np.ndarray) -> float:
+        """Send one frame at the next period; returns when it was sent (time.monotonic())."""
+        self._pace()
+        self.frame_id += 1
+        self.sim.publish(image, self.frame_id)
+        return time.monotonic()
+
+    def publish_raw(self, payload: bytes) -> float:
+        """Send `payload` on the frame key at the next period; returns when it was sent (time.monotonic())."""
+        self._pace()
+        self.sim._publisher.put(payload)  # noqa: SLF001 - garbage on the frame key, as a broken camera sends
+        return time.monotonic()
+
+
+def publish_until_tracked(rig: FaultRig, camera: Publisher, image: np.ndarray, timeout_s: float = 120.0) -> None:
+    """Publish `image` until the daemon's first track sample (it subscribed and tracks); AssertionError with its
+    log when it died or timeout_s passed first."""
+    assert rig.sim is not None
+    deadline = time.monotonic() + timeout_s
+    while rig.sim.telemetry.wait_frame(1, 0.0) is None:
+        assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
+        camera.publish(image)
+
+
+def swaying_square(i: int) -> np.ndarray:
+    """Frame i of the 160x120 test scene: the square (side 24) sways +-3 px around (80, 60) (TARGET holds it)."""
+    return scene((160, 120), (80 + (i % 6) - 3, 60), 24)
+
+
+class Feeder(Background):
+    """A camera on a thread: publishes frame(i), i = 0, 1, ..., through `camera` (at its pace) until close()."""
+
+    def __init__(self, camera: Publisher, frame: Callable[[int], np.ndarray] = swaying_square) -> None:
+        super().__init__(self._run, join_s=5.0)
+        self.camera, self.frame = camera, frame
+
+    def _run(self) -> None:
+        i = 0
+        while not self._stop.is_set():
+            self.camera.publish(self.frame(i))
+            i += 1

@@ -1,7 +1,7 @@
 """Helpers for the tests against real autopilot firmware (no tests here): finding the firmware (skip
 outside CI, fail in CI), a synthetic target held off centre published as camera frames over Zenoh (the
 test decides when it leaves the view), the daemon as a process on a firmware link, a wire tap that
-records what the daemon sends, and a ground station.
+records what the daemon sends, a ground station, and FirmwareRig: all of them with the firmware as one context.
 
 The firmware itself is started by sim.firmware (ArduPilotSitl, Px4Sih)."""
 from __future__ import annotations
@@ -20,7 +20,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as dialect  # noqa: E402
 
 from sim.daemon import write_config  # noqa: E402
-from sim.firmware import free_udp_port  # noqa: E402
+from sim.firmware import euler_deg  # noqa: E402
+from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
+from tests.helpers import Background  # noqa: E402
 from tests.service_peers import Recorder  # noqa: E402
 from tests.test_service_sources import scene  # noqa: E402
 
@@ -36,27 +38,20 @@ def target_image(visible: bool = True) -> Any:
     return scene(FRAME_SIZE, TARGET_PX, 30) if visible else scene(FRAME_SIZE, (-100.0, -100.0), 0)
 
 
-class FramePump:
+class FramePump(Background):
     """The camera: publishes target_image(visible) over Zenoh at `fps` (wall clock) on a thread; set
     `visible` False to take the target out of view (the track is then lost)."""
 
     def __init__(self, zenoh_port: int, prefix: str, fps: float = 20.0) -> None:
         from sim.zenoh_link import SimCamera, ZenohEndpoints
 
+        super().__init__(self._run, join_s=2.0)
         self.camera = SimCamera(ZenohEndpoints(listen=(f"tcp/127.0.0.1:{zenoh_port}",), prefix=prefix))
         self.period = 1.0 / fps
         self.visible = True
         self._images = {True: target_image(True), False: target_image(False)}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
 
-    def start(self) -> "FramePump":
-        self._thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
+    def release(self) -> None:
         self.camera.close()
 
     def _run(self) -> None:
@@ -73,7 +68,18 @@ def target_rectangle() -> list[float]:
     return [(x - 17) / w, (y - 17) / h, (x + 17) / w, (y + 17) / h]
 
 
-class WireTap:
+def record(parser: Any, data: bytes, into: Recorder) -> None:
+    """Every message `parser` (a robust pymavlink parser) finds in the datagram `data`, into `into`; a datagram
+    it chokes on records nothing (the tap forwards it all the same)."""
+    try:
+        for msg in parser.parse_buffer(data) or []:
+            if msg.get_type() != "BAD_DATA":
+                into.add(msg)
+    except Exception:  # noqa: BLE001 - forwarded anyway
+        pass
+
+
+class WireTap(Background):
     """A UDP relay between a firmware link and the daemon, recording what the daemon sends.
 
     The firmware sends (udpclient) to `firmware_port`; the tap forwards that to the daemon's udpin port
@@ -82,6 +88,7 @@ class WireTap:
     it in `to_daemon`."""
 
     def __init__(self, firmware_port: int, daemon_port: int) -> None:
+        super().__init__(self._down, self._up)
         self.firmware_port, self.daemon_port = firmware_port, daemon_port
         self.outer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # faces the firmware
         self.outer.bind(("127.0.0.1", firmware_port))
@@ -96,19 +103,8 @@ class WireTap:
         self.to_daemon = Recorder()  # what reached the daemon (parsed as it passed)
         self._down_parser = dialect.MAVLink(None)
         self._down_parser.robust_parsing = True
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._down, daemon=True),
-                         threading.Thread(target=self._up, daemon=True)]
 
-    def start(self) -> "WireTap":
-        for thread in self._threads:
-            thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(1.0)
+    def release(self) -> None:
         self.outer.close()
         self.inner.close()
 
@@ -121,12 +117,7 @@ class WireTap:
                 continue
             self.firmware_address = address  # a restarted firmware sends from a new port
             self.inner.sendto(data, ("127.0.0.1", self.daemon_port))
-            try:
-                for msg in self._down_parser.parse_buffer(data) or []:
-                    if msg.get_type() != "BAD_DATA":
-                        self.to_daemon.add(msg)
-            except Exception:  # noqa: BLE001 - forwarded anyway
-                pass
+            record(self._down_parser, data, self.to_daemon)
 
     def _up(self) -> None:
         """Daemon -> firmware, recorded."""
@@ -135,18 +126,24 @@ class WireTap:
                 data, _ = self.inner.recvfrom(65536)
             except (socket.timeout, OSError):
                 continue
-            try:
-                for msg in self.parser.parse_buffer(data) or []:
-                    if msg.get_type() != "BAD_DATA":
-                        self.from_daemon.add(msg)
-            except Exception:  # noqa: BLE001 - a packet the parser chokes on is still forwarded
-                pass
+            record(self.parser, data, self.from_daemon)
             if self.firmware_address is not None:
                 self.outer.sendto(data, self.firmware_address)
 
     def sent(self, kind: str, since: float = 0.0) -> list[Any]:
         """Messages of `kind` the daemon sent at or after time.monotonic() `since`."""
         return [r.msg for r in self.from_daemon.of(kind) if r.at >= since]
+
+
+def terminate(process: subprocess.Popen[bytes], grace_s: float) -> None:
+    """SIGTERM a still running `process`, SIGKILL it after grace_s seconds; returns once it is gone."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5.0)
 
 
 class DaemonProcess:
@@ -183,13 +180,8 @@ class DaemonProcess:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(5.0)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5.0)
+        if self.process is not None:
+            terminate(self.process, 5.0)
 
     def log_tail(self, lines: int = 30) -> str:
         """The end of the daemon's log (for failure messages)."""
@@ -199,29 +191,19 @@ class DaemonProcess:
             return "(no log)"
 
 
-class Station:
+class Station(Background):
     """A pymavlink ground station on a firmware link (the test's view): a receiver thread keeps every
     message in `received` (Recorder), a heartbeat thread sends GCS heartbeats at 1 Hz."""
 
     def __init__(self, url: str, system: int = 255, component: int = 190) -> None:
         from pymavlink import mavutil
 
+        super().__init__(self._receive, self._beat)
         self.conn = mavutil.mavlink_connection(url, source_system=system, source_component=component)
         self.received = Recorder()
         self._send_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._receive, daemon=True),
-                         threading.Thread(target=self._beat, daemon=True)]
 
-    def start(self) -> "Station":
-        for thread in self._threads:
-            thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(1.0)
+    def release(self) -> None:
         self.conn.close()
 
     def _receive(self) -> None:
@@ -281,13 +263,74 @@ class Station:
         return [(r.at, r.msg) for r in self.received.of(kind) if r.at >= since]
 
 
-def free_port() -> int:
-    """A loopback UDP port that was free a moment ago."""
-    return free_udp_port()
+class FirmwareRig:
+    """Real firmware (sim.firmware.ArduPilotSitl or Px4Sih, its second link for the daemon) + ground station +
+    tap + camera frames + daemon, as one context: a subclass's __enter__ enters the firmware, sets `autopilot`
+    and `camera_id` ((system, component)), starts `gcs` and then start_daemon()."""
 
+    name = "the firmware"  # in failure messages
 
-def free_tcp_port() -> int:
-    """A loopback TCP port that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
+    def __init__(self, firmware: Any, tmp_path: Path, overrides: dict[str, Any], prefix: str) -> None:
+        self.firmware, self.tmp_path, self.overrides, self.prefix = firmware, tmp_path, overrides, prefix
+
+    def start_daemon(self) -> None:
+        """The tap on the firmware's second link, the camera frames, and the daemon behind the tap."""
+        daemon_port = free_udp_port()
+        self.tap = WireTap(self.firmware.ports[1], daemon_port).start()
+        zenoh_port = free_tcp_port()
+        self.camera = FramePump(zenoh_port, self.prefix).start()
+        self.daemon = DaemonProcess(self.tmp_path, zenoh_port, self.prefix, f"udpin:127.0.0.1:{daemon_port}",
+                                    self.overrides).__enter__()
+
+    def __exit__(self, *exc: object) -> None:
+        for close in (lambda: self.daemon.__exit__(None, None, None), self.camera.close, self.tap.close,
+                      self.gcs.close, self.firmware.close):
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - tear down the rest
+                pass
+
+    def diagnostics(self) -> str:
+        return f"daemon log:\n{self.daemon.log_tail()}\nfirmware log:\n{self.firmware.log_tail(1500)}"
+
+    def stream_to_gcs(self, msg_id: int, hz: float, timeout: float = 15.0) -> Any:
+        """Ask the autopilot for `msg_id` on the ground-station link until it arrives (ArduPilot acknowledges
+        but does not act on requests in its first seconds); the first one."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            since = time.monotonic()
+            assert self.gcs.command(self.autopilot, SET_INTERVAL, [msg_id, 1e6 / hz]).result == 0
+            msg = self.gcs.wait(lambda m: m.get_msgId() == msg_id, 2.0, since)
+            if msg is not None:
+                return msg
+        raise AssertionError(f"{self.name} sent no message {msg_id} within {timeout} s")
+
+    def meet_camera(self, timeout: float = 60.0) -> None:
+        """The daemon's camera heartbeat reaches the ground station through the autopilot."""
+        beat = self.gcs.wait(lambda m: m.get_type() == "HEARTBEAT"
+                             and (m.get_srcSystem(), m.get_srcComponent()) == self.camera_id, timeout)
+        assert beat is not None, f"no camera heartbeat routed by {self.name}\n{self.diagnostics()}"
+
+    def select(self, timeout: float = 20.0) -> float:
+        """TRACK_RECTANGLE around the target to the camera until ACCEPTED (TEMPORARILY_REJECTED while no
+        frame has arrived); the monotonic time of the acceptance."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            ack = self.gcs.command(self.camera_id, TRACK_RECTANGLE, target_rectangle() + [0])
+            if ack.result == 0:
+                return time.monotonic()
+            assert ack.result == 1, f"TRACK_RECTANGLE answered {ack.result}"  # 1: TEMPORARILY_REJECTED
+            self.gcs.wait(lambda m: False, 0.5)  # a frame's time for the camera to start
+        raise AssertionError(f"TRACK_RECTANGLE not accepted within {timeout} s\n{self.diagnostics()}")
+
+    def mount_after(self, seconds: float) -> tuple[float, float]:
+        """The mount's reported (pitch, yaw) deg at least `seconds` from now (waits on the status stream)."""
+        since = time.monotonic() + seconds
+        status = self.gcs.wait(lambda m: m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS", seconds + 5.0, since)
+        assert status is not None, "GIMBAL_DEVICE_ATTITUDE_STATUS stopped"
+        _, pitch, yaw = euler_deg(status.q)
+        return pitch, yaw
+
+    def setpoints(self, since: float = 0.0) -> list[Any]:
+        """SET_POSITION_TARGET_LOCAL_NED the daemon sent since `since`."""
+        return self.tap.sent("SET_POSITION_TARGET_LOCAL_NED", since)

@@ -7,6 +7,7 @@ GroundStation: a pymavlink ground-station peer (udpout to the autopilot's ground
 """
 from __future__ import annotations
 
+import functools
 import os
 import socket
 import threading
@@ -20,6 +21,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20.common import MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_TYPE_QUADROTOR  # noqa: E402
 
 from service.config import ServiceConfig, config_from_mapping  # noqa: E402
+from tests.helpers import Background  # noqa: E402
 
 
 @dataclass
@@ -90,7 +92,7 @@ class UdpLink:
         self.sock.close()
 
 
-class AutopilotPeer:
+class AutopilotPeer(Background):
     """System `system_id`, component 1. Links: 'service' (udpin on service_port), 'gcs' (udpin on gcs_port)."""
 
     def __init__(self, service_port: int, gcs_port: int, system_id: int = 1,
@@ -104,21 +106,11 @@ class AutopilotPeer:
         self.extra_periodic: list[Callable[[object], object]] = []  # msg builders sent with each heartbeat
         self.links = {"service": UdpLink(service_port, system_id, 1), "gcs": UdpLink(gcs_port, system_id, 1)}
         self.from_service = Recorder()
-        self._stop = threading.Event()
         self._period = 1.0 / heartbeat_hz
         self._lock = threading.Lock()
-        self._threads = [threading.Thread(target=self._receive, args=(name,), daemon=True) for name in self.links]
-        self._threads.append(threading.Thread(target=self._beat, daemon=True))
+        super().__init__(*(functools.partial(self._receive, name) for name in self.links), self._beat)
 
-    def start(self) -> "AutopilotPeer":
-        for thread in self._threads:
-            thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(1.0)
+    def release(self) -> None:
         for conn in self.links.values():
             conn.close()
 
@@ -158,29 +150,19 @@ class AutopilotPeer:
                 other.write(msg.get_msgbuf())  # as received, signature included
 
 
-class GroundStation:
+class GroundStation(Background):
     """A pymavlink ground station (system 255, component 190) talking to the autopilot's gcs port."""
 
     def __init__(self, gcs_port: int, key: bytes | None = None) -> None:
+        super().__init__(self._receive, self._heartbeat)
         self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255, source_component=190)
         if key is not None:
             self.conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda mav, msg_id: True,
                                     initial_timestamp=int((time.time() - 1420070400) * 1e5))
         self.received = Recorder()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._receive, daemon=True)
-        self._beat = threading.Thread(target=self._heartbeat, daemon=True)
         self._send_lock = threading.Lock()
 
-    def start(self) -> "GroundStation":
-        self._thread.start()
-        self._beat.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(1.0)
-        self._beat.join(1.0)
+    def release(self) -> None:
         self.conn.close()
 
     def send(self, msg: object) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 from tests.deploy_helpers import (FPS, IMAGE, SIZE, host_arch, podman, podman_limits, select_and_track, write_config,
                                   write_target_video, zenoh_session)
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake

@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 import numpy as np
 import pytest
 
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 from tests.deploy_helpers import (IMAGE, host_arch, podman, podman_limits, select_and_track, status, write_config,
                                   write_target_video, zenoh_session)
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake

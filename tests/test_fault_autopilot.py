@@ -10,14 +10,11 @@ leaves it while the autopilot is silent; both resume by themselves when the hear
 from __future__ import annotations
 
 import re
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from tests.fault_rig import FaultRig
-from tests.test_fault_camera import TARGET, Publisher
-from tests.test_service_sources import scene
+from tests.fault_rig import TARGET, FaultRig, Feeder, Publisher
 
 GIMBAL, SETPOINT = "GIMBAL_MANAGER_SET_PITCHYAW", "SET_POSITION_TARGET_LOCAL_NED"
 TIMEOUT_S = 1.0  # mavlink.heartbeat_timeout_s in the rig
@@ -30,15 +27,7 @@ def run_silence(workdir: Path, silence_s: float) -> dict[str, Any]:
     rig = FaultRig(workdir, "zenoh", {"guidance": {"mode": "velocity", "rate_hz": 10.0}},
                    autopilot_kwargs={"custom_mode": ARDUCOPTER_GUIDED}).start()
     camera = Publisher(rig)
-    stop = threading.Event()
-
-    def stream() -> None:
-        i = 0
-        while not stop.is_set():
-            camera.publish(scene((160, 120), (80 + (i % 6) - 3, 60), 24))
-            i += 1
-    feeder = threading.Thread(target=stream, name="camera", daemon=True)
-    feeder.start()
+    feeder = Feeder(camera).start()
     ap = rig.autopilot
     try:
         rig.meet_camera()
@@ -84,8 +73,7 @@ def run_silence(workdir: Path, silence_s: float) -> dict[str, Any]:
                 "frames_tracked_while_silent": frames_during, "gimbal_resume_s": gimbal_resume_s,
                 "setpoint_resume_s": setpoint_resume_s}
     finally:
-        stop.set()
-        feeder.join(5.0)
+        feeder.close()
         code = rig.close()
         assert code == 0, rig.daemon.log_tail()
 

@@ -16,10 +16,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tests.fault_rig import ACTIVE, ERROR, REPORT_BOUND_S, FaultRig, log_time
+from tests.fault_rig import (ACTIVE, ERROR, REPORT_BOUND_S, TARGET, FaultRig, Feeder, Publisher, log_time,
+                             publish_until_tracked)
 from tests.test_service_sources import scene
 
-TARGET = (0.35, 0.3, 0.65, 0.7)  # normalised rectangle around the square of a 160x120 scene(.., (80, 60), 24)
 
 
 def write_frames(folder: Path, count: int, suffix: str = ".png") -> list[Path]:
@@ -36,8 +36,7 @@ def write_frames(folder: Path, count: int, suffix: str = ".png") -> list[Path]:
 def test_an_image_folder_removed_and_restored(tmp_path: Path) -> None:
     frames = tmp_path / "frames"
     write_frames(frames, 30)
-    rig = FaultRig(tmp_path, str(frames)).start()
-    try:
+    with FaultRig(tmp_path, str(frames)).start() as rig:
         rig.meet_camera()
         rig.select(TARGET)
         gone = tmp_path / "frames-away"
@@ -69,9 +68,6 @@ def test_an_image_folder_removed_and_restored(tmp_path: Path) -> None:
         print(f"\nimage folder removed: 275 ERROR after {report_s:.3f} s; restored: 275 ACTIVE after {resume_s:.3f} s "
               f"(source failures {status['source']['failures']}); gimbal held at zero meanwhile")
         assert report_s < REPORT_BOUND_S
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: Path) -> None:
@@ -84,8 +80,7 @@ def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: P
     for path in bad:
         data = path.read_bytes()
         path.write_bytes(data[:len(data) // 2])
-    rig = FaultRig(tmp_path, str(frames)).start()
-    try:
+    with FaultRig(tmp_path, str(frames)).start() as rig:
         rig.meet_camera()
         rig.select(TARGET)
         began = time.monotonic()
@@ -111,38 +106,6 @@ def test_truncated_jpegs_in_an_image_folder_are_skipped_and_reported(tmp_path: P
               f"{report_s:.3f} s after the first of a run (log), 275 ERROR, then ACTIVE again by itself")
         assert report_s < REPORT_BOUND_S
         assert rig.daemon.alive()
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
-
-
-class Publisher:
-    """Publishes frames from the test thread on the rig's Zenoh session at `fps` (pacing like a camera)."""
-
-    def __init__(self, rig: FaultRig, fps: float = 15.0) -> None:
-        assert rig.sim is not None
-        self.sim = rig.sim
-        self.period = 1.0 / fps
-        self.frame_id = 0
-        self.next_s = time.monotonic()
-
-    def publish(self, image: np.ndarray) -> float:
-        """Send one frame at the next period; returns when it was sent (time.monotonic())."""
-        wait_s = self.next_s - time.monotonic()
-        if wait_s > 0:
-            time.sleep(wait_s)  # camera pacing, not synchronisation
-        self.next_s = max(self.next_s + self.period, time.monotonic())
-        self.frame_id += 1
-        self.sim.publish(image, self.frame_id)
-        return time.monotonic()
-
-    def publish_raw(self, payload: bytes) -> float:
-        wait_s = self.next_s - time.monotonic()
-        if wait_s > 0:
-            time.sleep(wait_s)  # camera pacing, not synchronisation
-        self.next_s = max(self.next_s + self.period, time.monotonic())
-        self.sim._publisher.put(payload)  # noqa: SLF001 - garbage on the frame key, as a broken camera sends
-        return time.monotonic()
 
 
 def garbage_payloads(count: int, seed: int = 42) -> list[bytes]:
@@ -163,30 +126,17 @@ def garbage_payloads(count: int, seed: int = 42) -> list[bytes]:
 
 
 def test_garbage_on_the_zenoh_frame_source(tmp_path: Path) -> None:
-    rig = FaultRig(tmp_path, "zenoh").start()
-    camera = Publisher(rig)
-    good = scene((160, 120), (80, 60), 24)
-    try:
-        assert rig.sim is not None
-        deadline = time.monotonic() + 120.0
-        while rig.sim.telemetry.wait_frame(1, 0.0) is None:  # until the daemon subscribes and tracks
-            assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
-            camera.publish(good)
+    with FaultRig(tmp_path, "zenoh").start() as rig:
+        camera = Publisher(rig)
+        good = scene((160, 120), (80, 60), 24)
+        publish_until_tracked(rig, camera, good)
         started = [camera.frame_id]
-        import threading
-        stop = threading.Event()
-
-        def stream() -> None:  # frames keep coming during the handshake and the selection
-            while not stop.is_set():
-                camera.publish(good)
-        feeder = threading.Thread(target=stream, daemon=True)
-        feeder.start()
+        feeder = Feeder(camera, lambda i: good).start()  # frames keep coming during the handshake and the selection
         try:
             rig.meet_camera()
             rig.select(TARGET)
         finally:
-            stop.set()
-            feeder.join(5.0)
+            feeder.close()
         garbage = garbage_payloads(20)
         first_bad = camera.publish_raw(garbage[0])
         for payload in garbage[1:]:
@@ -208,36 +158,19 @@ def test_garbage_on_the_zenoh_frame_source(tmp_path: Path) -> None:
               f"(frames before: {started[0]})")
         assert report_s < REPORT_BOUND_S
         assert rig.daemon.alive()
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Path) -> None:
     """160x120 frames, then the same scene at 320x240 (a camera switching mode): the box is rescaled with
     the image (same field of view), the tracker re-initialised there, the change logged and counted, the
     new size announced (CAMERA_INFORMATION) and tracking goes on at the target."""
-    rig = FaultRig(tmp_path, "zenoh").start()
-    camera = Publisher(rig)
-    try:
-        assert rig.sim is not None
-        deadline = time.monotonic() + 120.0
-        while rig.sim.telemetry.wait_frame(1, 0.0) is None:  # until the daemon subscribes and tracks
-            assert rig.daemon.alive() and time.monotonic() < deadline, rig.daemon.log_tail()
-            camera.publish(scene((160, 120), (80, 60), 24))
+    with FaultRig(tmp_path, "zenoh").start() as rig:
+        camera = Publisher(rig)
+        publish_until_tracked(rig, camera, scene((160, 120), (80, 60), 24))
         small = lambda i: scene((160, 120), (80 + (i % 6) - 3, 60), 24)  # noqa: E731
         large = lambda i: scene((320, 240), (160 + 2 * ((i % 6) - 3), 120), 48)  # noqa: E731
-        import threading
-        stop = threading.Event()
         size = ["small"]
-
-        def stream() -> None:
-            i = 0
-            while not stop.is_set():
-                camera.publish(small(i) if size[0] == "small" else large(i))
-                i += 1
-        feeder = threading.Thread(target=stream, daemon=True)
-        feeder.start()
+        feeder = Feeder(camera, lambda i: small(i) if size[0] == "small" else large(i)).start()
         try:
             rig.meet_camera()
             rig.select(TARGET)
@@ -252,8 +185,7 @@ def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Pa
             assert settled is not None
             later = [rig.wait_track(lambda s: s["image_size"] == [320, 240], 5.0) for _ in range(15)]
         finally:
-            stop.set()
-            feeder.join(5.0)
+            feeder.close()
         for sample in [settled, *later]:
             assert sample is not None and sample["state"] in ("tracking", "recovered")
             x, y, w, h = sample["box_px"]
@@ -269,9 +201,6 @@ def test_a_frame_size_change_mid_run_rescales_the_track_and_says_so(tmp_path: Pa
               f"{[round(v) for v in settled['box_px']]}), logged event=frame_size_changed, counters.resized 1, "
               f"CAMERA_INFORMATION re-sent")
         assert report_s < REPORT_BOUND_S
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()
 
 
 def test_a_v4l2_open_failing_then_succeeding(tmp_path: Path) -> None:
@@ -281,9 +210,8 @@ def test_a_v4l2_open_failing_then_succeeding(tmp_path: Path) -> None:
     device.touch()
     busy, unplugged = Path(f"{device}.busy"), Path(f"{device}.unplugged")
     busy.touch()
-    rig = FaultRig(tmp_path, None, {"source": {"kind": "v4l2", "device": str(device)}},
-                   module="tests.fake_v4l2_service").start()
-    try:
+    with FaultRig(tmp_path, None, {"source": {"kind": "v4l2", "device": str(device)}},
+                  module="tests.fake_v4l2_service").start() as rig:
         assert rig.sim is not None
         started = time.monotonic()
         deadline = started + 60.0
@@ -319,6 +247,3 @@ def test_a_v4l2_open_failing_then_succeeding(tmp_path: Path) -> None:
               f"{open_s:.3f} s after; unplugged mid-track: 275 ERROR after {report_s:.3f} s; back: 275 ACTIVE after "
               f"{resume_s:.3f} s")
         assert report_s < REPORT_BOUND_S
-    finally:
-        code = rig.close()
-    assert code == 0, rig.daemon.log_tail()

@@ -20,9 +20,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # noqa: E402
 
-from tests.fault_rig import CAMERA, FaultRig  # noqa: E402
-from tests.test_fault_camera import TARGET, Publisher  # noqa: E402
-from tests.test_service_sources import scene  # noqa: E402
+from tests.fault_rig import CAMERA, TARGET, FaultRig, Feeder, Publisher  # noqa: E402
 
 NAN = float("nan")
 # (command, params, expected MAV_RESULT): a ground station polling and mistyping, not selecting (a flood of
@@ -104,15 +102,7 @@ def run_flood(workdir: Path, rate_hz: float, seconds: float) -> dict[str, Any]:
     (the baseline is the mean of the two windows around the flood); the figures."""
     rig = FaultRig(workdir, "zenoh").start()
     camera = Publisher(rig, fps=30.0)
-    stop = threading.Event()
-
-    def stream() -> None:
-        i = 0
-        while not stop.is_set():
-            camera.publish(scene((160, 120), (80 + (i % 6) - 3, 60), 24))
-            i += 1
-    feeder = threading.Thread(target=stream, name="camera", daemon=True)
-    feeder.start()
+    feeder = Feeder(camera).start()
     flooder: Flooder | None = None
     try:
         rig.meet_camera()
@@ -148,8 +138,7 @@ def run_flood(workdir: Path, rate_hz: float, seconds: float) -> dict[str, Any]:
                 "baseline_cpu": baseline_cpu, "flood_cpu": flood_cpu, "refusals": refusals,
                 "dropped_frames": status["counters"]["dropped_frames"]}
     finally:
-        stop.set()
-        feeder.join(5.0)
+        feeder.close()
         code = rig.close()
         assert code == 0, rig.daemon.log_tail()
 

@@ -10,13 +10,10 @@ finds no marker.
 from __future__ import annotations
 
 import signal
-import threading
 import time
 from pathlib import Path
 
-from tests.fault_rig import IDLE, FaultRig
-from tests.test_fault_camera import TARGET, Publisher
-from tests.test_service_sources import scene
+from tests.fault_rig import IDLE, TARGET, FaultRig, Feeder, Publisher
 
 
 def test_sigkill_then_restart_comes_back_idle_and_says_so(tmp_path: Path) -> None:
@@ -24,15 +21,7 @@ def test_sigkill_then_restart_comes_back_idle_and_says_so(tmp_path: Path) -> Non
     runtime.mkdir()
     rig = FaultRig(tmp_path, "zenoh", env={"RUNTIME_DIRECTORY": str(runtime)}).start()
     camera = Publisher(rig)
-    stop = threading.Event()
-
-    def stream() -> None:
-        i = 0
-        while not stop.is_set():
-            camera.publish(scene((160, 120), (80 + (i % 6) - 3, 60), 24))
-            i += 1
-    feeder = threading.Thread(target=stream, name="camera", daemon=True)
-    feeder.start()
+    feeder = Feeder(camera).start()
     try:
         rig.meet_camera()
         first = rig.status()
@@ -76,7 +65,6 @@ def test_sigkill_then_restart_comes_back_idle_and_says_so(tmp_path: Path) -> Non
         print(f"\nSIGKILL while tracking, started again: tracking idle {back_s:.2f} s after the start "
               f"(log event=restarted_after_unclean_exit previous_pid={killed_pid}, status run.previous_exit unclean)")
     finally:
-        stop.set()
-        feeder.join(5.0)
+        feeder.close()
         code = rig.close()
     assert code == 0, rig.daemon.log_tail()

@@ -10,45 +10,21 @@ status `zenoh.state`, the station's log and drone list), and both resume by them
 from __future__ import annotations
 
 import json
-import threading
 import time
 import urllib.request
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from sim.daemon import Daemon
+from sim.ports import free_tcp_port, free_udp_port
 from sim.web_station import WebStation
 from sim.zenoh_link import SimCamera, ZenohEndpoints
-from tests.conftest import free_tcp_port, free_udp_port
+from tests.helpers import LocalCamera
 from tests.zenoh_router import Router
 
 PREFIX = "jsar"
 START_TIMEOUT_S = 60.0  # the daemon's and the station's start on a loaded 2-core machine
 REPORT_BOUND_S = 1.0  # issue 42: the fault is reported within a second
-
-
-class Camera:
-    """The drone's own camera, connected to the daemon directly: a grey frame 15 times a second, ids from 1."""
-
-    def __init__(self, sim: SimCamera) -> None:
-        self.sim = sim
-        self.image = np.full((120, 160, 3), 90, np.uint8)
-        self.frame_id = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="camera", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self.frame_id += 1
-            self.sim.publish(self.image, self.frame_id)
-            self._stop.wait(1 / 15)  # camera pacing, not synchronisation
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
 
 
 def wait_status(sim: SimCamera, predicate: Callable[[dict[str, Any]], bool],
@@ -91,7 +67,7 @@ def test_router_restart_under_a_running_daemon_and_web_station(tmp_path: Path) -
     daemon = Daemon(tmp_path, overrides, f"udpout:127.0.0.1:{free_udp_port()}").start()
     sim = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{local_port}",), prefix=PREFIX))
     daemon.on_exit(sim.telemetry.mark_source_gone)
-    camera = Camera(sim)
+    camera = LocalCamera(sim)  # the drone's own camera, connected to the daemon directly
     station = WebStation([f"udpin:127.0.0.1:{free_udp_port()}"], [router_endpoint],
                          extra_args=("--zenoh-mode", "client"))
     second_router: Router | None = None
@@ -146,7 +122,7 @@ def test_router_restart_under_a_running_daemon_and_web_station(tmp_path: Path) -
         assert daemon_report_s < REPORT_BOUND_S and station_report_s < REPORT_BOUND_S
     finally:
         station.stop()
-        camera.stop()
+        camera.close()
         sim.close()
         code = daemon.stop()
         router.kill()

@@ -20,9 +20,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from service.control.geo import GroundTarget  # noqa: E402
 from service.mavlink.messages import follow_target  # noqa: E402
 from sim.firmware import COPTER_BRAKE, COPTER_GUIDED, ArduPilotSitl, connect, euler_deg  # noqa: E402
-from tests.firmware_peers import (FRAME_SIZE, SET_INTERVAL, STOP_TRACKING, TARGET_PX, TRACK_RECTANGLE,  # noqa: E402
-                                  DaemonProcess, FramePump, Station, WireTap, free_port, free_tcp_port,
-                                  target_rectangle)
+from tests.firmware_peers import FRAME_SIZE, STOP_TRACKING, TARGET_PX, FirmwareRig, Station, WireTap  # noqa: E402
 
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
 HFOV_DEG = 70.0  # config.yaml's camera.hfov_deg
@@ -30,77 +28,26 @@ GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS = 285, 281
 COPTER_FOLLOW = 23
 
 
-class Rig:
-    """SITL + ground station + tap + camera frames + daemon, as one context."""
+class Rig(FirmwareRig):
+    """ArduCopter SITL + ground station + tap + camera frames + daemon, as one context."""
+
+    name = "ArduPilot"
 
     def __init__(self, tmp_path: Path, overrides: dict[str, Any], speedup: float = 1.0, links: int = 2,
                  params: dict[str, float] | None = None) -> None:
-        self.firmware = ArduPilotSitl(speedup=speedup, links=links, params=params)
-        self.tmp_path, self.overrides = tmp_path, overrides
+        super().__init__(ArduPilotSitl(speedup=speedup, links=links, params=params), tmp_path, overrides, "apfw")
+        self.autopilot, self.camera_id = AUTOPILOT, CAMERA
 
     def __enter__(self) -> "Rig":
         self.firmware.__enter__()
         self.gcs = Station(self.firmware.gcs_url).start()
-        daemon_port = free_port()
-        self.tap = WireTap(self.firmware.ports[1], daemon_port).start()
-        zenoh_port = free_tcp_port()
-        self.camera = FramePump(zenoh_port, "apfw").start()
-        self.daemon = DaemonProcess(self.tmp_path, zenoh_port, "apfw", f"udpin:127.0.0.1:{daemon_port}",
-                                    self.overrides).__enter__()
+        self.start_daemon()
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        for part in (self.daemon.__exit__, self.camera.close, self.tap.close, self.gcs.close, self.firmware.close):
-            try:
-                part(*exc) if part == self.daemon.__exit__ else part()
-            except Exception:  # noqa: BLE001 - tear down the rest
-                pass
-
-    def diagnostics(self) -> str:
-        return f"daemon log:\n{self.daemon.log_tail()}\nfirmware log:\n{self.firmware.log_tail(1500)}"
-
-    def stream_to_gcs(self, msg_id: int, hz: float, timeout: float = 15.0) -> Any:
-        """Ask ArduPilot for `msg_id` on the ground-station link until it arrives (requests in its first
-        seconds are acknowledged but not acted on); the first one."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            since = time.monotonic()
-            assert self.gcs.command(AUTOPILOT, SET_INTERVAL, [msg_id, 1e6 / hz]).result == 0
-            msg = self.gcs.wait(lambda m: m.get_msgId() == msg_id, 2.0, since)
-            if msg is not None:
-                return msg
-        raise AssertionError(f"ArduPilot sent no message {msg_id} within {timeout} s")
-
-    def meet_camera(self, timeout: float = 60.0) -> None:
-        """The daemon's camera heartbeat reaches the ground station through ArduPilot."""
-        beat = self.gcs.wait(lambda m: m.get_type() == "HEARTBEAT" and (m.get_srcSystem(), m.get_srcComponent())
-                             == CAMERA, timeout)
-        assert beat is not None, f"no camera heartbeat routed by ArduPilot\n{self.diagnostics()}"
-
-    def select(self, timeout: float = 20.0) -> float:
-        """TRACK_RECTANGLE around the target to the camera until ACCEPTED (TEMPORARILY_REJECTED while no
-        frame has arrived); the monotonic time of the acceptance."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            ack = self.gcs.command(CAMERA, TRACK_RECTANGLE, target_rectangle() + [0])
-            if ack.result == 0:
-                return time.monotonic()
-            assert ack.result == 1, f"TRACK_RECTANGLE answered {ack.result}"  # 1: TEMPORARILY_REJECTED
-            self.gcs.wait(lambda m: False, 0.5)  # a frame's time for the camera to start
-        raise AssertionError(f"TRACK_RECTANGLE not accepted within {timeout} s\n{self.diagnostics()}")
 
     def mount(self) -> tuple[float, float]:
         """The mount's latest reported (pitch, yaw) in degrees (GIMBAL_DEVICE_ATTITUDE_STATUS)."""
         status = self.gcs.latest("GIMBAL_DEVICE_ATTITUDE_STATUS", AUTOPILOT)
         assert status is not None, "no GIMBAL_DEVICE_ATTITUDE_STATUS"
-        _, pitch, yaw = euler_deg(status.q)
-        return pitch, yaw
-
-    def mount_after(self, seconds: float) -> tuple[float, float]:
-        """The mount's reported (pitch, yaw) deg at least `seconds` from now (waits on the status stream)."""
-        since = time.monotonic() + seconds
-        status = self.gcs.wait(lambda m: m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS", seconds + 5.0, since)
-        assert status is not None, "GIMBAL_DEVICE_ATTITUDE_STATUS stopped"
         _, pitch, yaw = euler_deg(status.q)
         return pitch, yaw
 
@@ -117,10 +64,6 @@ class Rig:
         msg = self.gcs.wait(lambda m: m.get_type() == "LOCAL_POSITION_NED", after + 5.0, since)
         assert msg is not None, "LOCAL_POSITION_NED stopped"
         return msg
-
-    def setpoints(self, since: float = 0.0) -> list[Any]:
-        """SET_POSITION_TARGET_LOCAL_NED the daemon sent since `since`."""
-        return self.tap.sent("SET_POSITION_TARGET_LOCAL_NED", since)
 
     def settled_mount(self, timeout: float = 10.0) -> tuple[float, float]:
         """The mount's (pitch, yaw) deg once two reports 0.5 s apart agree within 0.2 deg (just after boot

@@ -19,19 +19,20 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from sim.firmware import PX4_MAIN_OFFBOARD, PX4_MAIN_POSCTL, Px4Sih, connect, euler_deg, px4_main_mode  # noqa: E402
-from tests.firmware_peers import (SET_INTERVAL, STOP_TRACKING, TRACK_RECTANGLE, DaemonProcess, FramePump,  # noqa: E402
-                                  Station, WireTap, free_port, free_tcp_port, target_rectangle)
+from tests.firmware_peers import STOP_TRACKING, FirmwareRig, Station  # noqa: E402
 
 GIMBAL_DEVICE_ATTITUDE_STATUS, GIMBAL_MANAGER_STATUS = 285, 281
 
 
-class Px4Rig:
+class Px4Rig(FirmwareRig):
     """PX4 SIH + ground station + tap + camera frames + daemon, as one context. `before_daemon(firmware)`
     runs with the firmware up and nothing else on its GCS port (a pilot's takeoff on a plain connection)."""
 
+    name = "PX4"
+
     def __init__(self, tmp_path: Path, overrides: dict[str, Any], before_daemon: Any = None) -> None:
-        self.firmware = Px4Sih()
-        self.tmp_path, self.overrides, self.before_daemon = tmp_path, overrides, before_daemon
+        super().__init__(Px4Sih(), tmp_path, overrides, "px4fw")
+        self.before_daemon = before_daemon
 
     def __enter__(self) -> "Px4Rig":
         self.firmware.__enter__()
@@ -43,57 +44,8 @@ class Px4Rig:
         # PX4 boots in ~5 s; udpin sends nothing before it has heard the peer
         if self.heartbeat(0.0, timeout=60.0) is None:
             raise AssertionError(f"no PX4 heartbeat\n{self.firmware.log_tail()}")
-        daemon_port = free_port()
-        self.tap = WireTap(self.firmware.ports[1], daemon_port).start()
-        zenoh_port = free_tcp_port()
-        self.camera = FramePump(zenoh_port, "px4fw").start()
-        self.daemon = DaemonProcess(self.tmp_path, zenoh_port, "px4fw", f"udpin:127.0.0.1:{daemon_port}",
-                                    self.overrides).__enter__()
+        self.start_daemon()
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        for close in (lambda: self.daemon.__exit__(None, None, None), self.camera.close, self.tap.close,
-                      self.gcs.close, self.firmware.close):
-            try:
-                close()
-            except Exception:  # noqa: BLE001 - tear down the rest
-                pass
-
-    def diagnostics(self) -> str:
-        return f"daemon log:\n{self.daemon.log_tail()}\nfirmware log:\n{self.firmware.log_tail(1500)}"
-
-    def stream_to_gcs(self, msg_id: int, hz: float, timeout: float = 15.0) -> Any:
-        """Ask PX4 for `msg_id` on the ground-station link until it arrives; the first one."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            since = time.monotonic()
-            assert self.gcs.command(self.autopilot, SET_INTERVAL, [msg_id, 1e6 / hz]).result == 0
-            msg = self.gcs.wait(lambda m: m.get_msgId() == msg_id, 2.0, since)
-            if msg is not None:
-                return msg
-        raise AssertionError(f"PX4 sent no message {msg_id} within {timeout} s")
-
-    def meet_camera(self, timeout: float = 60.0) -> None:
-        beat = self.gcs.wait(lambda m: m.get_type() == "HEARTBEAT"
-                             and (m.get_srcSystem(), m.get_srcComponent()) == self.camera_id, timeout)
-        assert beat is not None, f"no camera heartbeat forwarded by PX4\n{self.diagnostics()}"
-
-    def select(self, timeout: float = 20.0) -> float:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            ack = self.gcs.command(self.camera_id, TRACK_RECTANGLE, target_rectangle() + [0])
-            if ack.result == 0:
-                return time.monotonic()
-            assert ack.result == 1, f"TRACK_RECTANGLE answered {ack.result}"
-            self.gcs.wait(lambda m: False, 0.5)
-        raise AssertionError(f"TRACK_RECTANGLE not accepted within {timeout} s\n{self.diagnostics()}")
-
-    def mount_after(self, seconds: float) -> tuple[float, float]:
-        since = time.monotonic() + seconds
-        status = self.gcs.wait(lambda m: m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS", seconds + 5.0, since)
-        assert status is not None, "GIMBAL_DEVICE_ATTITUDE_STATUS stopped"
-        _, pitch, yaw = euler_deg(status.q)
-        return pitch, yaw
 
     def primary_becomes(self, who: tuple[int, int], since: float, timeout: float = 5.0) -> bool:
         return self.gcs.wait(lambda m: m.get_type() == "GIMBAL_MANAGER_STATUS"
@@ -103,9 +55,6 @@ class Px4Rig:
         """(pitch, yaw) angular velocity rad/s of every GIMBAL_MANAGER_SET_ATTITUDE the daemon sent since `since`."""
         return [(m.angular_velocity_y, m.angular_velocity_z)
                 for m in self.tap.sent("GIMBAL_MANAGER_SET_ATTITUDE", since)]
-
-    def setpoints(self, since: float = 0.0) -> list[Any]:
-        return self.tap.sent("SET_POSITION_TARGET_LOCAL_NED", since)
 
     def heartbeat(self, since: float, condition: Any = lambda m: True, timeout: float = 5.0) -> Any:
         return self.gcs.wait(lambda m: m.get_type() == "HEARTBEAT" and (m.get_srcSystem(), m.get_srcComponent())

@@ -27,9 +27,10 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from sim.firmware import ArduPilotSitl  # noqa: E402
-from tests.conftest import require  # noqa: E402
+from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
 from tests.firmware_peers import (REPO, TRACK_RECTANGLE, DaemonProcess, FramePump, Station, WireTap,  # noqa: E402
-                                  free_port, free_tcp_port, target_rectangle)
+                                  target_rectangle, terminate)
+from tests.helpers import require  # noqa: E402
 
 MAVPROXY = Path(os.environ.get("JSAR_MAVPROXY", REPO / ".venv-mavproxy" / "bin" / "mavproxy.py"))
 AUTOPILOT, CAMERA = (1, 1), (1, 100)
@@ -60,13 +61,7 @@ class MavProxyRouter:
                                             env={**os.environ, "MAVLINK20": "1", "HOME": str(workdir)})
 
     def close(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(10.0)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(5.0)
+        terminate(self.process, 10.0)
 
     def log_tail(self) -> str:
         return self.log_path.read_text(errors="replace")[-1500:]
@@ -75,7 +70,7 @@ class MavProxyRouter:
 def test_mavproxy_routes_autopilot_traffic_to_each_output_but_not_between_camera_and_ground_station(
         tmp_path: Path) -> None:
     with ArduPilotSitl(links=1) as firmware:
-        gcs_port, tap_port, daemon_port, zenoh_port = free_port(), free_port(), free_port(), free_tcp_port()
+        gcs_port, tap_port, daemon_port, zenoh_port = free_udp_port(), free_udp_port(), free_udp_port(), free_tcp_port()
         router = MavProxyRouter(f"udpin:127.0.0.1:{firmware.ports[0]}",
                                 [f"udpout:127.0.0.1:{tap_port}", f"udpout:127.0.0.1:{gcs_port}"], tmp_path / "mavproxy")
         gcs = Station(f"udpin:127.0.0.1:{gcs_port}").start()

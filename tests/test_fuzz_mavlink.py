@@ -23,7 +23,7 @@ from bench.fuzz import (GCS, HANDLED_COMMANDS, MAVLINK_KINDS, encode, mavlink_in
 from service.config import MavlinkConfig  # noqa: E402
 from service.mavlink.commands import decide  # noqa: E402
 from service.mavlink.link import MavlinkLink  # noqa: E402
-from tests.conftest import free_udp_port  # noqa: E402
+from sim.ports import free_udp_port  # noqa: E402
 
 
 def test_the_fuzzer_sends_every_command_the_camera_decides_on() -> None:

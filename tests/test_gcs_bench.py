@@ -16,7 +16,7 @@ import cv2
 import pytest
 import yaml
 
-from tests.conftest import free_udp_port
+from sim.ports import free_udp_port
 from tests.test_service_sources import scene
 
 REPO = Path(__file__).resolve().parents[1]

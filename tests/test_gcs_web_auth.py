@@ -14,7 +14,7 @@ from typing import Iterator
 import pytest
 
 from gcs.web.auth import MIN_TOKEN_CHARS, TOKEN_ENV, Sessions, exposure_problem, load_token, token_matches
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 
 REPO = Path(__file__).resolve().parents[1]
 TOKEN = "correct-horse-battery-staple-42"

@@ -126,7 +126,6 @@ def longterm_seed0(shared_set) -> dict[str, object]:
 
 @pytest.mark.parametrize("tracker", ["jsar", "jsar-re"])
 @pytest.mark.slow
-@pytest.mark.data
 def test_one_pass_mean_auc_stays_above_its_floor(one_pass, tracker: str) -> None:
     row = one_pass[tracker]
     assert not row["errors"], row["errors"]
@@ -136,7 +135,6 @@ def test_one_pass_mean_auc_stays_above_its_floor(one_pass, tracker: str) -> None
 
 
 @pytest.mark.slow
-@pytest.mark.data
 def test_longterm_reacquisition_floor_and_false_reinit_ceiling(longterm_seed0) -> None:
     row = longterm_seed0
     assert not row["errors"], row["errors"]

@@ -237,7 +237,6 @@ def test_match_map_is_a_cosine() -> None:
 
 # ---- the shared real frames ------------------------------------------------------------------------------
 
-@pytest.mark.data
 def test_target_embedding_is_stable_and_closer_to_itself_later_than_to_other_windows(
         data_root: Path, net8: FeatureNet, net16: FeatureNet) -> None:
     from bench.learnt import separation
@@ -253,7 +252,6 @@ def test_target_embedding_is_stable_and_closer_to_itself_later_than_to_other_win
         assert r["pairs"] >= 0.93
 
 
-@pytest.mark.data
 def test_dense_search_finds_the_target_in_a_later_frame(data_root: Path, net16: FeatureNet) -> None:
     from bench.learnt import pair_frames
     from jsar.eval.dataset import load_sequence

@@ -22,7 +22,7 @@ from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
                                   search_cycle, track_speed)
 from jsar.tracking.jsar_tracker import JsarTracker
-from tests.conftest import real_sequence
+from tests.helpers import real_sequence
 
 TARGET = 24  # px, side of the synthetic target
 Box = tuple[float, float, float, float]
@@ -908,7 +908,6 @@ def _load_real(root, name: str, count: int) -> tuple[list[np.ndarray], np.ndarra
     return [sequence.read_frame(index) for index in range(count)], sequence.groundtruth[:count]
 
 
-@pytest.mark.data
 @pytest.mark.slow
 def test_real_sequence_injected_occlusion_is_detected_and_recovered(data_root):
     # OTB Crossing: a pedestrian; frames 40..51 the target region (gt box + 4 px) is overwritten by

@@ -29,15 +29,15 @@ from service.config import ConfigError, ZenohConfig, ZenohTlsConfig, config_from
 from service.sources.zenoh_wire import encode_frame
 from service.telemetry import access_control_section, insecure_endpoints, open_session, zenoh_config
 from sim.daemon import Daemon
+from sim.ports import free_tcp_port, free_udp_port
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 from sim.web_station import WebStation
-from tests.conftest import free_tcp_port, free_udp_port
+from tests.helpers import LocalCamera
 from tests.zenoh_router import Router
 
 ROOT = Path(__file__).resolve().parent.parent
 PREFIX = "jsar"
-CAMERA_SIZE = (160, 120)  # (width, height) of the local camera's frames
-INTRUDER_SIZE = (96, 64)  # of the frames a read-only peer tries to publish
+INTRUDER_SIZE = (96, 64)  # of the frames a read-only peer tries to publish (the local camera's: 160x120)
 START_TIMEOUT_S = 60.0  # the daemon's start (imports, Zenoh) on a loaded 2-core machine
 
 needs_openssl = pytest.mark.skipif(shutil.which("openssl") is None or shutil.which("sh") is None,
@@ -76,29 +76,6 @@ def access_list() -> dict[str, Any]:
     return access
 
 
-class Camera:
-    """The drone's local camera: frames of CAMERA_SIZE on `<prefix>/camera/frame` over loopback tcp, 15 a second,
-    ids from 1; `burst(publisher, first_id, n, size)` interleaves n extra frames (other ids, other size)."""
-
-    def __init__(self, sim: SimCamera) -> None:
-        self.sim = sim
-        self.image = np.full((CAMERA_SIZE[1], CAMERA_SIZE[0], 3), 90, np.uint8)
-        self.frame_id = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="camera", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self.frame_id += 1
-            self.sim.publish(self.image, self.frame_id)
-            self._stop.wait(1 / 15)  # camera pacing, not synchronisation
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Two CAs made by the docs' recipe: `ours` (drone-1, gcs, viewer) and `other` (its own gcs)."""
@@ -129,14 +106,14 @@ def drone(pki: dict[str, Path], tmp_path_factory: pytest.TempPathFactory):
     daemon = Daemon(tmp_path_factory.mktemp("daemon"), overrides, f"udpout:127.0.0.1:{free_udp_port()}").start()
     sim = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{local_port}",), prefix=PREFIX))
     daemon.on_exit(sim.telemetry.mark_source_gone)
-    camera = Camera(sim)
+    camera = LocalCamera(sim)
     try:
         if sim.telemetry.wait_frame(1, START_TIMEOUT_S) is None:
             raise daemon.exited_error("at start") if not daemon.alive() else AssertionError(
                 f"no telemetry from the daemon within {START_TIMEOUT_S} s; its log:\n{daemon.log_tail()}")
         yield daemon, camera, tls_endpoint
     finally:
-        camera.stop()
+        camera.close()
         sim.close()
         code = daemon.stop()
         assert code == 0, f"the daemon exited {code}; its log:\n{daemon.log_tail()}"
@@ -313,7 +290,7 @@ def test_through_a_tls_router_the_station_is_served_and_others_are_refused(pki, 
     daemon = Daemon(tmp_path / "daemon", overrides, f"udpout:127.0.0.1:{free_udp_port()}").start()
     sim = SimCamera(ZenohEndpoints(connect=(f"tcp/127.0.0.1:{local_port}",), prefix=prefix))
     daemon.on_exit(sim.telemetry.mark_source_gone)
-    camera = Camera(sim)
+    camera = LocalCamera(sim)
     station = WebStation([f"udpin:127.0.0.1:{free_udp_port()}"], [router_endpoint], extra_args=(
         "--zenoh-mode", "client", "--zenoh-tls-ca", str(ours / "ca.crt"), "--zenoh-tls-cert", str(ours / "gcs.crt"),
         "--zenoh-tls-key", str(ours / "gcs.key")))
@@ -352,7 +329,7 @@ def test_through_a_tls_router_the_station_is_served_and_others_are_refused(pki, 
         for listener in listeners.values():
             listener.close()
         station.stop()
-        camera.stop()
+        camera.close()
         sim.close()
         code = daemon.stop()
         router.kill()

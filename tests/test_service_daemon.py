@@ -16,9 +16,9 @@ import cv2
 import pytest
 import yaml
 
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
+from tests.helpers import write_square_frames
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake
-from tests.test_service_sources import scene
 
 REPO = Path(__file__).resolve().parents[1]
 UNIT = REPO / "deploy" / "jsar-service.service"
@@ -46,10 +46,7 @@ def test_systemd_unit_verifies(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def frames_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    folder = tmp_path_factory.mktemp("daemon_frames")
-    for i in range(20):
-        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (100 - i, 50), 20))
-    return folder
+    return write_square_frames(tmp_path_factory.mktemp("daemon_frames"), 20, (100, 50))
 
 
 def _recv_until(sock: socket.socket, wanted: str, timeout_s: float) -> list[str]:

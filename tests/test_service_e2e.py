@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from service.app import Service
-from tests.conftest import free_tcp_port, free_udp_port, real_sequence
+from sim.ports import free_tcp_port, free_udp_port
+from tests.helpers import real_sequence
 from tests.service_peers import AutopilotPeer, GroundStation, Recorder, RunningService, service_config
 
 SEQUENCE = "OTB_Crossing"  # 360x240, 120 frames, a pedestrian crossing from right of centre to left
@@ -34,7 +35,6 @@ def write_video(folder: Path, path: Path) -> tuple[int, int, int]:
     return len(images), width, height
 
 
-@pytest.mark.data
 @pytest.mark.slow
 def test_track_rectangle_on_a_real_sequence_end_to_end(data_root: Path, tmp_path: Path) -> None:
     import zenoh

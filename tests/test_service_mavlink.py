@@ -10,7 +10,8 @@ import cv2
 import pytest
 
 from service.app import Service
-from tests.conftest import free_udp_port
+from sim.ports import free_udp_port
+from tests.helpers import write_square_frames
 from tests.service_peers import AutopilotPeer, GroundStation, RunningService, service_config
 from tests.test_service_sources import scene
 
@@ -23,10 +24,7 @@ NAN = float("nan")
 
 @pytest.fixture(scope="module")
 def frames_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    folder = tmp_path_factory.mktemp("frames")
-    for i in range(30):
-        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (110 - i, 40), 20))
-    return folder
+    return write_square_frames(tmp_path_factory.mktemp("frames"), 30, (110, 40))
 
 
 class Rig:

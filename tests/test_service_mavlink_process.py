@@ -16,8 +16,10 @@ from typing import Iterator
 import pytest
 import yaml
 
+from bench.fuzz import zenoh_session
 from service.sources.zenoh_wire import encode_frame
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
+from tests.helpers import write_square_frames
 from tests.service_peers import AutopilotPeer, GroundStation
 from tests.test_service_sources import scene
 
@@ -57,17 +59,6 @@ def daemon_config(service_port: int, zenoh_port: int, source: dict, mavlink: dic
             "zenoh": {"listen": [f"tcp/127.0.0.1:{zenoh_port}"], "prefix": "proc"},
             "video": {"preview": {"enabled": False}},
             "logging": {"level": "DEBUG"}}
-
-
-def zenoh_peer(port: int) -> object:
-    """A Zenoh peer connected to the daemon's listen endpoint only (no multicast scouting)."""
-    import zenoh
-
-    config = zenoh.Config()
-    config.insert_json5("mode", '"peer"')
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    return zenoh.open(config)
 
 
 def query_status(session: object, timeout_s: float = 20.0) -> dict:
@@ -112,7 +103,7 @@ def test_a_selection_before_the_first_frame_is_temporarily_rejected_then_accepte
         assert ack is not None and ack.result == TEMPORARILY_REJECTED, ack
         text = "".join(r.msg.text for r in gcs.received.of("STATUSTEXT"))  # one text in 50-character chunks
         assert text.startswith("TRACK_RECTANGLE TEMPORARILY_REJECTED: no camera frame yet"), text
-        session = zenoh_peer(zenoh_port)
+        session = zenoh_session(zenoh_port)
         status = query_status(session)
         assert status["source"]["state"] == "starting" and status["track"]["state"] == "idle"
         assert status["counters"]["mavlink_rejected_temporarily"] == 1
@@ -169,12 +160,7 @@ def test_keygen_writes_a_0600_key_of_a_printed_passphrase_and_refuses_to_overwri
 
 @pytest.fixture(scope="module")
 def frames_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    import cv2
-
-    folder = tmp_path_factory.mktemp("signing_frames")
-    for i in range(20):
-        cv2.imwrite(str(folder / f"{i:04d}.png"), scene((160, 120), (100 - i, 50), 20))
-    return folder
+    return write_square_frames(tmp_path_factory.mktemp("signing_frames"), 20, (100, 50))
 
 
 class SigningRig:
@@ -193,7 +179,7 @@ class SigningRig:
         self.daemon = Daemon(tmp_path, daemon_config(
             service_port, zenoh_port, {"kind": "file", "path": str(frames_dir), "loop": True},
             {"signing": {"key_file": str(tmp_path / "mavlink.key")}}))
-        self.session = zenoh_peer(zenoh_port)
+        self.session = zenoh_session(zenoh_port)
         self.stations: list[GroundStation] = []
 
     def station(self, key: bytes | None) -> GroundStation:
@@ -406,13 +392,11 @@ def test_one_passphrase_signs_arducopter_the_camera_and_mavproxy(tmp_path: Path)
     autopilot's unsigned heartbeats. After (and a reboot of the autopilot): it hears the autopilot, and
     MAVProxy's signed TRACK_RECTANGLE to the camera, routed by ArduPilot from SERIAL0 to SERIAL1 with its
     signature, is accepted."""
-    import cv2
     from sim.firmware import ArduPilotSitl
 
     frames = tmp_path / "frames"
     frames.mkdir()
-    for i in range(20):
-        cv2.imwrite(str(frames / f"{i:04d}.png"), scene((160, 120), (100 - i, 50), 20))
+    write_square_frames(frames, 20, (100, 50))
     made = keygen(tmp_path / "mavlink.key")
     assert made.returncode == 0, made.stderr
     passphrase = made.stdout.split("signing key): ")[1].strip()
@@ -423,7 +407,7 @@ def test_one_passphrase_signs_arducopter_the_camera_and_mavproxy(tmp_path: Path)
                                {"signing": {"key_file": str(tmp_path / "mavlink.key")}})
         config["mavlink"].update({"url": firmware.companion_url, "system_id": 0})  # learned once heard
         daemon = Daemon(tmp_path, config)
-        session = zenoh_peer(zenoh_port)
+        session = zenoh_session(zenoh_port)
         workdir = tmp_path / "mavproxy"
         workdir.mkdir()
         mavproxy = MavProxy(0, workdir, master=firmware.gcs_url, target=firmware.target)

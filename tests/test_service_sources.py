@@ -17,6 +17,7 @@ from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_COASTING 
 from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_ERROR as ERROR
 from pymavlink.dialects.v20.common import CAMERA_TRACKING_STATUS_FLAGS_IDLE as IDLE
 
+from bench.fuzz import scene  # the synthetic test frame (other tests import it from here)
 from jsar.api import TrackResult
 from service.config import config_from_mapping
 from service.domain import ControlCommand
@@ -27,21 +28,7 @@ from service.sources.base import CaptureWorker, EndOfStream, Frame, LatestSlot, 
 from service.sources.file import FileReader
 from service.sources.v4l2 import V4L2Reader
 from service.sources.zenoh_wire import encode_frame
-from tests.conftest import free_tcp_port
-
-
-def scene(size: tuple[int, int], centre: tuple[float, float], side: int = 40) -> np.ndarray:
-    """Textured background (fixed seed) with a bright checkered square centred at `centre` (pixels)."""
-    width, height = size
-    rng = np.random.default_rng(7)
-    image = cv2.resize(rng.integers(0, 120, (height // 8 + 1, width // 8 + 1, 3), dtype=np.uint8), (width, height),
-                       interpolation=cv2.INTER_NEAREST)
-    x0, y0 = int(centre[0] - side / 2), int(centre[1] - side / 2)
-    patch = np.full((side, side, 3), 250, np.uint8)
-    patch[::8, :, 1] = 30
-    patch[:, ::8, 2] = 30
-    image[y0:y0 + side, x0:x0 + side] = patch
-    return image
+from sim.ports import free_tcp_port
 
 
 def frame(image: np.ndarray, frame_id: int, t: float) -> Frame:

@@ -10,13 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
+from bench.fuzz import zenoh_session
 from service.app import Service
 from service.config import ConfigError, PreviewConfig, config_from_mapping
 from service.sources.base import Frame
 from service.sources.zenoh_wire import decode_frame
 from service.video.latest_frame_worker import LatestFrameWorker, Pace, fit_size, pace_step
 from service.video.zenoh_preview import preview_payload
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 from tests.service_peers import Recorder, RunningService, service_config
 from tests.test_service_sources import scene
 
@@ -25,16 +26,6 @@ WAIT_S = 20.0  # generous: the machine is shared
 
 def frame(frame_id: int, at_s: float, size: tuple[int, int] = (64, 48)) -> Frame:
     return Frame(np.full((size[1], size[0], 3), frame_id % 256, np.uint8), frame_id, 1000.0 + at_s, at_s)
-
-
-def zenoh_peer(port: int):
-    import zenoh
-
-    zc = zenoh.Config()
-    zc.insert_json5("mode", '"peer"')
-    zc.insert_json5("scouting/multicast/enabled", "false")
-    zc.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    return zenoh.open(zc)
 
 
 # --- pure pieces ---------------------------------------------------------------------------------
@@ -200,7 +191,7 @@ def test_the_daemon_publishes_previews_stamped_like_the_telemetry_and_survives_a
         "logging": {"level": "INFO"},
     })
     running = RunningService(Service(config)).start()
-    viewer, stalled_viewer = zenoh_peer(zenoh_port), zenoh_peer(zenoh_port)
+    viewer, stalled_viewer = zenoh_session(zenoh_port), zenoh_session(zenoh_port)
     reports, previews = Recorder(), Recorder()
     unblock, stalled_entered = threading.Event(), threading.Event()
 

@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from service.app import Service
 from service.config import ConfigError
 from service.mavlink.commands import MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, RequestMessage, decide
-from tests.conftest import free_udp_port
+from sim.ports import free_udp_port
 from tests.service_peers import RunningService, service_config
 from tests.test_service_mavlink import AP_SYSID, CAM, REQUEST, Rig
 from tests.test_service_sources import scene
@@ -30,17 +30,15 @@ FRAMES_DECODED = 24
 def free_udp_port_pair() -> int:
     """An even loopback UDP port p with p + 1 free too (RTP on p, RTCP on p + 1)."""
     for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rtp:
-            rtp.bind(("127.0.0.1", 0))
-            port = rtp.getsockname()[1]
-            if port % 2 or port >= 65535:
+        port = free_udp_port()
+        if port % 2 or port >= 65535:
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rtcp:
+            try:
+                rtcp.bind(("127.0.0.1", port + 1))
+            except OSError:
                 continue
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rtcp:
-                try:
-                    rtcp.bind(("127.0.0.1", port + 1))
-                except OSError:
-                    continue
-                return port
+            return port
     raise RuntimeError("no free pair of UDP ports")
 
 

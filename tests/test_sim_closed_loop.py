@@ -262,7 +262,7 @@ def test_the_demo_replays_a_real_sequence_through_the_closed_loop(data_root, tmp
     import argparse
 
     from sim import demo
-    from tests.conftest import real_sequence
+    from tests.helpers import real_sequence
 
     real_sequence(data_root, "OTB_Crossing")  # skip when the sequence is not there
     monkeypatch.setattr(demo, "OUT_DIR", tmp_path / "out")

@@ -18,7 +18,7 @@ from sim.replay import open_recording, read_groundtruth, replay
 from sim.scene import (CameraConfig, CameraPose, Scene, SceneConfig, ground_homography, procedural_ground,
                        project_ground)
 from sim.vehicle_model import VehicleConfig, VehicleModel, custom_mode_of
-from tests.conftest import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port
 
 DT = 1.0 / 30.0
 BODY_VELOCITY_MASK = 0x05C7  # velocity + yaw rate, everything else ignored

@@ -7,7 +7,7 @@ import pytest
 
 import jsar
 from jsar.tracking.jsar_tracker import JsarTracker, make_jsar
-from tests.conftest import real_sequence
+from tests.helpers import real_sequence
 
 
 def _background(height: int, width: int, seed: int = 0) -> np.ndarray:
@@ -153,7 +153,6 @@ def test_locate_changes_nothing_commit_moves_and_reinitialise_retrains_once():
     assert tracker.translation.filter_f is not fresh
 
 
-@pytest.mark.data
 @pytest.mark.slow
 def test_real_sequence_precision_above_floor(data_root):
     """OTB_Crossing (120 frames, 360x240): measured precision 1.00 / AUC 0.79; floor 0.85."""

@@ -10,7 +10,6 @@ a token (--token-file FILE or JSAR_GCS_TOKEN) or --behind-proxy (docs/security.m
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import logging
 import os
 import sys
@@ -18,7 +17,7 @@ from pathlib import Path
 
 from gcs.drones import ZenohSettings
 from gcs.web.auth import TOKEN_ENV, exposure_problem, load_token
-from gcs.zenoh_tls import add_tls_options, tls_from_args
+from gcs.zenoh_tls import add_tls_options, is_loopback, tls_from_args
 
 log = logging.getLogger("gcs.web")
 
@@ -62,16 +61,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if not (1 <= args.system_id <= 255 and 1 <= args.component_id <= 255):
         parser.error("--system-id and --component-id must be 1..255")
     return args
-
-
-def is_loopback(host: str) -> bool:
-    """True for 127.0.0.0/8, ::1 and localhost."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -735,7 +735,7 @@ def test_a_look_alike_of_other_colours_is_refused_by_the_colour_check_while_the_
     checked = _run_with_static_look_alike(_redetect(accept=ungated, verify={"over_colour_match": False}), _distractor())
     assert all(checked[i][0] == "lost" for i in range(35, 60)), [checked[i][0] for i in range(35, 60)]
     assert checked[61][0] == "recovered" and math.dist(_centre(checked[61][1]), (112.0, 112.0)) < 3  # core, 2 frames
-    overridden = _run_with_static_look_alike(_redetect(accept=ungated), _distractor())
+    overridden = _run_with_static_look_alike(_redetect(accept=ungated, verify={"enabled": True}), _distractor())
     assert any(overridden[i][0] == "recovered" for i in range(35, 60)), "the blind spot is gone: update the docs"
 
 
@@ -1011,7 +1011,7 @@ def test_a_look_alike_the_verifier_calls_another_object_is_not_taken_even_above_
                for i in range(38, 50)), "the look-alike must pass the bar: the scenario tests nothing"
     frame = _hidden_target_scene(_same_colour_look_alike(), (150, 100), range(38, 50))
     embedder = _PlaceEmbedder([target_centre])
-    tracker = JsarReTracker(JsarParams.jsar_re(), RedetectParams(), embedder=embedder)
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True}), embedder=embedder)
     tracker.init(frame(0), _target_box((100, 100)))
     results = _run(tracker, [frame(i) for i in range(1, 70)])
     assert all(results[i][0] == "lost" for i in range(36, 60)), [results[i][0] for i in range(35, 62)]
@@ -1028,7 +1028,7 @@ def test_a_target_the_verifier_recognises_is_taken_under_a_bar_it_would_not_reac
     def run(verify: dict) -> dict[int, tuple[str, Box]]:
         targets = [(_path(i)[0] + TARGET / 2, _path(i)[1] + TARGET / 2) for i in range(70)]
         tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept=strict, colour={"clear_bar_fraction": 1.0},
-                                                                verify=verify), embedder=_PlaceEmbedder(targets))
+                                                                verify={"enabled": True, **verify}), embedder=_PlaceEmbedder(targets))
         tracker.init(_frame(background, _path(0)), _target_box(_path(0)))
         return _run(tracker, [_frame(background, None if 35 <= i < 45 else _path(i)) for i in range(1, 70)])
 
@@ -1053,7 +1053,7 @@ def test_the_whole_gate_search_looks_where_the_target_came_back_on_the_frame_it_
     def run(gate_map: bool) -> tuple[dict[int, tuple[str, Box]], _PlaceEmbedder]:
         embedder = _PlaceEmbedder([(x + TARGET / 2, y + TARGET / 2) for x, y in (place(0), place(65))])
         tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"windows_per_frame": 0},
-                                                                verify={"gate_map": gate_map}), embedder=embedder)
+                                                                verify={"enabled": True, "gate_map": gate_map}), embedder=embedder)
         tracker.init(_frame(background, place(0)), _target_box(place(0)))
         frames = [_frame(background, None if 35 <= i < 65 else place(i)) for i in range(1, 80)]
         return _run(tracker, frames), embedder
@@ -1077,7 +1077,7 @@ def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_
 
     def run(watch_frames: int) -> tuple[dict[int, tuple[str, Box]], list[str | None]]:
         embedder = _PlaceEmbedder([centre])
-        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"watch_frames": watch_frames}),
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "watch_frames": watch_frames}),
                                 embedder=embedder)
         tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
         results, causes = {}, []

@@ -236,7 +236,7 @@ class ColourParams:
 class VerifyParams:
     """The verifier (appearance.py): a learnt embedding's check of candidates while lost; cosines -1..1."""
 
-    enabled: bool = True  # off: the decision filter and colour check alone decide
+    enabled: bool = False  # on: the verifier judges candidates (opt-in: docs/method.md, "Learnt re-detection")
     min_similarity: float = 0.6  # "target": cosine to the target memory at least this ...
     margin: float = 0.05  # ... and this above the cosine to the look-alike memory
     reject_similarity: float = 0.55  # "other": cosine to the target memory under this

@@ -54,7 +54,7 @@ import numpy as np  # noqa: E402
 
 import jsar  # noqa: E402
 from jsar.eval import dataset, longterm  # noqa: E402
-from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
+from jsar.redetect.jsar_re import JsarReTracker, Phase  # noqa: E402
 from jsar.redetect.search import LossSearch, decayed_bar  # noqa: E402
 
 SIZES = ("tracker", "groundtruth")  # the side the oracle's window is scored at
@@ -81,12 +81,12 @@ class OracleSearchTracker(JsarReTracker):
         box = self.groundtruth_box
         return None if np.any(np.isnan(box)) else (box[0] + box[2] / 2.0, box[1] + box[3] / 2.0)
 
-    def _own(self, loc):  # type: ignore[no-untyped-def]
-        own = super()._own(loc)
-        if self.oracle != "oracle" or not self.lost or self.search is None:
+    def _score_core_sample(self, loc):  # type: ignore[no-untyped-def]
+        own = super()._score_core_sample(loc)
+        if self.oracle != "oracle" or self.phase is not Phase.LOST or self.loss is None:
             return own
         centre = self._target_centre()
-        if centre is None or own.distance_sides(centre, self.search.side_px) > 1.0:
+        if centre is None or own.distance_sides(centre, self.loss.side_px) > 1.0:
             return dataclasses.replace(own, score=0.0)
         return own
 
@@ -140,7 +140,7 @@ def oracle_look(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, f
     minimum = tracker.redetect.colour.min_match
     colour = math.inf
     if minimum > 0:
-        w, h = (tracker.before_loss if tracker.before_loss is not None else core).size_wh
+        w, h = (tracker.core_at_loss if tracker.core_at_loss is not None else core).size_wh
         colour = tracker.colour.relative_match(frame, (found.x - w / 2.0, found.y - h / 2.0, w, h))
     return OracleLook(found.score, bar, colour, minimum, found.distance_sides(centre, side_px))
 
@@ -196,7 +196,7 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
         if event is None or np.any(np.isnan(gt[index])):
             continue
         since = index - (loss_start if loss_start is not None else event.start) + 1
-        tracker_side = tracker.search.side_px if tracker.search is not None else math.sqrt(
+        tracker_side = tracker.loss.side_px if tracker.loss is not None else math.sqrt(
             tracker.box[2] * tracker.box[3])
         sides = {"tracker": tracker_side, "groundtruth": math.sqrt(gt[index][2] * gt[index][3])}
         for size in SIZES:
@@ -204,8 +204,8 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
             recognised[size][index] = look.failed_test() is None
             if size == "tracker":
                 looks[index] = look
-        if tracker.search is not None:
-            where[index] = search_reach(tracker.search, gt[index])
+        if tracker.loss is not None:
+            where[index] = search_reach(tracker.loss, gt[index])
     scores = longterm.longterm_scores(boxes, states, gt, longterm.LongTermCriteria(window=window),
                                       events.scored_spans)
     for entry in scores["events"]:  # type: ignore[union-attr]

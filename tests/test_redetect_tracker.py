@@ -652,7 +652,7 @@ def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[dict[int, 
     for index in range(1, 75):
         result = tracker.update(frame(index))
         results[index] = (result.state, result.box)
-        refuted[index] = list(tracker.search.refuted) if tracker.search is not None else []
+        refuted[index] = list(tracker.loss.refuted) if tracker.loss is not None else []
     return results, refuted
 
 
@@ -693,7 +693,7 @@ def test_a_refuted_take_restarts_the_cores_count_towards_its_own_way_out():
             seen[index] = tracker.update(frame(index)).state
             if core_passed_on_take and seen[index] == "recovered" and index < 50:
                 assert tracker.probation is not None
-                tracker.probation.search.core_agreements = 1  # as if the core had passed its tests on that frame
+                tracker.probation.loss.core_agreements = 1  # as if the core had passed its tests on that frame
         return seen
 
     hidden_long = states(60, core_passed_on_take=False)

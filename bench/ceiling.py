@@ -95,9 +95,9 @@ class OracleSearchTracker(JsarReTracker):
         centre = self._target_centre()
         if centre is None:
             return found
-        assert self.memory is not None
+        assert self.decision_filter is not None
         angles = np.array([0.0, *self.redetect.search.turned_angles_deg])
-        windows = self.memory.score_windows(self.core.prepare(frame), self.core.feature_colour_table,
+        windows = self.decision_filter.score_windows(self.core.prepare(frame), self.core.feature_colour_table,
                                             np.repeat([centre], len(angles), axis=0), search.side_px, angles)
         factor = self.redetect.search.turned_score_factor
         return found + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in windows]
@@ -131,7 +131,7 @@ def oracle_look(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, f
     """A decision-filter window of target side side_px centred on gt_box (x, y, w, h px), judged by the tests
     a lattice candidate must pass on this frame (peak within a side of the ground truth's centre, the bar
     after `frames_since` lost frames, the colour check); reads the tracker's state only."""
-    memory, core = tracker.memory, tracker.core
+    memory, core = tracker.decision_filter, tracker.core
     assert memory is not None
     centre = (gt_box[0] + gt_box[2] / 2.0, gt_box[1] + gt_box[3] / 2.0)
     found = memory.score_windows(core.prepare(frame), core.feature_colour_table, np.array([centre]), side_px)[0]
@@ -153,9 +153,9 @@ def search_reach(search: LossSearch, gt_box: np.ndarray) -> str:
     dx, dy = ((centre[k] - search.anchor_xy[k]) / search.side_px for k in (0, 1))
     if math.hypot(dx, dy) > search.reach_sides:
         return "outside gate"
-    if max(abs(dx), abs(dy)) > (search.area_sides() + search.search.stride_sides) / 2.0:
+    if max(abs(dx), abs(dy)) > (search.area_sides() + search.lattice.stride_sides) / 2.0:
         return "outside lattice"
-    return "inside lattice" if max(abs(dx), abs(dy)) > 1.5 * search.search.stride_sides else "first ring"
+    return "inside lattice" if max(abs(dx), abs(dy)) > 1.5 * search.lattice.stride_sides else "first ring"
 
 
 def oracle_recognises(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, frames_since: int,

@@ -27,9 +27,8 @@ import math
 import cv2
 import numpy as np
 
+from jsar.api import Box
 from jsar.redetect.monitor import updated_reference
-
-Box = tuple[float, float, float, float]
 MAX_PIXELS = 4096  # a histogram of up to 8^3 bins needs no more: larger regions are sampled on a grid
 
 

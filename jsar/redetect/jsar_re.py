@@ -22,7 +22,7 @@ from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
 from jsar.redetect.appearance import AppearanceMemory, Embedder, Look, Verdict as Appearance, ring_boxes, shared_embedder
 from jsar.redetect.colour_check import AnchorColours, ColourModel
-from jsar.redetect.memory import DecisionMemory
+from jsar.redetect.memory import DecisionFilter
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
 from jsar.redetect.search import Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
@@ -94,14 +94,14 @@ class JsarReTracker:
         self.gate_template: tuple[np.ndarray, float] | None = None  # the whole-gate search's (template, scale)
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
-        self.memory: DecisionMemory | None = None
+        self.decision_filter: DecisionFilter | None = None
         self.colour = self._new_colour_model()
         self.anchor: AnchorColours | None = None  # the target's colours at selection (the drift check)
         self.drift_frames = 0  # tracked frames in a row whose box holds too few of them
         self.share = math.inf  # the last tracked frame's share of them (AnchorColours.share)
         # (frame index, core, decision filter, colour model) on the last checkpoint: a tracked frame whose
         # box clearly held the target's colours. A drift loss rolls back to it (what slid learnt the background).
-        self.checkpoint: tuple[int, JsarTracker, DecisionMemory, ColourModel] | None = None
+        self.checkpoint: tuple[int, JsarTracker, DecisionFilter, ColourModel] | None = None
         self.loss_cause: str | None = None  # why the current loss began: "peak", "drift" or "appearance"
         self.phase = Phase.TRACKING
         self.loss: LossSearch | None = None  # the search of the current loss (phase LOST only)
@@ -118,7 +118,7 @@ class JsarReTracker:
     def init(self, frame: np.ndarray, box: Box) -> None:
         """Start tracking `box` (x, y, w, h px) in `frame`; trains the core and the decision filter."""
         self.core.init(frame, box)
-        self.memory = DecisionMemory(self.params, self.core)
+        self.decision_filter = DecisionFilter(self.params, self.core)
         self.colour = self._new_colour_model()
         self.colour.learn(frame, self.core.box)
         colour = self.redetect.colour
@@ -159,7 +159,7 @@ class JsarReTracker:
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track one frame: localise, then track, start a loss or search it; the phase moves by TRANSITIONS."""
-        if self.memory is None:
+        if self.decision_filter is None:
             raise RuntimeError("tracker used before init(frame, box)")
         frame = validate_frame(frame)
         self.frame_index += 1
@@ -233,7 +233,7 @@ class JsarReTracker:
         if minimum <= 0 or not self.anchor.usable:
             return False
         w, h = self.core.size_wh
-        box = (loc.center_xy[0] - w / 2.0, loc.center_xy[1] - h / 2.0, w, h)
+        box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
         self.share = self.anchor.share(frame, box)
         self.drift_frames = self.drift_frames + 1 if self.share < minimum else 0
         return self.drift_frames >= self.redetect.colour.drift_frames
@@ -248,7 +248,7 @@ class JsarReTracker:
         if self.frame_index % verify.watch_frames:
             return False
         w, h = self.core.size_wh
-        box = (loc.center_xy[0] - w / 2.0, loc.center_xy[1] - h / 2.0, w, h)
+        box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
         look = self.appearance.judge(self.embedder.embed(frame, np.array([box])))[0]
         self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
         return self.away_checks >= verify.watch_count
@@ -262,18 +262,18 @@ class JsarReTracker:
             return  # no drift check, nothing to roll back for; or the box did not clearly hold the colours
         if self.checkpoint is not None and self.frame_index - self.checkpoint[0] < colour.checkpoint_frames:
             return
-        assert self.memory is not None
-        core, memory, model = copy.deepcopy((self.core, self.memory, self.colour))
-        self.checkpoint = (self.frame_index, core, memory, model)
+        assert self.decision_filter is not None
+        core, decision_filter, model = copy.deepcopy((self.core, self.decision_filter, self.colour))
+        self.checkpoint = (self.frame_index, core, decision_filter, model)
 
     def _roll_back(self, frame: np.ndarray, loc: Localisation) -> tuple[Localisation, Verdict]:
         """A drift loss: the core, decision filter and colour model as at the checkpoint (their size and
         look before the slide), the core moved to where the drifted one found its detection; its own
         detection there, judged against the monitor's reference (nothing is updated)."""
         assert self.checkpoint is not None
-        _, core, memory, model = copy.deepcopy(self.checkpoint)
-        self.core, self.memory, self.colour = core, memory, model
-        self.core.relocate(loc.center_xy)
+        _, core, decision_filter, model = copy.deepcopy(self.checkpoint)
+        self.core, self.decision_filter, self.colour = core, decision_filter, model
+        self.core.relocate(loc.centre_xy)
         loc = self.core.locate(frame)
         confident, reliable = self.monitor.judge(loc.peak)
         last = self.recent_centres[-1]
@@ -283,15 +283,15 @@ class JsarReTracker:
 
     def _score_core_sample(self, loc: Localisation) -> Candidate:
         """The decision filter on the core's detection sample (before the core moves): peak px and score."""
-        assert self.memory is not None
-        return self.memory.score_sample(loc.sample_f, self.core.center_xy, loc.search_side)
+        assert self.decision_filter is not None
+        return self.decision_filter.score_sample(loc.sample_f, self.core.centre_xy, loc.search_side)
 
     @staticmethod
-    def _agrees(found: Candidate, loc: Localisation, search: LossSearch) -> bool:
+    def _within_a_side(found: Candidate, loc: Localisation, search: LossSearch) -> bool:
         """Whether the decision filter's peak lies within one target side of the core's detection (their
         boxes overlap): only then may the loss end at the core's box. A coasting core can sit on the
         occluder next to the target while the decision filter's peak, in the same window, is on the target."""
-        return found.distance_sides(loc.center_xy, search.side_px) < 1.0
+        return found.distance_sides(loc.centre_xy, search.side_px) < 1.0
 
     def _predicted_centre(self) -> tuple[float, float]:
         return predicted_centre(list(self.recent_centres), self.frame_index, self.redetect.search.predict_max_frames)
@@ -312,18 +312,18 @@ class JsarReTracker:
     def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate | None) -> None:
         """Commit the core's detection; the decision filter learns it when reliable (own: its score there,
         needed then)."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         self.core.commit(frame, loc)
         self._remember_position()
         if reliable:
             assert own is not None
-            self.memory.train(self.core, own.score)
+            self.decision_filter.train(self.core, own.score)
             self.colour.learn(frame, self.core.box)
             self.reliable_frames += 1
             if self.appearance is not None and self.reliable_frames % self.redetect.verify.learn_frames == 0:
                 self._learn_appearance(frame, self.core.box)
         else:
-            self.memory.skip()
+            self.decision_filter.skip()
 
     def _new_search(self) -> LossSearch:
         x, y, w, h = self.core.box
@@ -335,9 +335,9 @@ class JsarReTracker:
         changed moves on as predicted; an absent one's background does not); else the core waits at
         the prediction, learning nothing. The decision filter learns nothing either way."""
         radius = self.redetect.search.coast_radius_sides * search.side_px
-        if math.hypot(loc.center_xy[0] - search.anchor_xy[0], loc.center_xy[1] - search.anchor_xy[1]) <= radius:
+        if math.hypot(loc.centre_xy[0] - search.anchor_xy[0], loc.centre_xy[1] - search.anchor_xy[1]) <= radius:
             self.core.commit(frame, loc)
-            self.memory.skip()
+            self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
             search.coasting = True
         else:
@@ -347,7 +347,7 @@ class JsarReTracker:
     def _candidates(self, frame: np.ndarray, search: LossSearch, own: Candidate) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a
         window on the pending candidate, or else on the last frame's best (at its angle)."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         image = self.core.prepare(frame)
         centres, angles = search.windows((frame.shape[1], frame.shape[0]))
         peaks = self._gate_peaks(frame, search)
@@ -359,7 +359,7 @@ class JsarReTracker:
             centres = np.vstack([centres, [[focus.x, focus.y]]])
             angles = np.append(angles, focus.angle_deg)
         side = search.side_px  # the last confident size (a coasting core's may have drifted)
-        found = self.memory.score_windows(image, self.core.feature_colour_table, centres, side, angles)
+        found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles)
         factor = self.redetect.search.turned_score_factor
         return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
 
@@ -381,7 +381,7 @@ class JsarReTracker:
         if taken is None:
             self._coast(frame, loc, loss)
             return "searched", loc.peak
-        if loss.coasting and self._agrees(taken, loc, loss):
+        if loss.coasting and self._within_a_side(taken, loc, loss):
             # The decision filter confirms the target where the coasting core already is: keep the core's
             # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
             self._commit(frame, loc, verdict.reliable, own)
@@ -390,22 +390,22 @@ class JsarReTracker:
 
     def _bars(self, lost_frames: int) -> tuple[float, float]:
         """The acceptance bars (raw peak) on this lost frame: a candidate's, and the core's own detection's."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         # Never below zeta_s: a candidate must score as a frame the decision filter would learn from
         # (ending a loss on a weaker one took background, e.g. with a target whose own level is low).
         accept, zeta_s = self.redetect.accept, self.redetect.monitor.reliable_peak
-        bar = decayed_bar(self.memory.reference, lost_frames - 1, accept, zeta_s)
+        bar = decayed_bar(self.decision_filter.reference, lost_frames - 1, accept, zeta_s)
         # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
-        return bar, decayed_bar(self.memory.reference, lost_frames - 1, accept, zeta_s, accept.core_fraction)
+        return bar, decayed_bar(self.decision_filter.reference, lost_frames - 1, accept, zeta_s, accept.core_fraction)
 
     def _core_recovered(self, frame: np.ndarray, loc: Localisation, verdict: Verdict, own: Candidate,
                         core_bar: float) -> bool:
         """Whether the core, confident where the decision filter peaks above core_bar, in the target's colours and
         not another object, has been so on accept.core_confirm_frames lost frames in a row."""
         assert self.loss is not None
-        if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, self.loss)
-                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)
-                and not self._looks_other(frame, loc.center_xy)):
+        if (verdict.confident and own.score >= core_bar and self._within_a_side(own, loc, self.loss)
+                and self._colour_passes(frame, loc.centre_xy, self.redetect.colour.core_min_match)
+                and not self._looks_other(frame, loc.centre_xy)):
             self.loss.core_agreements += 1
             return self.loss.core_agreements >= self.redetect.accept.core_confirm_frames
         self.loss.core_agreements = 0
@@ -467,12 +467,12 @@ class JsarReTracker:
         box = (candidate.x - w / 2.0, candidate.y - h / 2.0, w, h)
         return lower if self.anchor.share(frame, box) >= colour.clear_share else bar
 
-    def _loss_box(self, centre_xy: tuple[float, float]) -> tuple[float, float, float, float]:
+    def _loss_box(self, centre_xy: tuple[float, float]) -> Box:
         """A box (x, y, w, h px) of the target's size at the loss centred on centre_xy px."""
         w, h = (self.core_at_loss if self.core_at_loss is not None else self.core).size_wh
         return (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
 
-    def _learn_appearance(self, frame: np.ndarray, box: tuple[float, float, float, float]) -> AppearanceMemory:
+    def _learn_appearance(self, frame: np.ndarray, box: Box) -> AppearanceMemory:
         """The verifier learns a reliable frame: the target's embedding at `box` (x, y, w, h px) and the
         look-alikes' on a ring around it (one batch); on init the memories are made."""
         verify = self.redetect.verify
@@ -560,7 +560,7 @@ class JsarReTracker:
         the target: params.AcceptParams.size_hold_fraction); if neither responds above zeta_e (a target that
         turned while hidden), or params.AcceptParams.reacquire is "retrain", the pre-loss core is
         retrained there from this frame (the paper's re-initialisation)."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         height, width = frame.shape[:2]
         centre = (min(max(at.x, 0.0), float(width - 1)), min(max(at.y, 0.0), float(height - 1)))
         options = [self.core_at_loss] if self.core_at_loss is not None else []
@@ -574,8 +574,8 @@ class JsarReTracker:
                 loc = moved.locate(frame)
                 # A core whose detection leaves the taken place follows what it learnt elsewhere (a coasting
                 # core, the occluder it coasted on): moving it there would end the loss off the target.
-                stays = math.hypot(loc.center_xy[0] - centre[0], loc.center_xy[1] - centre[1]) <= side
-                if stays and loc.peak > self.redetect.monitor.enable_peak and (best is None or loc.peak > best[1].peak):
+                stays = math.hypot(loc.centre_xy[0] - centre[0], loc.centre_xy[1] - centre[1]) <= side
+                if stays and loc.peak > self.redetect.monitor.confident_peak and (best is None or loc.peak > best[1].peak):
                     best = (moved, loc)
         if best is not None:
             self.core = best[0]
@@ -587,7 +587,7 @@ class JsarReTracker:
             self.core = copy.deepcopy(options[0])
             w, h = bound_side(self.core.size_wh, self.core.side_bounds)
             self.core.reinitialise(frame, (centre[0] - w / 2.0, centre[1] - h / 2.0, w, h))
-        self.memory.skip()
+        self.decision_filter.skip()
         self.recent_centres.clear()  # a new track: no velocity across the jump
         self._remember_position()
         # The peak level of the re-acquired target starts a new reference (it may look otherwise now);
@@ -596,7 +596,7 @@ class JsarReTracker:
         self.reacquisitions += 1
 
     def _remember_position(self) -> None:
-        cx, cy = self.core.center_xy
+        cx, cy = self.core.centre_xy
         self.recent_centres.append((self.frame_index, cx, cy))
 
 

@@ -27,7 +27,7 @@ REFERENCE_RISE = 0.1  # the memory's reference follows higher peaks fast ...
 REFERENCE_FALL = 0.02  # ... and lower ones slowly (as the monitor's)
 
 
-class DecisionMemory:
+class DecisionFilter:
     """The decision filter and its reference; `train` after each committed frame, `score_*` anywhere."""
 
     def __init__(self, params: JsarParams, core: JsarTracker) -> None:

@@ -5,7 +5,7 @@ unnormalised, inverse 1/N, as MATLAB, so a filter's response to its own training
 the Gaussian label's 1), the last confident box (x, y, w, h) px, the image size and the 0-based
 frame index (0 = the initialisation frame).
 
-- confident <=> peak > enable_peak (zeta_e) and peak > relative_drop x reference, the reference
+- confident <=> peak > confident_peak (zeta_e) and peak > relative_drop x reference, the reference
   being an asymmetric running mean of reliable peaks (fast up, slow down). The relative test is an
   addition: per-target peak levels range from about 0.013 (a deforming bird) to 0.06, so a target
   replaced by background can halve the peak and stay above the absolute zeta_e;
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from jsar.api import Box
 from jsar.redetect.params import InsideRule, MonitorParams
 
 
@@ -38,7 +39,7 @@ class Verdict:
         return self.eligible and not self.confident
 
 
-def box_is_inside(box: tuple[float, float, float, float], image_wh: tuple[int, int], rule: InsideRule) -> bool:
+def box_is_inside(box: Box, image_wh: tuple[int, int], rule: InsideRule) -> bool:
     """Whether box (x, y, w, h) px lies inside a W x H image: whole box ("full") or its centre ("centre")."""
     x, y, w, h = box
     width, height = image_wh
@@ -63,7 +64,7 @@ class FailureMonitor:
         self.params = params
         self.reference: float | None = None
 
-    def eligible(self, box: tuple[float, float, float, float], image_wh: tuple[int, int], frame_index: int) -> bool:
+    def eligible(self, box: Box, image_wh: tuple[int, int], frame_index: int) -> bool:
         """Whether a loss may be declared on this frame (warm-up over, target size and position sane)."""
         p = self.params
         area = box[2] * box[3]
@@ -74,11 +75,11 @@ class FailureMonitor:
         """(confident, reliable) for a raw peak against the current reference; changes nothing."""
         p = self.params
         reference = self.reference
-        confident = peak > p.enable_peak and (reference is None or peak > p.relative_drop * reference)
+        confident = peak > p.confident_peak and (reference is None or peak > p.relative_drop * reference)
         reliable = peak > p.reliable_peak
         return confident, reliable
 
-    def assess(self, peak: float, box: tuple[float, float, float, float], image_wh: tuple[int, int],
+    def assess(self, peak: float, box: Box, image_wh: tuple[int, int],
                frame_index: int) -> Verdict:
         """One frame's verdict from its raw translation peak and the last confident box (px). A
         reliable peak updates the reference when the frame will be committed (confident, or not

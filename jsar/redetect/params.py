@@ -28,7 +28,7 @@ Reacquire = Literal["relocate", "retrain"]
 class MonitorParams:
     """Failure monitor (monitor.py): confident, reliable, eligible; peaks in raw response units."""
 
-    enable_peak: float = 0.0105  # zeta_e: a frame below it is not confident (paper; the authors' code 0.01)
+    confident_peak: float = 0.0105  # zeta_e: a frame below it is not confident (paper; the authors' code 0.01)
     reliable_peak: float = 0.013  # zeta_s: the decision filter trains on frames above it (paper)
     relative_drop: float = 0.6  # not confident either below this x the running reference (0: paper's rule only)
     reference_rate: float = 0.1  # running reference's update rate towards a higher peak
@@ -40,8 +40,8 @@ class MonitorParams:
 
     def validate(self, prefix: str = "monitor") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
-        _require(prefix, "enable_peak", 0 < self.enable_peak <= self.reliable_peak,
-                 f"0 < enable_peak <= reliable_peak, got {self.enable_peak}, {self.reliable_peak}")
+        _require(prefix, "confident_peak", 0 < self.confident_peak <= self.reliable_peak,
+                 f"0 < confident_peak <= reliable_peak, got {self.confident_peak}, {self.reliable_peak}")
         _require(prefix, "relative_drop", 0 <= self.relative_drop < 1, f"0 <= value < 1, got {self.relative_drop}")
         for key in ("reference_rate", "reference_fall_rate"):
             value = getattr(self, key)
@@ -109,12 +109,12 @@ class SearchParams:
 class AcceptParams:
     """When a candidate is taken (its decision-filter score) and what taking it does.
 
-    bar = max(accept_peak / accept_decay^t, reference x max(accept_floor, accept_fraction /
-    accept_decay^t)) after t failed frames, reference = the running mean of the decision filter's
-    peaks on the frames it learnt. The paper's eta_d is the absolute accept_peak (0.02) decaying by
+    bar = max(peak / decay^t, reference x max(floor, fraction /
+    decay^t)) after t failed frames, reference = the running mean of the decision filter's
+    peaks on the frames it learnt. The paper's eta_d is the absolute peak (0.02) decaying by
     1.005 per failed frame. Relative to how the target scored, the bar starts high (right after a
     loss the nearest thing to score is the occluder, or the background where the target was) and
-    relaxes to accept_floor as the loss goes on (the target may come back changed): 0.625x at the first
+    relaxes to floor as the loss goes on (the target may come back changed): 0.625x at the first
     lost frame, 0.5x after 45, 0.45x from 66 on. Most false re-acquisitions come early in a loss (the
     occluder where the target was, a look-alike nearby); a target that comes back changed after a long
     loss (the closed loop's car out of the bridge, turned, ~0.5x) needs the low floor. The core's own
@@ -141,10 +141,10 @@ class AcceptParams:
     0: no hold): judged by the size model of its old look, a target that came back turned had its box
     widen by ~2 % a frame to twice the car's width (the closed loop's car after the bridge)."""
 
-    accept_peak: float = 0.0  # eta_d, absolute part (paper 0.02; 0: relative only)
-    accept_fraction: float = 0.625  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
-    accept_decay: float = 1.005  # ... divided by this per lost frame (paper's value, there on the absolute eta_d) ...
-    accept_floor: float = 0.45  # ... down to this
+    peak: float = 0.0  # eta_d, absolute part (paper 0.02; 0: relative only)
+    fraction: float = 0.625  # relative part at the first lost frame (0: the paper's absolute eta_d only) ...
+    decay: float = 1.005  # ... divided by this per lost frame (paper's value, there on the absolute eta_d) ...
+    floor: float = 0.45  # ... down to this
     core_fraction: float = 0.5  # ... from this instead for the core's own detection, confident again there
     confirm_frames: int = 1
     core_confirm_frames: int = 2  # the core's own way out needs its tests passed on this many consecutive lost frames
@@ -161,15 +161,15 @@ class AcceptParams:
 
     def validate(self, prefix: str = "accept") -> None:
         """Raise ValueError naming `prefix.key` of the first invalid value."""
-        _require(prefix, "accept_peak", self.accept_peak >= 0, f">= 0, got {self.accept_peak}")
-        _require(prefix, "accept_fraction", 0 <= self.accept_fraction <= 1, f"0 <= value <= 1, got {self.accept_fraction}")
-        _require(prefix, "accept_peak", self.accept_peak > 0 or self.accept_fraction > 0,
-                 "accept_peak and accept_fraction cannot both be 0 (every candidate would pass)")
-        _require(prefix, "accept_decay", self.accept_decay >= 1, f">= 1, got {self.accept_decay}")
-        _require(prefix, "accept_floor", 0 <= self.accept_floor <= self.accept_fraction,
-                 f"0 <= accept_floor <= accept_fraction, got {self.accept_floor}, {self.accept_fraction}")
-        _require(prefix, "core_fraction", self.accept_floor <= self.core_fraction <= 1,
-                 f"accept_floor <= core_fraction <= 1, got {self.core_fraction}, {self.accept_floor}")
+        _require(prefix, "peak", self.peak >= 0, f">= 0, got {self.peak}")
+        _require(prefix, "fraction", 0 <= self.fraction <= 1, f"0 <= value <= 1, got {self.fraction}")
+        _require(prefix, "peak", self.peak > 0 or self.fraction > 0,
+                 "peak and fraction cannot both be 0 (every candidate would pass)")
+        _require(prefix, "decay", self.decay >= 1, f">= 1, got {self.decay}")
+        _require(prefix, "floor", 0 <= self.floor <= self.fraction,
+                 f"0 <= floor <= fraction, got {self.floor}, {self.fraction}")
+        _require(prefix, "core_fraction", self.floor <= self.core_fraction <= 1,
+                 f"floor <= core_fraction <= 1, got {self.core_fraction}, {self.floor}")
         _require(prefix, "confirm_frames", self.confirm_frames >= 0, f">= 0, got {self.confirm_frames}")
         _require(prefix, "core_confirm_frames", self.core_confirm_frames >= 1, f">= 1, got {self.core_confirm_frames}")
         _require(prefix, "confirm_radius_sides", self.confirm_radius_sides > 0, f"> 0, got {self.confirm_radius_sides}")

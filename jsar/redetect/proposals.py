@@ -80,9 +80,9 @@ class Proposals:
     region: tuple[int, int, int, int]  # searched region (x, y, w, h), integer pixels, inside the image
 
 
-def search_region(center_xy: tuple[float, float], target_wh: tuple[float, float], omega: float,
+def search_region(centre_xy: tuple[float, float], target_wh: tuple[float, float], omega: float,
                   image_wh: tuple[int, int]) -> tuple[int, int, int, int]:
-    """Square of side omega*sqrt(w*h) px centred at center_xy, clipped to the image -> (x, y, w, h) ints.
+    """Square of side omega*sqrt(w*h) px centred at centre_xy, clipped to the image -> (x, y, w, h) ints.
 
     A square larger than the image gives the whole image. Raises ValueError if the clipped region is
     empty (centre far outside the image) or the inputs are not positive.
@@ -92,12 +92,12 @@ def search_region(center_xy: tuple[float, float], target_wh: tuple[float, float]
         raise ValueError(f"search region needs positive target size and omega, got {target_wh}, {omega}")
     image_w, image_h = image_wh
     side = omega * math.sqrt(w * h)
-    x0 = max(0, int(math.floor(center_xy[0] - side / 2)))
-    y0 = max(0, int(math.floor(center_xy[1] - side / 2)))
-    x1 = min(image_w, int(math.ceil(center_xy[0] + side / 2)))
-    y1 = min(image_h, int(math.ceil(center_xy[1] + side / 2)))
+    x0 = max(0, int(math.floor(centre_xy[0] - side / 2)))
+    y0 = max(0, int(math.floor(centre_xy[1] - side / 2)))
+    x1 = min(image_w, int(math.ceil(centre_xy[0] + side / 2)))
+    y1 = min(image_h, int(math.ceil(centre_xy[1] + side / 2)))
     if x1 - x0 < 3 or y1 - y0 < 3:
-        raise ValueError(f"search region around {center_xy} of side {side:.1f} px misses the {image_w}x{image_h} image")
+        raise ValueError(f"search region around {centre_xy} of side {side:.1f} px misses the {image_w}x{image_h} image")
     return (x0, y0, x1 - x0, y1 - y0)
 
 
@@ -114,17 +114,17 @@ def min_box_area(target_wh: tuple[float, float], settings: EdgeBoxesSettings) ->
     return max(settings.min_area_floor_px2, settings.min_area_fraction * target_wh[0] * target_wh[1])
 
 
-def generate_proposals(frame: np.ndarray, center_xy: tuple[float, float], target_wh: tuple[float, float],
+def generate_proposals(frame: np.ndarray, centre_xy: tuple[float, float], target_wh: tuple[float, float],
                        omega: float, settings: EdgeBoxesSettings = EdgeBoxesSettings(),
                        edges: EdgeFunction = edge_maps) -> Proposals:
-    """EdgeBoxes proposals in the omega-square around center_xy; boxes in full-frame pixels, best first.
+    """EdgeBoxes proposals in the omega-square around centre_xy; boxes in full-frame pixels, best first.
 
     frame: HxW[x3] uint8. target_wh: last confident target size (pixels). `edges` computes the edge
     and orientation maps (default: smoothed gradients; a `StructuredEdges` instance when a model file
     is configured).
     """
     image_h, image_w = frame.shape[:2]
-    rx, ry, rw, rh = search_region(center_xy, target_wh, omega, (image_w, image_h))
+    rx, ry, rw, rh = search_region(centre_xy, target_wh, omega, (image_w, image_h))
     scale = working_scale(target_wh, (rw, rh), settings)
     region = frame[ry:ry + rh, rx:rx + rw]
     out_w, out_h = max(3, round(rw * scale)), max(3, round(rh * scale))

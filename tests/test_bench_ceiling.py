@@ -71,7 +71,7 @@ def test_the_oracle_search_scores_the_target_only_while_lost_and_visible(sequenc
     tracker = ceiling.OracleSearchTracker("oracle")
     frame = sequence.read_frame(0)
     tracker.init(frame, tuple(float(v) for v in sequence.groundtruth[0]))
-    tracker.loss = tracker._new_search()
+    tracker.loss = tracker._new_loss()
     tracker.phase = Phase.LOST
     own = tracker._score_core_sample(tracker.core.locate(frame))
     tracker.groundtruth_box = np.full(4, np.nan)

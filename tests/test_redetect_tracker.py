@@ -15,7 +15,7 @@ import pytest
 
 import jsar
 from jsar.config import JsarParams
-from jsar.redetect.jsar_re import JsarReTracker
+from jsar.redetect.jsar_re import TRANSITIONS, JsarReTracker, Phase
 from jsar.features.patches import sample_patch
 from jsar.redetect.memory import turned_patch, window_features
 from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
@@ -442,6 +442,16 @@ def test_relocate_moves_the_centre_and_keeps_size_and_filters():
 
 
 # ---------------------------------------------------------------- parameters and the registry
+
+def test_the_phase_moves_only_by_the_transition_table():
+    """Every phase is left and reached through TRANSITIONS; an event it does not list for a phase is refused."""
+    assert {phase for phase, _ in TRANSITIONS} == set(Phase) == set(TRANSITIONS.values())
+    tracker = JsarReTracker()
+    assert tracker.phase is Phase.TRACKING
+    with pytest.raises(KeyError):
+        tracker._go("refuted")  # only a re-acquisition on probation can be refuted
+    assert tracker.phase is Phase.TRACKING
+
 
 def test_registry_passes_nested_overrides_and_core_overrides():
     assert "jsar-re" in jsar.registry.available()

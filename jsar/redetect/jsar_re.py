@@ -220,7 +220,7 @@ class JsarReTracker:
         """A new loss: a drift or appearance loss rolls back to the checkpoint; the search starts at the core."""
         if self.loss_cause in ("drift", "appearance") and self.checkpoint is not None:
             loc, verdict = self._roll_back(frame, loc)
-        self.loss = self._new_search()
+        self.loss = self._new_loss()
         self.core_at_loss = copy.deepcopy(self.core)
         return loc, verdict
 
@@ -287,11 +287,11 @@ class JsarReTracker:
         return self.decision_filter.score_sample(loc.sample_f, self.core.centre_xy, loc.search_side)
 
     @staticmethod
-    def _within_a_side(found: Candidate, loc: Localisation, search: LossSearch) -> bool:
+    def _within_a_side(found: Candidate, loc: Localisation, loss: LossSearch) -> bool:
         """Whether the decision filter's peak lies within one target side of the core's detection (their
         boxes overlap): only then may the loss end at the core's box. A coasting core can sit on the
         occluder next to the target while the decision filter's peak, in the same window, is on the target."""
-        return found.distance_sides(loc.centre_xy, search.side_px) < 1.0
+        return found.distance_sides(loc.centre_xy, loss.side_px) < 1.0
 
     def _predicted_centre(self) -> tuple[float, float]:
         return predicted_centre(list(self.recent_centres), self.frame_index, self.redetect.search.predict_max_frames)
@@ -325,40 +325,41 @@ class JsarReTracker:
         else:
             self.decision_filter.skip()
 
-    def _new_search(self) -> LossSearch:
+    def _new_loss(self) -> LossSearch:
+        """A search around the core's box (centre px, side sqrt(w*h) px), starting now."""
         x, y, w, h = self.core.box
         return LossSearch((x + w / 2.0, y + h / 2.0), math.sqrt(w * h), self.redetect.search, self.redetect.accept)
 
-    def _coast(self, frame: np.ndarray, loc: Localisation, search: LossSearch) -> None:
+    def _coast(self, frame: np.ndarray, loc: Localisation, loss: LossSearch) -> None:
         """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
         within coast_radius_sides of where the target was going (a target still there whose look
         changed moves on as predicted; an absent one's background does not); else the core waits at
         the prediction, learning nothing. The decision filter learns nothing either way."""
-        radius = self.redetect.search.coast_radius_sides * search.side_px
-        if math.hypot(loc.centre_xy[0] - search.anchor_xy[0], loc.centre_xy[1] - search.anchor_xy[1]) <= radius:
+        radius = self.redetect.search.coast_radius_sides * loss.side_px
+        if math.hypot(loc.centre_xy[0] - loss.anchor_xy[0], loc.centre_xy[1] - loss.anchor_xy[1]) <= radius:
             self.core.commit(frame, loc)
             self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
-            search.coasting = True
+            loss.coasting = True
         else:
-            self.core.relocate(search.anchor_xy)
-            search.coasting = False
+            self.core.relocate(loss.anchor_xy)
+            loss.coasting = False
 
-    def _candidates(self, frame: np.ndarray, search: LossSearch, own: Candidate) -> list[Candidate]:
+    def _candidates(self, frame: np.ndarray, loss: LossSearch, own: Candidate) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a
         window on the pending candidate, or else on the last frame's best (at its angle)."""
         assert self.decision_filter is not None
         image = self.core.prepare(frame)
-        centres, angles = search.windows((frame.shape[1], frame.shape[0]))
-        peaks = self._gate_peaks(frame, search)
+        centres, angles = loss.windows((frame.shape[1], frame.shape[0]))
+        peaks = self._gate_peaks(frame, loss)
         if peaks:
             centres = np.vstack([centres, peaks])
             angles = np.append(angles, np.zeros(len(peaks)))
-        focus = search.pending if search.pending is not None else search.lead
+        focus = loss.pending if loss.pending is not None else loss.lead
         if focus is not None:
             centres = np.vstack([centres, [[focus.x, focus.y]]])
             angles = np.append(angles, focus.angle_deg)
-        side = search.side_px  # the last confident size (a coasting core's may have drifted)
+        side = loss.side_px  # the last confident size (a coasting core's may have drifted)
         found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles)
         factor = self.redetect.search.turned_score_factor
         return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
@@ -515,14 +516,14 @@ class JsarReTracker:
         """The whole-gate search on this lost frame (verify.gate_map): the centres (px) where the target's
         template matches best over the motion gate, within the lattice's square and verify.gate_map_max_px."""
         verify = self.redetect.verify
-        if self.gate_template is None or self.embedder is None or search.lost_frames % verify.gate_map_frames:
+        if self.gate_template is None or self.embedder is None or loss.lost_frames % verify.gate_map_frames:
             return []
         template, scale = self.gate_template
-        radius = (min(search.reach_sides, search.area_sides() / 2.0) + 0.5) * search.side_px
+        radius = (min(loss.reach_sides, loss.area_sides() / 2.0) + 0.5) * loss.side_px
         radius = min(radius, verify.gate_map_max_px / (2.0 * scale))
         height, width = frame.shape[:2]
-        x0, y0 = max(search.anchor_xy[0] - radius, 0.0), max(search.anchor_xy[1] - radius, 0.0)
-        x1, y1 = min(search.anchor_xy[0] + radius, float(width)), min(search.anchor_xy[1] + radius, float(height))
+        x0, y0 = max(loss.anchor_xy[0] - radius, 0.0), max(loss.anchor_xy[1] - radius, 0.0)
+        x1, y1 = min(loss.anchor_xy[0] + radius, float(width)), min(loss.anchor_xy[1] + radius, float(height))
         if x1 - x0 < 1 or y1 - y0 < 1:
             return []
         peaks = self.embedder.gate_peaks(frame, (x0, y0, x1 - x0, y1 - y0), scale, template,
@@ -596,6 +597,7 @@ class JsarReTracker:
         self.reacquisitions += 1
 
     def _remember_position(self) -> None:
+        """Add the core's centre (px) on this frame to the motion model."""
         cx, cy = self.core.centre_xy
         self.recent_centres.append((self.frame_index, cx, cy))
 

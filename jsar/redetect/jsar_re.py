@@ -118,7 +118,8 @@ class JsarReTracker:
     def init(self, frame: np.ndarray, box: Box) -> None:
         """Start tracking `box` (x, y, w, h px) in `frame`; trains the core and the decision filter."""
         self.core.init(frame, box)
-        self.decision_filter = DecisionFilter(self.params, self.core)
+        monitor = self.redetect.monitor  # the decision filter's reference follows its peaks at the monitor's rates
+        self.decision_filter = DecisionFilter(self.params, self.core, monitor.reference_rate, monitor.reference_fall_rate)
         self.colour = self._new_colour_model()
         self.colour.learn(frame, self.core.box)
         colour = self.redetect.colour

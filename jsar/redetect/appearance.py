@@ -1,15 +1,12 @@
 """The verifier: a learnt appearance check of re-detection candidates (VerifyParams).
 
-The decision filter scores a candidate by a HOG + colour-names template: a returning target that looks a
-little different scores under the bar that keeps look-alikes out. The verifier compares embeddings
-(unit vectors from an ImageNet network, jsar.learnt) instead, with two memories:
+It compares embeddings (unit vectors from an ImageNet network, jsar.learnt) with two memories:
 - the target's: the selection's embedding, kept for good, and those of a few recent reliable frames;
-- the look-alikes': windows around the tracked target on reliable frames (TLD's negative expert: what
-  is near the target and is not it) and candidates the verifier refused while lost.
-A candidate's similarity to each memory is its largest cosine there; it is "target" when its target
+- the look-alikes': windows around the tracked target on reliable frames (TLD's negative expert) and
+  candidates the verifier refused while lost.
+A candidate's similarity to a memory is its largest cosine there; it is "target" when its target
 similarity reaches `min_similarity` and beats its look-alike similarity by `margin` (DaSiamRPN's
 distractor-aware score as a margin), "other" when it falls under `reject_similarity`, else "unsure".
-
 Conventions: boxes (x, y, w, h) px; embeddings (N, D) float32 rows of unit length.
 """
 from __future__ import annotations

@@ -79,7 +79,7 @@ class DecisionFilter:
             turns.append(float(degrees))
         windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
         # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
-        # (docs/results-tracker.md, the cost of a lost frame); the spectra and responses are the same numbers.
+        # (docs/results-tracker.md, "Speed: where the time goes"); the spectra and responses are the same numbers.
         spectra = fourier.rfft2_channels_last(windows * self.filter.cos_window[None, :, :, None])  # (M, H, W//2+1, C)
         assert self.filter.filter_f is not None
         filter_hwc = np.ascontiguousarray(np.moveaxis(self.filter.filter_f.conj(), 0, -1))  # (H, W//2+1, C)

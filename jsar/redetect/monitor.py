@@ -1,20 +1,13 @@
 """JSAR-Re failure monitor: a pure, I/O-free state machine over the translation response peak.
 
-Per frame the caller passes the raw translation peak (the tracker's FFT convention: forward DFT
-unnormalised, inverse 1/N, as MATLAB, so a filter's response to its own training sample peaks near
-the Gaussian label's 1), the last confident box (x, y, w, h) px, the image size and the 0-based
-frame index (0 = the initialisation frame).
-
-- confident <=> peak > confident_peak (zeta_e) and peak > relative_drop x reference, the reference
-  being an asymmetric running mean of reliable peaks (fast up, slow down). The relative test is an
-  addition: per-target peak levels range from about 0.013 (a deforming bird) to 0.06, so a target
-  replaced by background can halve the peak and stay above the absolute zeta_e;
-- reliable <=> peak > reliable_peak (zeta_s, the paper's rule): the decision filter trains on that
-  sample, and on a committed frame the reference follows it, fast up and slowly down, so a gradual
-  occlusion (the synthetic scene's canopy: 0.057 -> 0.019 over ~20 frames) cannot drag it down far
-  enough to hide the loss;
+Per frame: the raw translation peak (MATLAB FFT convention, jsar.config), the last confident box (x, y, w, h)
+px, the image size and the 0-based frame index (0 = the initialisation frame).
+- confident <=> peak > confident_peak (zeta_e) and peak > relative_drop x the reference, an asymmetric
+  running mean of reliable committed peaks (fast up, slow down; the relative test is an addition);
+- reliable <=> peak > reliable_peak (zeta_s, the paper's rule): the decision filter learns that sample;
 - eligible <=> frame_index >= warmup_frames, min_area < w*h < max_area and the box inside the image
   (`inside_rule`). A frame that is not confident but not eligible is committed as plain JSAR.
+Why the relative test and the asymmetric reference: docs/method.md ("JSAR-Re").
 """
 from __future__ import annotations
 

@@ -19,38 +19,22 @@ EdgeFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 @dataclass(frozen=True)
 class EdgeBoxesSettings:
-    """cv2.ximgproc.EdgeBoxes settings (the original's values) plus how the search region is prepared.
+    """cv2.ximgproc.EdgeBoxes settings (the original's values unless said) plus how the search region is prepared."""
 
-    min_area_fraction: EdgeBoxes' minimum box area = this * target area (pixels^2), at least
-    min_area_floor_px2, so targets down to the failure monitor's 100 px^2 stay findable (the original
-    kept EdgeBoxes' fixed 1000 px^2). max_area_ratio: boxes larger than this * target area are
-    dropped (EdgeBoxes has no maximum; on cluttered frames boxes spanning the whole region otherwise
-    take most of the max_boxes slots); EdgeBoxes is asked for candidate_factor * max_boxes boxes so
-    that max_boxes remain after that filter. working_target_side_px: the region is resampled so that
-    the target's sqrt(w*h) spans about this many pixels (scale clamped to [min_working_scale,
-    max_working_scale]); this bounds the cost on big targets and gives tiny ones enough edge pixels.
-    max_working_pixels caps the resampled region's area (EdgeBoxes' cost grows with it: a whole
-    1280x720 frame at a small target's working scale took 2.5 s), shrinking the scale further when
-    omega has grown large.
-    edge_min_mag: EdgeBoxes' edgeMinMag (default 0.1): gradient edges are denser than the
-    structured-edge output the default was tuned on; 0.15 halves the cost on cluttered frames at the
-    same recall (measured on the shared sequences, see the report).
-    """
-
-    alpha: float = 0.625
-    beta: float = 0.85
-    min_score: float = 0.01
-    max_boxes: int = 30
-    max_aspect_ratio: float = 3.0
-    min_area_fraction: float = 0.3
-    min_area_floor_px2: float = 16.0
-    max_area_ratio: float = 3.0
-    candidate_factor: int = 4
-    working_target_side_px: float = 32.0
-    edge_min_mag: float = 0.15
-    min_working_scale: float = 0.125
-    max_working_scale: float = 4.0
-    max_working_pixels: int = 256 * 256
+    alpha: float = 0.625  # EdgeBoxes' sliding-window step size (IoU of neighbouring windows)
+    beta: float = 0.85  # EdgeBoxes' NMS threshold (IoU)
+    min_score: float = 0.01  # EdgeBoxes' minimum box score
+    max_boxes: int = 30  # proposals kept
+    max_aspect_ratio: float = 3.0  # EdgeBoxes' maximum box aspect ratio
+    min_area_fraction: float = 0.3  # minimum box area = this x the target's area, at least min_area_floor_px2 (the original: a fixed 1000 px^2)
+    min_area_floor_px2: float = 16.0  # the minimum box area's floor (px^2): targets down to the monitor's smallest stay findable
+    max_area_ratio: float = 3.0  # boxes larger than this x the target's area are dropped (they took most slots on clutter)
+    candidate_factor: int = 4  # EdgeBoxes is asked for this x max_boxes boxes, so max_boxes remain after that filter
+    working_target_side_px: float = 32.0  # the region is resampled so the target's sqrt(w*h) spans about this (px)
+    edge_min_mag: float = 0.15  # EdgeBoxes' edgeMinMag (its default 0.1): gradient edges are denser; same recall, half the cost
+    min_working_scale: float = 0.125  # the resampling scale's lower bound
+    max_working_scale: float = 4.0  # the resampling scale's upper bound
+    max_working_pixels: int = 256 * 256  # the resampled region's area bound (px^2; a whole 1280x720 frame took 2.5 s)
 
     def __post_init__(self) -> None:
         if not 0 < self.alpha < 1 or not 0 < self.beta <= 1:

@@ -3,15 +3,11 @@
 Conventions: offsets in target sides sqrt(w*h) from the last confident centre, positions in full-frame
 pixels (x right, y down), scores are raw decision-filter peaks (MATLAB FFT convention, as eta_d).
 
-The lattice holds window centres at stride x (i, j), (i, j) != (0, 0) (the centre window is the core
-tracker's own detection sample, scored apart), within a square of side area + stride (so the ring
-just beyond the paper's omega square is searched: its windows reach omega's corners), nearest ring
-first. The centre's window and those of the nearest `turned_rings` rings are also scored with the image
-turned by each of the search's angles (a target that turned while hidden, where it was lost): the cycle
-is the centre's turned windows, then ring by ring the ring's upright windows followed (near rings only)
-by its turned ones. Each lost frame scores `windows_per_frame` entries of
-the cycle; the area grows per lost frame (the paper's omega schedule), so farther rings join the
-cycle as the loss goes on.
+The lattice holds window centres at stride x (i, j) != (0, 0) (the centre window is the core's own
+detection sample, scored apart) within a square of side area + stride, nearest ring first. The cycle:
+the centre's turned windows, then ring by ring its upright windows followed (first `turned_rings` rings
+only) by its turned ones. Each lost frame scores `windows_per_frame` entries of the cycle; the area
+grows per lost frame (the paper's omega), so farther rings join as the loss goes on.
 """
 from __future__ import annotations
 

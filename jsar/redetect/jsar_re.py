@@ -513,7 +513,7 @@ class JsarReTracker:
         rows = self.embedder.embed(frame, np.array([self._loss_box(centre_xy)]))
         return self.appearance.judge(rows)[0].verdict is Appearance.OTHER
 
-    def _gate_peaks(self, frame: np.ndarray, search: LossSearch) -> list[tuple[float, float]]:
+    def _gate_peaks(self, frame: np.ndarray, loss: LossSearch) -> list[tuple[float, float]]:
         """The whole-gate search on this lost frame (verify.gate_map): the centres (px) where the target's
         template matches best over the motion gate, within the lattice's square and verify.gate_map_max_px."""
         verify = self.redetect.verify

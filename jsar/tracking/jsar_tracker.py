@@ -133,8 +133,8 @@ class JsarTracker:
             dy, dx, peak = dcf.subpixel_peak(resp, resp_f, p.newton_iterations)
             if best is None or peak > best.peak:
                 px_per_cell = side / self._cells
-                center = (self.centre_xy[0] + dx * px_per_cell, self.centre_xy[1] + dy * px_per_cell)
-                best = Localisation(center, peak, (dy, dx), sample_f, side, factor, resp)
+                centre = (self.centre_xy[0] + dx * px_per_cell, self.centre_xy[1] + dy * px_per_cell)
+                best = Localisation(centre, peak, (dy, dx), sample_f, side, factor, resp)
         assert best is not None
         return best
 

@@ -51,7 +51,7 @@ def test_every_variant_runs_with_its_own_overrides_and_only_those(sequences, mon
         created.append((overrides, tracker))
         return tracker
 
-    widest: dict[int, int] = {}  # id(decision memory) -> most windows it scored in one call
+    widest: dict[int, int] = {}  # id(decision filter) -> most windows it scored in one call
     real_score_windows = DecisionFilter.score_windows
 
     def spy_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg=None):

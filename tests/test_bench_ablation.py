@@ -94,9 +94,9 @@ def test_every_variant_runs_with_its_own_overrides_and_only_those(sequences, mon
         assert (tracker.redetect.monitor, tracker.redetect.accept) == (defaults.monitor, defaults.accept)
 
     # The occlusion makes the default search its lattice; without the budget at most the pending window.
-    lost_default = [t for t in by_variant[ablation.DEFAULT] if id(t.memory) in widest]
-    assert lost_default and max(widest[id(t.memory)] for t in lost_default) > 1, widest
-    assert all(widest.get(id(t.memory), 0) <= 1 for t in by_variant["no-budget-lattice"]), widest
+    lost_default = [t for t in by_variant[ablation.DEFAULT] if id(t.decision_filter) in widest]
+    assert lost_default and max(widest[id(t.decision_filter)] for t in lost_default) > 1, widest
+    assert all(widest.get(id(t.decision_filter), 0) <= 1 for t in by_variant["no-budget-lattice"]), widest
 
 
 def test_no_lattice_windows_change_nothing_before_the_first_reacquisition(sequences):

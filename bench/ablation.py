@@ -42,7 +42,7 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     # Loss = the paper's absolute zeta_e alone, no drop relative to the target's own peak level.
     "no-relative-drop": {"monitor": {"relative_drop": 0.0}},
     # The paper's eta_d: an absolute 0.02 decaying by 1.005 per failed frame, nothing relative.
-    "absolute-eta-d": {"accept": {"accept_fraction": 0.0, "accept_floor": 0.0, "accept_peak": 0.02}},
+    "absolute-eta-d": {"accept": {"fraction": 0.0, "floor": 0.0, "peak": 0.02}},
     # No lattice windows: the decision filter scores the core's own detection sample only.
     "no-budget-lattice": {"search": {"windows_per_frame": 0}},
     # The search stays on the last confident centre instead of following the target's velocity.

@@ -59,7 +59,7 @@ import numpy as np  # noqa: E402
 import jsar  # noqa: E402
 from jsar.eval import dataset, longterm  # noqa: E402
 from jsar.eval.misses import EventStates  # noqa: E402
-from jsar.redetect.jsar_re import JsarReTracker  # noqa: E402
+from jsar.redetect.jsar_re import JsarReTracker, Phase  # noqa: E402
 from jsar.redetect.search import LossSearch, decayed_bar  # noqa: E402
 
 SIZES = ("tracker", "groundtruth")  # the side the oracle's window is scored at
@@ -86,12 +86,12 @@ class OracleSearchTracker(JsarReTracker):
         box = self.groundtruth_box
         return None if np.any(np.isnan(box)) else (box[0] + box[2] / 2.0, box[1] + box[3] / 2.0)
 
-    def _own(self, loc):  # type: ignore[no-untyped-def]
-        own = super()._own(loc)
-        if self.oracle != "oracle" or not self.lost or self.search is None:
+    def _score_core_sample(self, loc):  # type: ignore[no-untyped-def]
+        own = super()._score_core_sample(loc)
+        if self.oracle != "oracle" or self.phase is not Phase.LOST or self.loss is None:
             return own
         centre = self._target_centre()
-        if centre is None or own.distance_sides(centre, self.search.side_px) > 1.0:
+        if centre is None or own.distance_sides(centre, self.loss.side_px) > 1.0:
             return dataclasses.replace(own, score=0.0)
         return own
 
@@ -100,9 +100,9 @@ class OracleSearchTracker(JsarReTracker):
         centre = self._target_centre()
         if centre is None:
             return found
-        assert self.memory is not None
+        assert self.decision_filter is not None
         angles = np.array([0.0, *self.redetect.search.turned_angles_deg])
-        windows = self.memory.score_windows(self.core.prepare(frame), self.core.feature_colour_table,
+        windows = self.decision_filter.score_windows(self.core.prepare(frame), self.core.feature_colour_table,
                                             np.repeat([centre], len(angles), axis=0), search.side_px, angles)
         factor = self.redetect.search.turned_score_factor
         return found + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in windows]
@@ -136,7 +136,7 @@ def oracle_look(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, f
     """A decision-filter window of target side side_px centred on gt_box (x, y, w, h px), judged by the tests
     a lattice candidate must pass on this frame (peak within a side of the ground truth's centre, the bar
     after `frames_since` lost frames, the colour check); reads the tracker's state only."""
-    memory, core = tracker.memory, tracker.core
+    memory, core = tracker.decision_filter, tracker.core
     assert memory is not None
     centre = (gt_box[0] + gt_box[2] / 2.0, gt_box[1] + gt_box[3] / 2.0)
     found = memory.score_windows(core.prepare(frame), core.feature_colour_table, np.array([centre]), side_px)[0]
@@ -145,7 +145,7 @@ def oracle_look(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, f
     minimum = tracker.redetect.colour.min_match
     colour = math.inf
     if minimum > 0:
-        w, h = (tracker.before_loss if tracker.before_loss is not None else core).size_wh
+        w, h = (tracker.core_at_loss if tracker.core_at_loss is not None else core).size_wh
         colour = tracker.colour.relative_match(frame, (found.x - w / 2.0, found.y - h / 2.0, w, h))
     return OracleLook(found.score, bar, colour, minimum, found.distance_sides(centre, side_px))
 
@@ -158,9 +158,9 @@ def search_reach(search: LossSearch, gt_box: np.ndarray) -> str:
     dx, dy = ((centre[k] - search.anchor_xy[k]) / search.side_px for k in (0, 1))
     if math.hypot(dx, dy) > search.reach_sides:
         return "outside gate"
-    if max(abs(dx), abs(dy)) > (search.area_sides() + search.search.stride_sides) / 2.0:
+    if max(abs(dx), abs(dy)) > (search.area_sides() + search.lattice.stride_sides) / 2.0:
         return "outside lattice"
-    return "inside lattice" if max(abs(dx), abs(dy)) > 1.5 * search.search.stride_sides else "first ring"
+    return "inside lattice" if max(abs(dx), abs(dy)) > 1.5 * search.lattice.stride_sides else "first ring"
 
 
 def oracle_recognises(tracker: JsarReTracker, frame: np.ndarray, gt_box: np.ndarray, frames_since: int,
@@ -201,7 +201,7 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
         if event is None or np.any(np.isnan(gt[index])):
             continue
         since = index - (loss_start if loss_start is not None else event.start) + 1
-        tracker_side = tracker.search.side_px if tracker.search is not None else math.sqrt(
+        tracker_side = tracker.loss.side_px if tracker.loss is not None else math.sqrt(
             tracker.box[2] * tracker.box[3])
         sides = {"tracker": tracker_side, "groundtruth": math.sqrt(gt[index][2] * gt[index][3])}
         for size in SIZES:
@@ -209,8 +209,8 @@ def run_sequence(events: longterm.EventSequence, window: int, needed: int, searc
             recognised[size][index] = look.failed_test() is None
             if size == "tracker":
                 looks[index] = look
-        if tracker.search is not None:
-            where[index] = search_reach(tracker.search, gt[index])
+        if tracker.loss is not None:
+            where[index] = search_reach(tracker.loss, gt[index])
     scores = longterm.longterm_scores(boxes, states, gt, longterm.LongTermCriteria(window=window),
                                       events.scored_spans)
     for entry in scores["events"]:  # type: ignore[union-attr]

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 import jsar
+from jsar.api import Box
 from jsar.eval import dataset
 from jsar.eval.runner import cap_loaded_pools, limit_threads_env
 from jsar.eval.synthetic import synthetic_clip
@@ -41,7 +42,7 @@ def choose_source(sequence: Path | None, data_root: str | None) -> tuple[str, li
     return "synthetic", frames, None, boxes
 
 
-def annotate(frame: np.ndarray, box: tuple[float, float, float, float], gt: np.ndarray, state: str,
+def annotate(frame: np.ndarray, box: Box, gt: np.ndarray, state: str,
              index: int, ms: float) -> np.ndarray:
     """Copy of `frame` with the ground truth (thin white), the tracker box (colour = state) and a caption."""
     out = frame.copy() if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)

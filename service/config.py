@@ -14,37 +14,15 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal, Mapping
+from typing import Any, Literal, Mapping
 
 import yaml
+
+from jsar.checked import checked as _checked, in_range as _in_range, non_negative as _non_negative, positive as _positive
 
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown or out of range; the message names the key path."""
-
-
-Check = Callable[[Any], "str | None"]
-
-
-def _positive(value: float) -> str | None:
-    return None if value > 0 else f"must be > 0, got {value}"
-
-
-def _non_negative(value: float) -> str | None:
-    return None if value >= 0 else f"must be >= 0, got {value}"
-
-
-def _in_range(low: float, high: float) -> Check:
-    def check(value: float) -> str | None:
-        return None if low <= value <= high else f"must be in [{low}, {high}], got {value}"
-    return check
-
-
-def _checked(default: Any, *checks: Check) -> Any:
-    """A dataclass field with a default and value checks run by the loader."""
-    if isinstance(default, (list, dict)):
-        raise TypeError("mutable defaults are not allowed; use tuples")
-    return field(default=default, metadata={"checks": checks})
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from bench import ablation
 from jsar.config import JsarParams
 from jsar.eval import dataset, evaluate
 from jsar.eval.synthetic import synthetic_clip, write_otb_sequence
-from jsar.redetect.memory import DecisionMemory
+from jsar.redetect.memory import DecisionFilter
 from jsar.redetect.params import RedetectParams
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,15 +51,15 @@ def test_every_variant_runs_with_its_own_overrides_and_only_those(sequences, mon
         created.append((overrides, tracker))
         return tracker
 
-    widest: dict[int, int] = {}  # id(decision memory) -> most windows it scored in one call
-    real_score_windows = DecisionMemory.score_windows
+    widest: dict[int, int] = {}  # id(decision filter) -> most windows it scored in one call
+    real_score_windows = DecisionFilter.score_windows
 
     def spy_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg=None):
         widest[id(self)] = max(widest.get(id(self), 0), len(centres_xy))
         return real_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg)
 
     monkeypatch.setattr(jsar, "create", spy_create)
-    monkeypatch.setattr(DecisionMemory, "score_windows", spy_score_windows)
+    monkeypatch.setattr(DecisionFilter, "score_windows", spy_score_windows)
     result = ablation.run_ablation(sequences, list(ablation.VARIANTS), seeds=[0], **EVENTS)
 
     assert list(result["variants"]) == [ablation.DEFAULT] + list(ablation.VARIANTS)
@@ -94,9 +94,9 @@ def test_every_variant_runs_with_its_own_overrides_and_only_those(sequences, mon
         assert (tracker.redetect.monitor, tracker.redetect.accept) == (defaults.monitor, defaults.accept)
 
     # The occlusion makes the default search its lattice; without the budget at most the pending window.
-    lost_default = [t for t in by_variant[ablation.DEFAULT] if id(t.memory) in widest]
-    assert lost_default and max(widest[id(t.memory)] for t in lost_default) > 1, widest
-    assert all(widest.get(id(t.memory), 0) <= 1 for t in by_variant["no-budget-lattice"]), widest
+    lost_default = [t for t in by_variant[ablation.DEFAULT] if id(t.decision_filter) in widest]
+    assert lost_default and max(widest[id(t.decision_filter)] for t in lost_default) > 1, widest
+    assert all(widest.get(id(t.decision_filter), 0) <= 1 for t in by_variant["no-budget-lattice"]), widest
 
 
 def test_no_lattice_windows_change_nothing_before_the_first_reacquisition(sequences):

@@ -13,6 +13,7 @@ import jsar
 from bench import ceiling
 from jsar.eval import dataset, evaluate, longterm
 from jsar.eval.synthetic import synthetic_clip, write_otb_sequence
+from jsar.redetect.jsar_re import Phase
 
 N_FRAMES = 60  # one 5-frame event after the protocol's first 30 frames and before its 15-frame gap
 
@@ -71,14 +72,14 @@ def test_the_oracle_search_scores_the_target_only_while_lost_and_visible(sequenc
     tracker = ceiling.OracleSearchTracker("oracle")
     frame = sequence.read_frame(0)
     tracker.init(frame, tuple(float(v) for v in sequence.groundtruth[0]))
-    tracker.lost = True
-    tracker.search = tracker._new_search()
-    own = tracker._own(tracker.core.locate(frame))
+    tracker.loss = tracker._new_loss()
+    tracker.phase = Phase.LOST
+    own = tracker._score_core_sample(tracker.core.locate(frame))
     tracker.groundtruth_box = np.full(4, np.nan)
-    assert tracker._candidates(frame, tracker.search, own) == [dataclasses.replace(own, score=0.0)]
+    assert tracker._candidates(frame, tracker.loss, own) == [dataclasses.replace(own, score=0.0)]
     box = np.array(sequence.groundtruth[0], dtype=float)
     tracker.groundtruth_box = box
-    found = tracker._candidates(frame, tracker.search, tracker._own(tracker.core.locate(frame)))
+    found = tracker._candidates(frame, tracker.loss, tracker._score_core_sample(tracker.core.locate(frame)))
     centre = box[:2] + box[2:] / 2.0
     windows = [c.window_xy for c in found[1:]]
     assert len(windows) == 1 + len(tracker.redetect.search.turned_angles_deg)

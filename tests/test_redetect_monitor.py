@@ -28,7 +28,7 @@ def test_absolute_thresholds_alone_before_any_reference():
     assert monitor.reference is None
     assert monitor.judge(0.02) == (True, True)
     assert monitor.judge(0.012) == (True, False)  # between zeta_e and zeta_s: commit, do not train
-    assert monitor.judge(P.enable_peak) == (False, False)  # strictly above zeta_e
+    assert monitor.judge(P.confident_peak) == (False, False)  # strictly above zeta_e
     assert monitor.judge(P.reliable_peak) == (True, False)  # strictly above zeta_s
     assert monitor.judge(0.0) == (False, False)
     assert monitor.reference is None  # judge() changes nothing
@@ -187,8 +187,8 @@ def test_non_finite_peak_is_rejected():
 
 
 @pytest.mark.parametrize(("override", "key"), [
-    ({"enable_peak": 0.02, "reliable_peak": 0.01}, "monitor.enable_peak"),
-    ({"enable_peak": 0.0}, "monitor.enable_peak"),
+    ({"confident_peak": 0.02, "reliable_peak": 0.01}, "monitor.confident_peak"),
+    ({"confident_peak": 0.0}, "monitor.confident_peak"),
     ({"relative_drop": 1.0}, "monitor.relative_drop"),
     ({"reference_rate": 0.0}, "monitor.reference_rate"),
     ({"reference_fall_rate": 1.5}, "monitor.reference_fall_rate"),

@@ -15,7 +15,7 @@ import pytest
 
 import jsar
 from jsar.config import JsarParams
-from jsar.redetect.jsar_re import JsarReTracker
+from jsar.redetect.jsar_re import TRANSITIONS, JsarReTracker, Phase
 from jsar.features.patches import sample_patch
 from jsar.redetect.memory import turned_patch, window_features
 from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
@@ -117,7 +117,7 @@ def test_lattice_offsets_ring_by_ring_without_the_centre():
 
 
 def test_decayed_bar_decays_to_its_floor_and_keeps_the_absolute_part():
-    relative = AcceptParams(accept_peak=0.0, accept_fraction=0.5, accept_decay=1.005, accept_floor=0.45)
+    relative = AcceptParams(peak=0.0, fraction=0.5, decay=1.005, floor=0.45)
     assert decayed_bar(0.06, 0, relative) == pytest.approx(0.03)
     assert decayed_bar(0.06, 10, relative) == pytest.approx(0.06 * 0.5 / 1.005 ** 10)
     bars = [decayed_bar(0.06, t, relative) for t in range(100)]
@@ -128,10 +128,10 @@ def test_decayed_bar_decays_to_its_floor_and_keeps_the_absolute_part():
     assert decayed_bar(0.02, 30, relative, min_peak=0.013) == pytest.approx(0.013)
     assert decayed_bar(0.06, 30, relative, min_peak=0.013) == pytest.approx(0.06 * 0.45)
     assert decayed_bar(None, 3, relative, min_peak=0.013) == math.inf
-    paper = AcceptParams(accept_peak=0.02, accept_fraction=0.0, accept_floor=0.0)  # the paper's eta_d
+    paper = AcceptParams(peak=0.02, fraction=0.0, floor=0.0)  # the paper's eta_d
     assert decayed_bar(None, 0, paper) == pytest.approx(0.02)
     assert decayed_bar(0.5, 7, paper) == pytest.approx(0.02 / 1.005 ** 7)
-    both = AcceptParams(accept_peak=0.02)
+    both = AcceptParams(peak=0.02)
     assert decayed_bar(0.03, 0, both) == pytest.approx(0.02)  # a weak target: the absolute part wins
     assert decayed_bar(0.08, 0, both) == pytest.approx(0.08 * 0.625)  # a strong one: the relative part wins
     assert decayed_bar(None, 0, both) == pytest.approx(0.02)
@@ -175,7 +175,7 @@ def _search(anchor: tuple[float, float] = (160.0, 120.0), side: float = 10.0, **
 
 def test_loss_search_windows_cycle_through_the_lattice_within_the_budget():
     search = _search()
-    ring = lattice_offsets(search.area_sides(), search.search.stride_sides)
+    ring = lattice_offsets(search.area_sides(), search.lattice.stride_sides)
     assert len(ring) == 8
     (first, first_angles), (second, _), (third, _) = (search.windows((320, 240)) for _ in range(3))
     assert len(first) == len(second) == 4 and np.all(first_angles == 0)  # the budget; upright only
@@ -339,17 +339,17 @@ def test_thresholds_separate_target_from_background_in_tracker_units():
     tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
     clean = tracker.core.locate(_frame(background, (100, 100))).peak
     empty = tracker.core.locate(background).peak
-    assert clean > monitor.reliable_peak > monitor.enable_peak
-    assert empty < monitor.enable_peak
+    assert clean > monitor.reliable_peak > monitor.confident_peak
+    assert empty < monitor.confident_peak
     # The decision filter starts as the core's first filter, and stays shared while both learn the same frames.
-    assert tracker.memory is not None and tracker.memory.in_sync
-    assert np.array_equal(tracker.memory.filter.filter_f, tracker.core.translation.filter_f)
+    assert tracker.decision_filter is not None and tracker.decision_filter.in_sync
+    assert np.array_equal(tracker.decision_filter.filter.filter_f, tracker.core.translation.filter_f)
 
 
 def test_score_windows_finds_a_target_placed_in_a_window():
     background = _background()
     tracker = _tracker_on_target(background=background)
-    memory = tracker.memory
+    memory = tracker.decision_filter
     assert memory is not None and memory.reference is not None
     frame = _frame(background, (190, 150))  # the target's centre is now (202, 162) px
     image = tracker.core.prepare(frame)
@@ -386,7 +386,7 @@ def test_score_windows_finds_a_target_placed_in_a_window():
 def test_turned_windows_recognise_a_target_that_turned_and_map_its_position_back():
     background = _background()
     tracker = _tracker_on_target(background=background)
-    memory = tracker.memory
+    memory = tracker.decision_filter
     assert memory is not None and memory.reference is not None
     # The target turned by 45 degrees (cv2's sign: counter-clockwise as displayed) about its centre (202, 162) px.
     frame = _frame(background, None)
@@ -427,14 +427,14 @@ def test_relocate_moves_the_centre_and_keeps_size_and_filters():
     core.update(_frame(background, (100, 100)))
     size, filter_f = core.size_wh, core.translation.filter_f.copy()
     core.relocate((202.0, 162.0))
-    assert core.center_xy == (202.0, 162.0)
+    assert core.centre_xy == (202.0, 162.0)
     assert core.size_wh == size
     assert _centre(core.box) == pytest.approx((202.0, 162.0))
     assert np.array_equal(core.translation.filter_f, filter_f)
     # The unchanged filter finds the target where it was moved to (beyond its old search square).
     found = core.locate(_frame(background, (190, 150)))
     assert found.peak > RedetectParams().monitor.reliable_peak
-    assert math.dist(found.center_xy, (202.0, 162.0)) < 3.0
+    assert math.dist(found.centre_xy, (202.0, 162.0)) < 3.0
     with pytest.raises(ValueError, match="finite"):
         core.relocate((float("nan"), 10.0))
     with pytest.raises(RuntimeError, match="before init"):
@@ -443,13 +443,23 @@ def test_relocate_moves_the_centre_and_keeps_size_and_filters():
 
 # ---------------------------------------------------------------- parameters and the registry
 
+def test_the_phase_moves_only_by_the_transition_table():
+    """Every phase is left and reached through TRANSITIONS; an event it does not list for a phase is refused."""
+    assert {phase for phase, _ in TRANSITIONS} == set(Phase) == set(TRANSITIONS.values())
+    tracker = JsarReTracker()
+    assert tracker.phase is Phase.TRACKING
+    with pytest.raises(KeyError):
+        tracker._go("refuted")  # only a re-acquisition on probation can be refuted
+    assert tracker.phase is Phase.TRACKING
+
+
 def test_registry_passes_nested_overrides_and_core_overrides():
     assert "jsar-re" in jsar.registry.available()
     tracker = jsar.create("jsar-re", cell_size=4, redetect={"search": {"windows_per_frame": 2},
-                                                            "monitor": {"enable_peak": 0.009}})
+                                                            "monitor": {"confident_peak": 0.009}})
     assert isinstance(tracker, JsarReTracker)
     assert tracker.redetect.search.windows_per_frame == 2
-    assert tracker.monitor.params.enable_peak == 0.009
+    assert tracker.monitor.params.confident_peak == 0.009
     assert tracker.redetect.accept == AcceptParams()  # the other groups keep their defaults
     assert tracker.redetect.search.stride_sides == SearchParams().stride_sides
     assert jsar.create("jsar-re").redetect == RedetectParams()
@@ -465,17 +475,19 @@ def test_registry_passes_nested_overrides_and_core_overrides():
     ({"search": {"windows_per_frame": "many"}}, "redetect.search.windows_per_frame"),  # wrong type
     ({"search": {"windows_per_frame": 2.5}}, "redetect.search.windows_per_frame"),  # not an integer
     ({"accept": {"reacquire": 1}}, "redetect.accept.reacquire"),  # a number for a string
-    ({"monitor": {"enable_peak": True}}, "redetect.monitor.enable_peak"),  # a bool for a number
+    ({"monitor": {"confident_peak": True}}, "redetect.monitor.confident_peak"),  # a bool for a number
     ({"accept": {"gate_base_sides": float("inf")}}, "redetect.accept.gate_base_sides"),  # not finite
     ({"search": {"windows_per_frame": -1}}, "redetect.search.windows_per_frame"),  # invalid value
     ({"search": {"turned_rings": -1}}, "redetect.search.turned_rings"),
     ({"accept": {"core_fraction": 0.3}}, "redetect.accept.core_fraction"),  # under the floor
     ({"accept": {"reacquire": "teleport"}}, "redetect.accept.reacquire"),
-    ({"monitor": {"enable_peak": 0.05}}, "redetect.monitor.enable_peak"),  # above reliable_peak
+    ({"monitor": {"confident_peak": 0.05}}, "redetect.monitor.confident_peak"),  # above reliable_peak
     ({"search": 3}, "redetect.search"),  # a group must be a mapping
     ({"accept": {"coast_confirm_frames": 30}}, "redetect.accept.coast_confirm_frames"),  # removed: unknown now
     ({"accept": {"size_hold_fraction": 1.0}}, "redetect.accept.size_hold_fraction"),
     ({"monitor": {"reliable_fraction": 0.7}}, "redetect.monitor.reliable_fraction"),  # removed: unknown now
+    ({"monitor": {"enable_peak": 0.01}}, "redetect.monitor.enable_peak"),  # renamed confident_peak: unknown now
+    ({"accept": {"accept_decay": 1.01}}, "redetect.accept.accept_decay"),  # renamed decay: unknown now
 ])
 def test_redetect_mapping_errors_name_the_key(mapping, key):
     pattern = re.escape(key) + r"\b"
@@ -534,8 +546,8 @@ def test_synthetic_occlusion_lost_then_recovered_once_on_the_target(monkeypatch)
         visible = not 35 <= index < 45
         result = tracker.update(_frame(background, _path(index) if visible else None))
         states[index], boxes[index] = result.state, result.box
-        assert tracker.memory is not None
-        memory_filters[index] = tracker.memory.filter.filter_f.copy()
+        assert tracker.decision_filter is not None
+        memory_filters[index] = tracker.decision_filter.filter.filter_f.copy()
     assert all(states[i] == "tracking" for i in range(1, 35))
     lost = [i for i in range(35, 45) if states[i] == "lost"]
     assert lost == list(range(35, 45)), states  # caught at once: nothing committed onto background
@@ -652,7 +664,7 @@ def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[dict[int, 
     for index in range(1, 75):
         result = tracker.update(frame(index))
         results[index] = (result.state, result.box)
-        refuted[index] = list(tracker.search.refuted) if tracker.search is not None else []
+        refuted[index] = list(tracker.loss.refuted) if tracker.loss is not None else []
     return results, refuted
 
 
@@ -693,7 +705,7 @@ def test_a_refuted_take_restarts_the_cores_count_towards_its_own_way_out():
             seen[index] = tracker.update(frame(index)).state
             if core_passed_on_take and seen[index] == "recovered" and index < 50:
                 assert tracker.probation is not None
-                tracker.probation.search.core_agreements = 1  # as if the core had passed its tests on that frame
+                tracker.probation.loss.core_agreements = 1  # as if the core had passed its tests on that frame
         return seen
 
     hidden_long = states(60, core_passed_on_take=False)
@@ -812,7 +824,7 @@ def test_the_core_confident_again_on_the_target_ends_the_loss_against_its_own_ba
     frames, truth = _fading_target(70, 60, 6, back_at=55, back_fade=0.5)
 
     def run(core_fraction: float) -> dict[int, tuple[str, Box]]:
-        accept = {"holdoff_frames": 100, "accept_fraction": 1.0,
+        accept = {"holdoff_frames": 100, "fraction": 1.0,
                   "core_fraction": core_fraction}
         tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(accept=accept))
         tracker.init(frames[0], truth[0])
@@ -1021,9 +1033,9 @@ def test_a_look_alike_the_verifier_calls_another_object_is_not_taken_even_above_
 
 def test_a_target_the_verifier_recognises_is_taken_under_a_bar_it_would_not_reach_otherwise():
     """The target comes back 75 px to the right after frames 35..44 (_path); the bar is set at an absolute
-    peak of 0.1 (accept_peak), above the decision filter's peaks on the target (its reference is about 0.07)."""
+    peak of 0.1 (accept.peak), above the decision filter's peaks on the target (its reference is about 0.07)."""
     background = _background()
-    strict = {"accept_peak": 0.1}
+    strict = {"peak": 0.1}
 
     def run(verify: dict) -> dict[int, tuple[str, Box]]:
         targets = [(_path(i)[0] + TARGET / 2, _path(i)[1] + TARGET / 2) for i in range(70)]

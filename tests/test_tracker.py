@@ -135,7 +135,7 @@ def test_locate_changes_nothing_commit_moves_and_reinitialise_retrains_once():
     assert tracker.box == before[0]
     np.testing.assert_array_equal(tracker.translation.filter_f, before[1])
     np.testing.assert_array_equal(tracker.size_filter.numerator, before[2])
-    assert loc.center_xy[0] == pytest.approx(105.0, abs=1.5) and loc.peak > 0
+    assert loc.centre_xy[0] == pytest.approx(105.0, abs=1.5) and loc.peak > 0
     assert loc.sample_f.shape == tracker.last_training_sample_f.shape
     tracker.commit(frames[1], loc)
     assert tracker.box[0] + tracker.box[2] / 2 == pytest.approx(105.0, abs=1.5)
@@ -181,7 +181,7 @@ def test_public_helpers_for_composition_match_the_internal_samples():
     loc = tracker.locate(frames[1])
     again = tracker.sample_spectrum(frames[1], (135.0, 123.0), loc.search_side)
     np.testing.assert_array_equal(again, tracker.sample_spectrum(frames[1], (135.0, 123.0), loc.search_side))
-    np.testing.assert_allclose(tracker.sample_spectrum(frames[1], tracker.center_xy, loc.search_side),
+    np.testing.assert_allclose(tracker.sample_spectrum(frames[1], tracker.centre_xy, loc.search_side),
                                loc.sample_f, rtol=1e-5, atol=1e-4)
     h_cells, w_cells = tracker.target_cells()
     assert w_cells / h_cells == pytest.approx(tracker.size_wh[0] / tracker.size_wh[1])

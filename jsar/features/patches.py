@@ -84,30 +84,30 @@ def _check_out(out_wh: tuple[int, int]) -> tuple[int, int]:
     return out_w, out_h
 
 
-def _check_regions(center_xy: object, sizes_wh: object) -> tuple[np.ndarray, np.ndarray]:
-    centre = np.asarray(center_xy, dtype=np.float64)
+def _check_regions(centre_xy: object, sizes_wh: object) -> tuple[np.ndarray, np.ndarray]:
+    centre = np.asarray(centre_xy, dtype=np.float64)
     sizes = np.asarray(sizes_wh, dtype=np.float64)
     if centre.shape != (2,):
-        raise ValueError(f"center_xy must be two numbers (cx, cy), got shape {centre.shape}")
+        raise ValueError(f"centre_xy must be two numbers (cx, cy), got shape {centre.shape}")
     if sizes.ndim != 2 or sizes.shape[1] != 2 or sizes.shape[0] < 1:
         raise ValueError(f"sizes_wh must be an (N, 2) array of (w, h), got shape {sizes.shape}")
     if not (np.all(np.isfinite(centre)) and np.all(np.isfinite(sizes))):
-        raise ValueError("center_xy and sizes_wh must be finite")
+        raise ValueError("centre_xy and sizes_wh must be finite")
     if np.any(sizes <= 0):
         raise ValueError(f"region sizes must be positive, got min {sizes.min()}")
     return centre, sizes
 
 
-def _validated(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]):
+def _validated(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int]):
     _check_image(image)
     out_w, out_h = _check_out(out_wh)
-    centre, sizes = _check_regions(center_xy, sizes_wh)
+    centre, sizes = _check_regions(centre_xy, sizes_wh)
     return centre, sizes, out_w, out_h
 
 
-def _resample_native(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int],
+def _resample_native(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int],
                      dtype: type) -> np.ndarray:
-    centre, sizes, out_w, out_h = _validated(image, center_xy, sizes_wh, out_wh)
+    centre, sizes, out_w, out_h = _validated(image, centre_xy, sizes_wh, out_wh)
     if image.dtype != np.uint8:
         raise ValueError(f"image must be uint8, got dtype {image.dtype}")
     src = np.ascontiguousarray(image)
@@ -119,15 +119,15 @@ def _resample_native(image: np.ndarray, center_xy: object, sizes_wh: object, out
     return out
 
 
-def resample_regions(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+def resample_regions(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
     """Float32 (N, out_h, out_w[, C]) resampling of N regions sharing one centre (uint8 image); see module docstring."""
-    return _resample_native(image, center_xy, sizes_wh, out_wh, np.float32)
+    return _resample_native(image, centre_xy, sizes_wh, out_wh, np.float32)
 
 
-def resample_regions_reference(image: np.ndarray, center_xy: object, sizes_wh: object,
+def resample_regions_reference(image: np.ndarray, centre_xy: object, sizes_wh: object,
                                out_wh: tuple[int, int]) -> np.ndarray:
     """numpy reference of `resample_regions` (slow, any real dtype): the specification the tests check against."""
-    centre, sizes, out_w, out_h = _validated(image, center_xy, sizes_wh, out_wh)
+    centre, sizes, out_w, out_h = _validated(image, centre_xy, sizes_wh, out_wh)
     height, width = image.shape[:2]
     wx = axis_weights(centre[0] - 0.5 * sizes[:, 0], sizes[:, 0], out_w, width)
     wy = axis_weights(centre[1] - 0.5 * sizes[:, 1], sizes[:, 1], out_h, height)
@@ -142,14 +142,14 @@ def resample_regions_reference(image: np.ndarray, center_xy: object, sizes_wh: o
     return (cols * weight).sum(axis=3)
 
 
-def sample_patches(image: np.ndarray, center_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
-    """uint8 (N, out_h, out_w[, 3]): N regions of sizes sizes_wh (N, 2) pixels centred at center_xy, resampled."""
-    return _resample_native(image, center_xy, sizes_wh, out_wh, np.uint8)
+def sample_patches(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+    """uint8 (N, out_h, out_w[, 3]): N regions of sizes sizes_wh (N, 2) pixels centred at centre_xy, resampled."""
+    return _resample_native(image, centre_xy, sizes_wh, out_wh, np.uint8)
 
 
-def sample_patch(image: np.ndarray, center_xy: object, size_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
-    """uint8 (out_h, out_w[, 3]): the region of size size_wh (w, h pixels) centred at center_xy (x, y), resampled."""
+def sample_patch(image: np.ndarray, centre_xy: object, size_wh: object, out_wh: tuple[int, int]) -> np.ndarray:
+    """uint8 (out_h, out_w[, 3]): the region of size size_wh (w, h pixels) centred at centre_xy (x, y), resampled."""
     size = np.asarray(size_wh, dtype=np.float64)
     if size.shape != (2,):
         raise ValueError(f"size_wh must be two numbers (w, h), got shape {size.shape}")
-    return sample_patches(image, center_xy, size[None, :], out_wh)[0]
+    return sample_patches(image, centre_xy, size[None, :], out_wh)[0]

@@ -1,17 +1,13 @@
 """Appearance embeddings and dense match maps from MobileNetV2's early features (jsar.learnt.mobilenet).
 
-Two forms:
-- `embed`: per box a vector. The box, enlarged by `context` of its size per side, is resized to a
-  fixed square input; the feature cells that cover the box itself are pooled (their mean, or a grid of
-  cell means, or both concatenated) and L2-normalised: the cosine of two embeddings is their dot.
-- `feature_map` / `target_template` / `match_map`: one forward pass over a search region (e.g. the
-  motion gate, resized by `scale`) and the target's own feature cells as a template; the cosine of the
-  template with every window of the map is a dense score map; `peak_to_frame` maps a map position
-  back to the box centre in frame pixels.
-
-Conventions: frames uint8 HxWx3 BGR; boxes and regions (x, y, w, h) in frame pixels, x right, y down,
-(x, y) the top-left corner; feature maps (C, rows, cols), cell (i, j) at stride s centred on the
-resized region's pixel (i*s, j*s) (MobileNetV2's stride-2 convs keep pixel 0 as cell 0's centre).
+- `embed`: per box a vector: the box, enlarged by `context` of its size per side, resized to a fixed
+  square input; the feature cells covering the box pooled (mean, grid of means, or both) and L2-normalised.
+- `feature_map` / `target_template` / `match_map`: one forward pass over a search region (resized by
+  `scale`), the target's feature cells as a template, their cosine with every window as a dense score
+  map; `peak_to_frame` maps a map position back to the box centre in frame pixels.
+Conventions: frames uint8 HxWx3 BGR; boxes and regions (x, y, w, h) frame px, (x, y) the top-left corner;
+feature maps (C, rows, cols), cell (i, j) at stride s centred on the resized region's pixel (i*s, j*s)
+(MobileNetV2's stride-2 convs keep pixel 0 as cell 0's centre).
 """
 from __future__ import annotations
 

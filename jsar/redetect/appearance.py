@@ -1,15 +1,12 @@
 """The verifier: a learnt appearance check of re-detection candidates (VerifyParams).
 
-The decision filter scores a candidate by a HOG + colour-names template: a returning target that looks a
-little different scores under the bar that keeps look-alikes out. The verifier compares embeddings
-(unit vectors from an ImageNet network, jsar.learnt) instead, with two memories:
+It compares embeddings (unit vectors from an ImageNet network, jsar.learnt) with two memories:
 - the target's: the selection's embedding, kept for good, and those of a few recent reliable frames;
-- the look-alikes': windows around the tracked target on reliable frames (TLD's negative expert: what
-  is near the target and is not it) and candidates the verifier refused while lost.
-A candidate's similarity to each memory is its largest cosine there; it is "target" when its target
+- the look-alikes': windows around the tracked target on reliable frames (TLD's negative expert) and
+  candidates the verifier refused while lost.
+A candidate's similarity to a memory is its largest cosine there; it is "target" when its target
 similarity reaches `min_similarity` and beats its look-alike similarity by `margin` (DaSiamRPN's
 distractor-aware score as a margin), "other" when it falls under `reject_similarity`, else "unsure".
-
 Conventions: boxes (x, y, w, h) px; embeddings (N, D) float32 rows of unit length.
 """
 from __future__ import annotations
@@ -22,6 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
+from jsar.api import Box
 from jsar.redetect.params import VerifyParams
 
 
@@ -58,7 +56,7 @@ def max_cosine(rows: np.ndarray, memory: np.ndarray) -> np.ndarray:
     return (rows @ memory.T).max(axis=1)
 
 
-def ring_boxes(box: tuple[float, float, float, float], distance_sides: float, count: int,
+def ring_boxes(box: Box, distance_sides: float, count: int,
                frame_wh: tuple[int, int]) -> np.ndarray:
     """(M, 4) boxes of `box`'s size centred `distance_sides` target sides sqrt(w*h) from its centre at
     `count` evenly spaced angles, those whose centre lies inside the frame (x, y, w, h px)."""
@@ -156,7 +154,7 @@ class NetworkEmbedder:
         from jsar.learnt.embedding import embed
         return embed(self.net, as_bgr(frame), boxes_xywh)
 
-    def template(self, frame: np.ndarray, box_xywh: tuple[float, float, float, float], cells: int
+    def template(self, frame: np.ndarray, box_xywh: Box, cells: int
                  ) -> tuple[np.ndarray, float]:
         """The target's feature cells (C, th, tw) with its side sqrt(w*h) `cells` cells across, and that scale
         (resized px per frame px)."""
@@ -164,7 +162,7 @@ class NetworkEmbedder:
         scale = cells * self.net.stride / float(np.sqrt(box_xywh[2] * box_xywh[3]))
         return target_template(self.net, as_bgr(frame), box_xywh, scale), scale
 
-    def gate_peaks(self, frame: np.ndarray, region_xywh: tuple[float, float, float, float], scale: float,
+    def gate_peaks(self, frame: np.ndarray, region_xywh: Box, scale: float,
                    template: np.ndarray, count: int, min_value: float) -> list[tuple[float, float, float]]:
         """Up to `count` (x px, y px, cosine) box centres where the template matches best in the region
         (x, y, w, h px) resized by `scale`, one forward pass, best first, a template apart."""

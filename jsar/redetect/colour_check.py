@@ -1,22 +1,12 @@
 """A colour check on re-detection candidates: does a candidate box have the target's colours?
 
-The decision filter is a template of the target's box alone (gradient orientations and colour names,
-laid out in space): a look-alike, or the occluder where the target was, can score near its level. A
-colour model has no layout: it tells a red car from the grey road it was lost on, a surfer in red from
-the surf around him. The check is a second, independent test on a candidate that already passed the
-acceptance bar.
-
-Two measures, each relative to its running mean on the boxes the model learnt (the tracked target);
-a candidate's match is the larger:
-- similarity: the Bhattacharyya coefficient of the candidate box's joint colour histogram with the
-  target's. It refuses most wrong takes on the evaluation sets, but a loose box's background weighs as
-  much as the target: a car that drove from grey pavement onto brown ground scores half;
-- share of the target's colours: the fraction of the candidate box's pixels in colours where
-  P(target | colour) > 1/2, from the histograms of the target's box and of its surround (the box
-  enlarged `surround_scale` times per side, without the box; the areas as priors), as in
-  distractor-aware tracking. It does not care about new ground, but alone it refused right takes
-  on the evaluation sets, where the target's own colours are a small, noisy part of a small box.
-
+A second test, independent of the decision filter's layout-bound template, on a candidate that passed the
+acceptance bar. Two measures, each relative to its running mean on the boxes the model learnt; a
+candidate's match is the larger:
+- similarity: the Bhattacharyya coefficient of the box's joint colour histogram with the target's;
+- share: the fraction of the box's pixels in colours where P(target | colour) > 1/2, from the histograms
+  of the target's box and its surround (the box enlarged `surround_scale` times per side, without it).
+Why two measures (each alone failed on the evaluation sets): docs/method.md ("JSAR-Re").
 Conventions: boxes (x, y, w, h) px; frames uint8 HxWx3 (any channel order, used as given) or HxW;
 histograms are joint histograms of `bins` levels per channel, normalised to sum 1.
 """
@@ -27,9 +17,8 @@ import math
 import cv2
 import numpy as np
 
+from jsar.api import Box
 from jsar.redetect.monitor import updated_reference
-
-Box = tuple[float, float, float, float]
 MAX_PIXELS = 4096  # a histogram of up to 8^3 bins needs no more: larger regions are sampled on a grid
 
 

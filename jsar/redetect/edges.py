@@ -1,16 +1,13 @@
 """Edge magnitude and orientation maps for EdgeBoxes (cv2.ximgproc).
 
-The structured-edge forest the original feeds EdgeBoxes with is not available to the project, so the
-default edge map is built from smoothed image gradients: Gaussian smoothing, Sobel derivatives per
-colour channel, the strongest channel per pixel, magnitude normalised to 0..1 by its maximum over the
-given image (region), then thinned by non-maximum suppression across the edge.
+Without the original's structured-edge forest the default map is built from smoothed gradients: Gaussian
+smoothing, Sobel derivatives per colour channel, the strongest channel per pixel, magnitude normalised to
+0..1 by its maximum over the given image, thinned by non-maximum suppression across the edge. With a
+structured-edge model file (`StructuredEdges`), OpenCV's detector is used instead.
 
-Conventions (those of `cv2.ximgproc.StructuredEdgeDetection.computeOrientation`, which EdgeBoxes
-expects): both maps float32 HxW; orientation is the angle of the edge NORMAL (the intensity gradient
-direction) in radians in [0, pi), measured from the +x axis (columns, right) towards +y (rows, down).
-So a vertical step edge has orientation 0 and a horizontal one pi/2; the sign of the step is dropped.
-
-When a structured-edge model file is named (`StructuredEdges`), OpenCV's detector is used instead.
+Conventions (`cv2.ximgproc.StructuredEdgeDetection.computeOrientation`'s, which EdgeBoxes expects): both
+maps float32 HxW; orientation is the angle of the edge NORMAL (the gradient direction) in radians in
+[0, pi), from +x (right) towards +y (down): a vertical step edge has 0, a horizontal one pi/2.
 """
 from __future__ import annotations
 

@@ -1,49 +1,17 @@
 """JSAR-Re: JSAR with failure monitoring, re-detection by the decision filter, and re-acquisition.
 
-Per frame the core tracker (JSAR) locates the target around its current centre, changing nothing;
-the failure monitor (monitor.py) judges the translation peak; the decision filter (memory.py, the
-long-term memory of reliable appearances) scores the core's own detection sample at no feature cost on the
-frames it learns and while lost.
-
-- Tracking, confident frame (or not eligible for a loss): commit as plain JSAR; the decision filter
-  learns the frame if it is reliable.
-- Tracking, not confident: a loss; the frame is searched as below and reported "lost".
-- Lost: if the core's peak is confident again and the decision filter scores its sample above the
-  core's bar (params.AcceptParams.core_fraction; its peak within a side of the core's) on
-  accept.core_confirm_frames consecutive lost frames, the frame is committed and the loss ends.
-  Otherwise the decision filter scores the core's sample and a few lattice windows, upright and turned, around where the target
-  was going (search.py: a per-frame budget, the square growing as the paper's omega); a candidate
-  above the bar confirmed on the next frame is taken: the core moves there, with its filters as they
-  were before the loss or as they coasted, whichever responds more strongly ("relocate"; "retrain" =
-  the paper's re-initialisation from that frame). Either way the frame is "recovered".
-- Lost, nothing taken: the core coasts. Its detection is committed as plain JSAR (the decision filter
-  learning nothing) when it lies within search.coast_radius_sides of the predicted centre, so a
-  target still in view whose look changed is followed; else the core waits at the prediction. While
-  the core coasts, a candidate away from it must beat accept.switch_margin x the core's own score,
-  and one confirmed where the core is ends the loss at the core's box. Nothing else ends a loss: a
-  target that changed for good is followed (the box on it) but reported lost until the decision
-  filter recognises it, since a coasting core learns whatever it follows (an occluder too).
-- A re-acquisition lost again within accept.probation_frames is refuted: the search it ended resumes.
-- Tracking, confident, but the box has held too few of the target's colours at selection on
-  colour.drift_frames frames in a row (colour_check.AnchorColours): a drift loss. The core, decision
-  filter and colour model roll back to the last checkpoint (a frame whose box clearly held them) and the
-  frame is searched as above; every way out of a loss needs those colours too.
-- Every way out of a loss through the decision filter (the core confident again, a candidate taken)
-  also needs the target's colours in the box (colour_check.py, params.ColourParams): the template's
-  score alone took occluders and look-alikes of other colours.
-- The verifier (appearance.py, params.VerifyParams) judges candidates by a learnt embedding against the
-  target's and the look-alikes' memories: one it calls another object is refused, one it calls the target
-  passes a lower bar without the colour model's match (the selection's colours are still needed); while
-  tracking, the box it calls another object on a few checks in a row is a loss ("appearance").
-
-Additions beyond the paper and their measured effect: docs/method.md and the ablation
-(`python -m bench.ablation`).
+Each frame the core tracker (JSAR) localises around its current centre, changing nothing; the failure
+monitor (monitor.py) judges its peak; then the phase (Phase, TRANSITIONS) says what the frame does:
+commit the detection, start a loss, or search (search.py, the decision filter of memory.py scoring). Each
+step's rule is in its docstring; the reasons and the measured effect of each addition beyond the paper are
+in docs/method.md ("JSAR-Re") and the ablation (`python -m bench.ablation`).
 """
 from __future__ import annotations
 
 import collections
 import copy
 import dataclasses
+import enum
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -54,12 +22,35 @@ from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
 from jsar.redetect.appearance import AppearanceMemory, Embedder, Look, Verdict as Appearance, ring_boxes, shared_embedder
 from jsar.redetect.colour_check import AnchorColours, ColourModel
-from jsar.redetect.memory import DecisionMemory
+from jsar.redetect.memory import DecisionFilter
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
 from jsar.redetect.search import Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
 from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.size_filter import bound_side
+
+
+class Phase(enum.Enum):
+    """Where the tracker is in a loss's lifecycle; it moves only by TRANSITIONS."""
+
+    TRACKING = "tracking"  # committing the core's detections
+    LOST = "lost"  # searching (JsarReTracker.loss holds the search)
+    PROBATION = "probation"  # tracking after a re-acquisition that a loss within accept.probation_frames refutes
+
+
+# (phase, event) -> next phase: every change of JsarReTracker.phase is one of these (JsarReTracker._go).
+TRANSITIONS: dict[tuple[Phase, str], Phase] = {
+    (Phase.TRACKING, "tracked"): Phase.TRACKING,  # confident, or no loss may be declared: commit as plain JSAR
+    (Phase.TRACKING, "lost"): Phase.LOST,  # a loss (peak, drift or appearance): search
+    (Phase.PROBATION, "tracked"): Phase.PROBATION,  # committed within accept.probation_frames of the take
+    (Phase.PROBATION, "held"): Phase.TRACKING,  # accept.probation_frames committed: the take holds
+    (Phase.PROBATION, "refuted"): Phase.LOST,  # lost again on probation: the search the take ended resumes
+    (Phase.LOST, "searched"): Phase.LOST,  # nothing taken: the core coasts or waits
+    (Phase.LOST, "core recovered"): Phase.TRACKING,  # the core confident again where the decision filter agrees
+    (Phase.LOST, "confirmed at core"): Phase.TRACKING,  # a candidate confirmed where the coasting core is
+    (Phase.LOST, "reacquired"): Phase.PROBATION,  # a candidate taken elsewhere: the core moves there
+    (Phase.LOST, "reacquired unguarded"): Phase.TRACKING,  # the same with accept.probation_frames 0
+}
 
 
 @dataclass(frozen=True)
@@ -75,17 +66,15 @@ class SearchStep:
 
 @dataclass
 class Probation:
-    """A re-acquisition from a loss, refuted if the track is lost again within `frames_left`
-    committed frames: then the search it ended resumes from the state kept here (the core, the
-    monitor and the motion track as they were), and the refuted place must be beaten."""
+    """What a refuted re-acquisition restores: the search it ended and the core, monitor and motion as they were."""
 
-    search: LossSearch
+    loss: LossSearch
     core: JsarTracker
     monitor: FailureMonitor
-    track: list[tuple[int, float, float]]
-    taken: Candidate
-    frames_left: int
-    before_loss: JsarTracker | None
+    recent_centres: list[tuple[int, float, float]]
+    taken: Candidate  # the refuted place: a candidate there must beat it (accept.refute_margin)
+    frames_left: int  # committed frames until the take holds
+    core_at_loss: JsarTracker | None
 
 
 class JsarReTracker:
@@ -105,31 +94,32 @@ class JsarReTracker:
         self.gate_template: tuple[np.ndarray, float] | None = None  # the whole-gate search's (template, scale)
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
-        self.memory: DecisionMemory | None = None
+        self.decision_filter: DecisionFilter | None = None
         self.colour = self._new_colour_model()
         self.anchor: AnchorColours | None = None  # the target's colours at selection (the drift check)
         self.drift_frames = 0  # tracked frames in a row whose box holds too few of them
         self.share = math.inf  # the last tracked frame's share of them (AnchorColours.share)
         # (frame index, core, decision filter, colour model) on the last checkpoint: a tracked frame whose
         # box clearly held the target's colours. A drift loss rolls back to it (what slid learnt the background).
-        self.checkpoint: tuple[int, JsarTracker, DecisionMemory, ColourModel] | None = None
-        self.loss_cause: str | None = None  # why the current loss began: "peak" (the monitor) or "drift"
-        self.search: LossSearch | None = None  # the loss being searched
-        self.lost = False
+        self.checkpoint: tuple[int, JsarTracker, DecisionFilter, ColourModel] | None = None
+        self.loss_cause: str | None = None  # why the current loss began: "peak", "drift" or "appearance"
+        self.phase = Phase.TRACKING
+        self.loss: LossSearch | None = None  # the search of the current loss (phase LOST only)
+        self.probation: Probation | None = None  # what a refutation restores (phase PROBATION only)
+        self.core_at_loss: JsarTracker | None = None  # the core as it was when the loss began
         self.frame_index = -1
         self.reacquisitions = 0
         self.last_step: SearchStep | None = None
-        self.probation: Probation | None = None
-        self.before_loss: JsarTracker | None = None  # the core as it was when the loss began
         # (frame index, centre x px, centre y px) of the last committed frames: the motion model.
-        self._track: collections.deque[tuple[int, float, float]] = collections.deque(
+        self.recent_centres: collections.deque[tuple[int, float, float]] = collections.deque(
             maxlen=self.redetect.search.motion_frames)
 
     # ----------------------------------------------------------------- public API
     def init(self, frame: np.ndarray, box: Box) -> None:
         """Start tracking `box` (x, y, w, h px) in `frame`; trains the core and the decision filter."""
         self.core.init(frame, box)
-        self.memory = DecisionMemory(self.params, self.core)
+        monitor = self.redetect.monitor  # the decision filter's reference follows its peaks at the monitor's rates
+        self.decision_filter = DecisionFilter(self.params, self.core, monitor.reference_rate, monitor.reference_fall_rate)
         self.colour = self._new_colour_model()
         self.colour.learn(frame, self.core.box)
         colour = self.redetect.colour
@@ -148,14 +138,14 @@ class JsarReTracker:
             if self.redetect.verify.gate_map:
                 self.gate_template = self.embedder.template(frame, self.core.box, self.redetect.verify.gate_map_cells)
         self.monitor = FailureMonitor(self.redetect.monitor)
-        self.search = None
-        self.lost = False
+        self.phase = Phase.TRACKING
+        self.loss = None
+        self.probation = None
+        self.core_at_loss = None
         self.frame_index = 0
         self.reacquisitions = 0
         self.last_step = None
-        self.probation = None
-        self.before_loss = None
-        self._track.clear()
+        self.recent_centres.clear()
         self._remember_position()
 
     def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None:
@@ -169,39 +159,71 @@ class JsarReTracker:
         return self.core.box
 
     def update(self, frame: np.ndarray) -> TrackResult:
-        """Track one frame; see the module docstring for the three outcomes."""
-        if self.memory is None:
+        """Track one frame: localise, then track, start a loss or search it; the phase moves by TRANSITIONS."""
+        if self.decision_filter is None:
             raise RuntimeError("tracker used before init(frame, box)")
         frame = validate_frame(frame)
         self.frame_index += 1
         self.last_step = None
-        if self.lost:
-            return self._lost_frame(frame)
+        loc, verdict = self._localise(frame)
+        if self.phase is not Phase.LOST:
+            cause = self._loss_cause(frame, loc, verdict)
+            if cause is None:
+                self._go(self._track_frame(frame, loc, verdict))
+                return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
+            self.loss_cause = cause
+            if self.phase is Phase.PROBATION:
+                self._refute()
+                self._go("refuted")
+                loc, verdict = self._localise(frame)  # the restored core localises afresh
+            else:
+                loc, verdict = self._start_loss(frame, loc, verdict)
+                self._go("lost")
+        event, score = self._search_lost(frame, loc, verdict)
+        self._go(event)
+        return TrackResult(box=self.core.box, score=score, state="lost" if self.phase is Phase.LOST else "recovered")
+
+    def _go(self, event: str) -> None:
+        """Move the phase by TRANSITIONS (KeyError: no such transition); leaving LOST ends the loss."""
+        left, self.phase = self.phase, TRANSITIONS[(self.phase, event)]
+        if left is Phase.LOST and self.phase is not Phase.LOST:
+            self.loss, self.drift_frames, self.away_checks, self.loss_cause = None, 0, 0, None
+        assert (self.phase is Phase.LOST) == (self.loss is not None)
+        assert (self.phase is Phase.PROBATION) == (self.probation is not None)
+
+    def _localise(self, frame: np.ndarray) -> tuple[Localisation, Verdict]:
+        """The core's detection around its centre (nothing updated) and the monitor's verdict on its peak."""
         loc = self.core.locate(frame)
-        verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
+        return loc, self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
+
+    def _loss_cause(self, frame: np.ndarray, loc: Localisation, verdict: Verdict) -> str | None:
+        """Why this tracked frame is a loss: "peak" (the monitor), "drift" or "appearance"; None: it is not."""
         # Not the monitor's size limits: a box that grew onto background past max_area is what this catches.
         warm = self.frame_index >= self.redetect.monitor.warmup_frames
         drifted = self._drifted(frame, loc) and warm
         away = not drifted and self._looks_away(frame, loc) and warm
-        if verdict.lost or drifted or away:
-            self.lost = True
-            self.loss_cause = "peak" if verdict.lost else "drift" if drifted else "appearance"
-            if self.probation is not None:
-                self._refute()  # the re-acquisition did not hold: resume the search it ended
-                return self._lost_frame(frame)
-            if self.loss_cause in ("drift", "appearance") and self.checkpoint is not None:
-                loc, verdict = self._roll_back(frame, loc)
-            self.search = self._new_search()
-            self.before_loss = copy.deepcopy(self.core)
-            return self._search_lost(frame, loc, verdict, self._own(loc))
+        return "peak" if verdict.lost else "drift" if drifted else "appearance" if away else None
+
+    def _track_frame(self, frame: np.ndarray, loc: Localisation, verdict: Verdict) -> str:
+        """Commit the detection as plain JSAR; the event: "held" on probation's last frame, else "tracked"."""
         # The decision filter's score on the core's sample is needed only where the filter learns the frame.
-        self._commit(frame, loc, verdict.reliable, self._own(loc) if verdict.reliable else None)
+        self._commit(frame, loc, verdict.reliable, self._score_core_sample(loc) if verdict.reliable else None)
         self._keep_checkpoint()
-        if self.probation is not None:
-            self.probation.frames_left -= 1
-            if self.probation.frames_left <= 0:
-                self.probation = None
-        return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
+        if self.probation is None:
+            return "tracked"
+        self.probation.frames_left -= 1
+        if self.probation.frames_left > 0:
+            return "tracked"
+        self.probation = None
+        return "held"
+
+    def _start_loss(self, frame: np.ndarray, loc: Localisation, verdict: Verdict) -> tuple[Localisation, Verdict]:
+        """A new loss: a drift or appearance loss rolls back to the checkpoint; the search starts at the core."""
+        if self.loss_cause in ("drift", "appearance") and self.checkpoint is not None:
+            loc, verdict = self._roll_back(frame, loc)
+        self.loss = self._new_loss()
+        self.core_at_loss = copy.deepcopy(self.core)
+        return loc, verdict
 
     def _drifted(self, frame: np.ndarray, loc: Localisation) -> bool:
         """Whether the box at the core's detection has held too few of the target's colours at selection
@@ -212,7 +234,7 @@ class JsarReTracker:
         if minimum <= 0 or not self.anchor.usable:
             return False
         w, h = self.core.size_wh
-        box = (loc.center_xy[0] - w / 2.0, loc.center_xy[1] - h / 2.0, w, h)
+        box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
         self.share = self.anchor.share(frame, box)
         self.drift_frames = self.drift_frames + 1 if self.share < minimum else 0
         return self.drift_frames >= self.redetect.colour.drift_frames
@@ -227,7 +249,7 @@ class JsarReTracker:
         if self.frame_index % verify.watch_frames:
             return False
         w, h = self.core.size_wh
-        box = (loc.center_xy[0] - w / 2.0, loc.center_xy[1] - h / 2.0, w, h)
+        box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
         look = self.appearance.judge(self.embedder.embed(frame, np.array([box])))[0]
         self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
         return self.away_checks >= verify.watch_count
@@ -241,173 +263,193 @@ class JsarReTracker:
             return  # no drift check, nothing to roll back for; or the box did not clearly hold the colours
         if self.checkpoint is not None and self.frame_index - self.checkpoint[0] < colour.checkpoint_frames:
             return
-        assert self.memory is not None
-        core, memory, model = copy.deepcopy((self.core, self.memory, self.colour))
-        self.checkpoint = (self.frame_index, core, memory, model)
+        assert self.decision_filter is not None
+        core, decision_filter, model = copy.deepcopy((self.core, self.decision_filter, self.colour))
+        self.checkpoint = (self.frame_index, core, decision_filter, model)
 
     def _roll_back(self, frame: np.ndarray, loc: Localisation) -> tuple[Localisation, Verdict]:
         """A drift loss: the core, decision filter and colour model as at the checkpoint (their size and
         look before the slide), the core moved to where the drifted one found its detection; its own
         detection there, judged against the monitor's reference (nothing is updated)."""
         assert self.checkpoint is not None
-        _, core, memory, model = copy.deepcopy(self.checkpoint)
-        self.core, self.memory, self.colour = core, memory, model
-        self.core.relocate(loc.center_xy)
+        _, core, decision_filter, model = copy.deepcopy(self.checkpoint)
+        self.core, self.decision_filter, self.colour = core, decision_filter, model
+        self.core.relocate(loc.centre_xy)
         loc = self.core.locate(frame)
         confident, reliable = self.monitor.judge(loc.peak)
-        last = self._track[-1]
-        self._track.clear()  # the drifted track's motion is the background's: keep its last place only
-        self._track.append(last)
+        last = self.recent_centres[-1]
+        self.recent_centres.clear()  # the drifted track's motion is the background's: keep its last place only
+        self.recent_centres.append(last)
         return loc, Verdict(confident, reliable, True, self.monitor.reference)
 
-    def _lost_frame(self, frame: np.ndarray) -> TrackResult:
-        """A frame while lost: the core locates around where it is (where it coasted, or waited at the
-        prediction on the last frame), then the search runs."""
-        assert self.memory is not None
-        loc = self.core.locate(frame)
-        verdict = self.monitor.assess(loc.peak, self.core.box, (frame.shape[1], frame.shape[0]), self.frame_index)
-        return self._search_lost(frame, loc, verdict, self._own(loc))
-
-    def _own(self, loc: Localisation) -> Candidate:
+    def _score_core_sample(self, loc: Localisation) -> Candidate:
         """The decision filter on the core's detection sample (before the core moves): peak px and score."""
-        assert self.memory is not None
-        return self.memory.score_sample(loc.sample_f, self.core.center_xy, loc.search_side)
+        assert self.decision_filter is not None
+        return self.decision_filter.score_sample(loc.sample_f, self.core.centre_xy, loc.search_side)
 
     @staticmethod
-    def _agrees(found: Candidate, loc: Localisation, search: LossSearch) -> bool:
+    def _within_a_side(found: Candidate, loc: Localisation, loss: LossSearch) -> bool:
         """Whether the decision filter's peak lies within one target side of the core's detection (their
         boxes overlap): only then may the loss end at the core's box. A coasting core can sit on the
         occluder next to the target while the decision filter's peak, in the same window, is on the target."""
-        return found.distance_sides(loc.center_xy, search.side_px) < 1.0
+        return found.distance_sides(loc.centre_xy, loss.side_px) < 1.0
 
     def _predicted_centre(self) -> tuple[float, float]:
-        return predicted_centre(list(self._track), self.frame_index, self.redetect.search.predict_max_frames)
+        return predicted_centre(list(self.recent_centres), self.frame_index, self.redetect.search.predict_max_frames)
 
     def _refute(self) -> None:
         """Restore the search a refuted re-acquisition ended; its place joins the refuted ones."""
         assert self.probation is not None
         kept, self.probation = self.probation, None
-        self.core, self.monitor, self.before_loss = kept.core, kept.monitor, kept.before_loss
-        self._track.clear()
-        self._track.extend(kept.track)
-        self.search = kept.search
+        self.core, self.monitor, self.core_at_loss = kept.core, kept.monitor, kept.core_at_loss
+        self.recent_centres.clear()
+        self.recent_centres.extend(kept.recent_centres)
+        self.loss = kept.loss
         # The counts towards a way out start afresh: what passed before the take proved nothing.
-        self.search.pending, self.search.confirmations, self.search.core_agreements = None, 0, 0
-        self.search.refuted.append(kept.taken)
+        self.loss.pending, self.loss.confirmations, self.loss.core_agreements = None, 0, 0
+        self.loss.refuted.append(kept.taken)
 
     # ----------------------------------------------------------------- steps
     def _commit(self, frame: np.ndarray, loc: Localisation, reliable: bool, own: Candidate | None) -> None:
         """Commit the core's detection; the decision filter learns it when reliable (own: its score there,
         needed then)."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         self.core.commit(frame, loc)
         self._remember_position()
         if reliable:
             assert own is not None
-            self.memory.train(self.core, own.score)
+            self.decision_filter.train(self.core, own.score)
             self.colour.learn(frame, self.core.box)
             self.reliable_frames += 1
             if self.appearance is not None and self.reliable_frames % self.redetect.verify.learn_frames == 0:
                 self._learn_appearance(frame, self.core.box)
         else:
-            self.memory.skip()
+            self.decision_filter.skip()
 
-    def _new_search(self) -> LossSearch:
+    def _new_loss(self) -> LossSearch:
+        """A search around the core's box (centre px, side sqrt(w*h) px), starting now."""
         x, y, w, h = self.core.box
         return LossSearch((x + w / 2.0, y + h / 2.0), math.sqrt(w * h), self.redetect.search, self.redetect.accept)
 
-    def _coast(self, frame: np.ndarray, loc: Localisation, search: LossSearch) -> None:
+    def _coast(self, frame: np.ndarray, loc: Localisation, loss: LossSearch) -> None:
         """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
         within coast_radius_sides of where the target was going (a target still there whose look
         changed moves on as predicted; an absent one's background does not); else the core waits at
         the prediction, learning nothing. The decision filter learns nothing either way."""
-        radius = self.redetect.search.coast_radius_sides * search.side_px
-        if math.hypot(loc.center_xy[0] - search.anchor_xy[0], loc.center_xy[1] - search.anchor_xy[1]) <= radius:
+        radius = self.redetect.search.coast_radius_sides * loss.side_px
+        if math.hypot(loc.centre_xy[0] - loss.anchor_xy[0], loc.centre_xy[1] - loss.anchor_xy[1]) <= radius:
             self.core.commit(frame, loc)
-            self.memory.skip()
+            self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
-            search.coasting = True
+            loss.coasting = True
         else:
-            self.core.relocate(search.anchor_xy)
-            search.coasting = False
+            self.core.relocate(loss.anchor_xy)
+            loss.coasting = False
 
-    def _candidates(self, frame: np.ndarray, search: LossSearch, own: Candidate) -> list[Candidate]:
+    def _candidates(self, frame: np.ndarray, loss: LossSearch, own: Candidate) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a
         window on the pending candidate, or else on the last frame's best (at its angle)."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         image = self.core.prepare(frame)
-        centres, angles = search.windows((frame.shape[1], frame.shape[0]))
-        peaks = self._gate_peaks(frame, search)
+        centres, angles = loss.windows((frame.shape[1], frame.shape[0]))
+        peaks = self._gate_peaks(frame, loss)
         if peaks:
             centres = np.vstack([centres, peaks])
             angles = np.append(angles, np.zeros(len(peaks)))
-        focus = search.pending if search.pending is not None else search.lead
+        focus = loss.pending if loss.pending is not None else loss.lead
         if focus is not None:
             centres = np.vstack([centres, [[focus.x, focus.y]]])
             angles = np.append(angles, focus.angle_deg)
-        side = search.side_px  # the last confident size (a coasting core's may have drifted)
-        found = self.memory.score_windows(image, self.core.feature_colour_table, centres, side, angles)
+        side = loss.side_px  # the last confident size (a coasting core's may have drifted)
+        found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles)
         factor = self.redetect.search.turned_score_factor
         return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
 
-    def _search_lost(self, frame: np.ndarray, loc: Localisation, verdict: Verdict, own: Candidate) -> TrackResult:
-        """One lost frame: the core confident again where the decision filter recognises the target
-        ends the loss; else candidates are scored and a confirmed one taken; else the core coasts
-        (commits its detection as plain JSAR, the decision filter learning nothing) and the frame is
-        reported lost at the core's box."""
-        assert self.search is not None and self.memory is not None
-        search = self.search
-        search.lost_frames += 1
+    def _search_lost(self, frame: np.ndarray, loc: Localisation, verdict: Verdict) -> tuple[str, float]:
+        """One lost frame: the core's own way out, else a candidate taken, else the core coasts; (event, score)."""
+        assert self.loss is not None
+        loss = self.loss
+        own = self._score_core_sample(loc)
+        loss.lost_frames += 1
+        bar, core_bar = self._bars(loss.lost_frames)
+        if self._core_recovered(frame, loc, verdict, own, core_bar):
+            self._commit(frame, loc, verdict.reliable, own)
+            return "core recovered", loc.peak
+        self._aim(loss)
+        candidates = self._candidates(frame, loss, own)
+        if loss.coasting:
+            candidates = self._beating_the_core(candidates, own, loss)
+        taken = self._take(frame, loss, candidates, bar, own)
+        if taken is None:
+            self._coast(frame, loc, loss)
+            return "searched", loc.peak
+        if loss.coasting and self._within_a_side(taken, loc, loss):
+            # The decision filter confirms the target where the coasting core already is: keep the core's
+            # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
+            self._commit(frame, loc, verdict.reliable, own)
+            return "confirmed at core", taken.score
+        return self._reacquire_on_probation(frame, loss, taken), taken.score
+
+    def _bars(self, lost_frames: int) -> tuple[float, float]:
+        """The acceptance bars (raw peak) on this lost frame: a candidate's, and the core's own detection's."""
+        assert self.decision_filter is not None
         # Never below zeta_s: a candidate must score as a frame the decision filter would learn from
         # (ending a loss on a weaker one took background, e.g. with a target whose own level is low).
         accept, zeta_s = self.redetect.accept, self.redetect.monitor.reliable_peak
-        bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s)
+        bar = decayed_bar(self.decision_filter.reference, lost_frames - 1, accept, zeta_s)
         # The core confident again where the decision filter peaks passes two tests: a lower start suffices.
-        core_bar = decayed_bar(self.memory.reference, search.lost_frames - 1, accept, zeta_s, accept.core_fraction)
-        if (verdict.confident and own.score >= core_bar and self._agrees(own, loc, search)
-                and self._colour_passes(frame, loc.center_xy, self.redetect.colour.core_min_match)
-                and not self._looks_other(frame, loc.center_xy)):
-            search.core_agreements += 1
-            if search.core_agreements >= accept.core_confirm_frames:
-                self._commit(frame, loc, verdict.reliable, own)
-                return self._found(loc.peak)
-        else:
-            search.core_agreements = 0
-        search.anchor_xy = self._predicted_centre()
-        search.reach_sides = gate_reach(track_speed(list(self._track), search.side_px), search.lost_frames,
-                                        self.redetect.accept)
-        candidates = self._candidates(frame, search, own)
-        if search.coasting:
-            # The core follows a target moving as predicted: a place elsewhere must clearly beat it.
-            margin = self.redetect.accept.switch_margin * own.score
-            candidates = [c for c in candidates if c.score >= margin
-                          or c.distance_sides((own.x, own.y), search.side_px) <= self.redetect.accept.confirm_radius_sides]
+        return bar, decayed_bar(self.decision_filter.reference, lost_frames - 1, accept, zeta_s, accept.core_fraction)
+
+    def _core_recovered(self, frame: np.ndarray, loc: Localisation, verdict: Verdict, own: Candidate,
+                        core_bar: float) -> bool:
+        """Whether the core, confident where the decision filter peaks above core_bar, in the target's colours and
+        not another object, has been so on accept.core_confirm_frames lost frames in a row."""
+        assert self.loss is not None
+        if (verdict.confident and own.score >= core_bar and self._within_a_side(own, loc, self.loss)
+                and self._colour_passes(frame, loc.centre_xy, self.redetect.colour.core_min_match)
+                and not self._looks_other(frame, loc.centre_xy)):
+            self.loss.core_agreements += 1
+            return self.loss.core_agreements >= self.redetect.accept.core_confirm_frames
+        self.loss.core_agreements = 0
+        return False
+
+    def _aim(self, loss: LossSearch) -> None:
+        """Centre the search where the target was going and open its motion gate for this lost frame."""
+        loss.anchor_xy = self._predicted_centre()
+        loss.reach_sides = gate_reach(track_speed(list(self.recent_centres), loss.side_px), loss.lost_frames,
+                                      self.redetect.accept)
+
+    def _beating_the_core(self, candidates: list[Candidate], own: Candidate, loss: LossSearch) -> list[Candidate]:
+        """While the core coasts, the candidates at it or scoring accept.switch_margin x its own score."""
+        # The core follows a target moving as predicted: a place elsewhere must clearly beat it.
+        margin = self.redetect.accept.switch_margin * own.score
+        return [c for c in candidates if c.score >= margin
+                or c.distance_sides((own.x, own.y), loss.side_px) <= self.redetect.accept.confirm_radius_sides]
+
+    def _take(self, frame: np.ndarray, loss: LossSearch, candidates: list[Candidate], bar: float,
+              own: Candidate) -> Candidate | None:
+        """The candidate taken on this lost frame (LossSearch.decide with the colour and verifier tests), or None."""
         minimum, over_match = self.redetect.colour.min_match, self.redetect.verify.over_colour_match
         looks = self._looks(frame, candidates, bar)
         # The verifier's "target" stands in for the colour model's match (the embedding sees the colours too,
         # and the match refused targets whose box held other colours: a wakeboarder in spray), never for the
         # selection's colours (the drift check's: what slid onto grass must not come back through it).
-        taken = search.decide(candidates, bar, lambda c: self._colour_passes(
-                                  frame, (c.x, c.y), 0.0 if self._verified(looks, c) and over_match else minimum),
-                              lambda c: self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
+        taken = loss.decide(candidates, bar, lambda c: self._colour_passes(
+                                frame, (c.x, c.y), 0.0 if self._verified(looks, c) and over_match else minimum),
+                            lambda c: self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
         self._learn_refused(candidates, bar, looks)
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
-        if taken is None:
-            self._coast(frame, loc, search)
-            return TrackResult(box=self.core.box, score=loc.peak, state="lost")
-        if search.coasting and self._agrees(taken, loc, search):
-            # The decision filter confirms the target where the coasting core already is: keep the core's
-            # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
-            self._commit(frame, loc, verdict.reliable, own)
-            return self._found(taken.score)
-        probation = self.redetect.accept.probation_frames
-        kept = (Probation(search, copy.deepcopy(self.core), copy.deepcopy(self.monitor), list(self._track), taken,
-                          probation, self.before_loss) if probation > 0 else None)
+        return taken
+
+    def _reacquire_on_probation(self, frame: np.ndarray, loss: LossSearch, taken: Candidate) -> str:
+        """Move the track to `taken`, keeping what a refutation restores (accept.probation_frames > 0); the event."""
+        frames = self.redetect.accept.probation_frames
+        kept = (Probation(loss, copy.deepcopy(self.core), copy.deepcopy(self.monitor), list(self.recent_centres),
+                          taken, frames, self.core_at_loss) if frames > 0 else None)
         self._reacquire(frame, taken)
-        result = self._found(taken.score)
         self.probation = kept
-        return result
+        return "reacquired" if kept is not None else "reacquired unguarded"
 
     def _candidate_bar(self, frame: np.ndarray, candidate: Candidate, bar: float, look: Look | None) -> float:
         """The bar a candidate must pass: none (inf) where the verifier calls it another object;
@@ -423,16 +465,16 @@ class JsarReTracker:
         lower = colour.clear_bar_fraction * bar
         if not lower <= candidate.score < bar or not self.anchor.usable:
             return bar  # only a candidate between the two bars needs its colours looked at
-        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
+        w, h = (self.core_at_loss if self.core_at_loss is not None else self.core).size_wh
         box = (candidate.x - w / 2.0, candidate.y - h / 2.0, w, h)
         return lower if self.anchor.share(frame, box) >= colour.clear_share else bar
 
-    def _loss_box(self, centre_xy: tuple[float, float]) -> tuple[float, float, float, float]:
+    def _loss_box(self, centre_xy: tuple[float, float]) -> Box:
         """A box (x, y, w, h px) of the target's size at the loss centred on centre_xy px."""
-        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
+        w, h = (self.core_at_loss if self.core_at_loss is not None else self.core).size_wh
         return (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
 
-    def _learn_appearance(self, frame: np.ndarray, box: tuple[float, float, float, float]) -> AppearanceMemory:
+    def _learn_appearance(self, frame: np.ndarray, box: Box) -> AppearanceMemory:
         """The verifier learns a reliable frame: the target's embedding at `box` (x, y, w, h px) and the
         look-alikes' on a ring around it (one batch); on init the memories are made."""
         verify = self.redetect.verify
@@ -471,18 +513,18 @@ class JsarReTracker:
         rows = self.embedder.embed(frame, np.array([self._loss_box(centre_xy)]))
         return self.appearance.judge(rows)[0].verdict is Appearance.OTHER
 
-    def _gate_peaks(self, frame: np.ndarray, search: LossSearch) -> list[tuple[float, float]]:
+    def _gate_peaks(self, frame: np.ndarray, loss: LossSearch) -> list[tuple[float, float]]:
         """The whole-gate search on this lost frame (verify.gate_map): the centres (px) where the target's
         template matches best over the motion gate, within the lattice's square and verify.gate_map_max_px."""
         verify = self.redetect.verify
-        if self.gate_template is None or self.embedder is None or search.lost_frames % verify.gate_map_frames:
+        if self.gate_template is None or self.embedder is None or loss.lost_frames % verify.gate_map_frames:
             return []
         template, scale = self.gate_template
-        radius = (min(search.reach_sides, search.area_sides() / 2.0) + 0.5) * search.side_px
+        radius = (min(loss.reach_sides, loss.area_sides() / 2.0) + 0.5) * loss.side_px
         radius = min(radius, verify.gate_map_max_px / (2.0 * scale))
         height, width = frame.shape[:2]
-        x0, y0 = max(search.anchor_xy[0] - radius, 0.0), max(search.anchor_xy[1] - radius, 0.0)
-        x1, y1 = min(search.anchor_xy[0] + radius, float(width)), min(search.anchor_xy[1] + radius, float(height))
+        x0, y0 = max(loss.anchor_xy[0] - radius, 0.0), max(loss.anchor_xy[1] - radius, 0.0)
+        x1, y1 = min(loss.anchor_xy[0] + radius, float(width)), min(loss.anchor_xy[1] + radius, float(height))
         if x1 - x0 < 1 or y1 - y0 < 1:
             return []
         peaks = self.embedder.gate_peaks(frame, (x0, y0, x1 - x0, y1 - y0), scale, template,
@@ -508,7 +550,7 @@ class JsarReTracker:
         holds at least colour.drift_share x the share of the target's colours at selection (the drift
         check's test: a place the track would slide off again at once is no way out)."""
         assert self.anchor is not None
-        w, h = (self.before_loss if self.before_loss is not None else self.core).size_wh
+        w, h = (self.core_at_loss if self.core_at_loss is not None else self.core).size_wh
         box = (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
         if self.anchor.share(frame, box) < self.redetect.colour.drift_share:
             return False
@@ -520,10 +562,10 @@ class JsarReTracker:
         the target: params.AcceptParams.size_hold_fraction); if neither responds above zeta_e (a target that
         turned while hidden), or params.AcceptParams.reacquire is "retrain", the pre-loss core is
         retrained there from this frame (the paper's re-initialisation)."""
-        assert self.memory is not None
+        assert self.decision_filter is not None
         height, width = frame.shape[:2]
         centre = (min(max(at.x, 0.0), float(width - 1)), min(max(at.y, 0.0), float(height - 1)))
-        options = [self.before_loss] if self.before_loss is not None else []
+        options = [self.core_at_loss] if self.core_at_loss is not None else []
         options.append(self.core)
         best: tuple[JsarTracker, Localisation] | None = None
         if self.redetect.accept.reacquire == "relocate":
@@ -534,8 +576,8 @@ class JsarReTracker:
                 loc = moved.locate(frame)
                 # A core whose detection leaves the taken place follows what it learnt elsewhere (a coasting
                 # core, the occluder it coasted on): moving it there would end the loss off the target.
-                stays = math.hypot(loc.center_xy[0] - centre[0], loc.center_xy[1] - centre[1]) <= side
-                if stays and loc.peak > self.redetect.monitor.enable_peak and (best is None or loc.peak > best[1].peak):
+                stays = math.hypot(loc.centre_xy[0] - centre[0], loc.centre_xy[1] - centre[1]) <= side
+                if stays and loc.peak > self.redetect.monitor.confident_peak and (best is None or loc.peak > best[1].peak):
                     best = (moved, loc)
         if best is not None:
             self.core = best[0]
@@ -547,8 +589,8 @@ class JsarReTracker:
             self.core = copy.deepcopy(options[0])
             w, h = bound_side(self.core.size_wh, self.core.side_bounds)
             self.core.reinitialise(frame, (centre[0] - w / 2.0, centre[1] - h / 2.0, w, h))
-        self.memory.skip()
-        self._track.clear()  # a new track: no velocity across the jump
+        self.decision_filter.skip()
+        self.recent_centres.clear()  # a new track: no velocity across the jump
         self._remember_position()
         # The peak level of the re-acquired target starts a new reference (it may look otherwise now);
         # the decision filter's reference (the long-term one) is kept.
@@ -556,17 +598,9 @@ class JsarReTracker:
         self.reacquisitions += 1
 
     def _remember_position(self) -> None:
-        cx, cy = self.core.center_xy
-        self._track.append((self.frame_index, cx, cy))
-
-    def _found(self, score: float) -> TrackResult:
-        """End a loss: back to tracking from the next frame."""
-        self.lost = False
-        self.search = None
-        self.drift_frames = 0
-        self.away_checks = 0
-        self.loss_cause = None
-        return TrackResult(box=self.core.box, score=score, state="recovered")
+        """Add the core's centre (px) on this frame to the motion model."""
+        cx, cy = self.core.centre_xy
+        self.recent_centres.append((self.frame_index, cx, cy))
 
 
 def make_jsar_re(redetect: Mapping[str, Any] | None = None, **overrides: Any) -> JsarReTracker:

@@ -23,16 +23,13 @@ from jsar.redetect.search import Candidate
 from jsar.tracking.jsar_tracker import JsarTracker
 from jsar.tracking.translation import TranslationFilter
 
-REFERENCE_RISE = 0.1  # the memory's reference follows higher peaks fast ...
-REFERENCE_FALL = 0.02  # ... and lower ones slowly (as the monitor's)
-
-
-class DecisionMemory:
+class DecisionFilter:
     """The decision filter and its reference; `train` after each committed frame, `score_*` anywhere."""
 
-    def __init__(self, params: JsarParams, core: JsarTracker) -> None:
+    def __init__(self, params: JsarParams, core: JsarTracker, rise_rate: float, fall_rate: float) -> None:
         translation = core.translation
         self.params = params
+        self.rise_rate, self.fall_rate = rise_rate, fall_rate  # the reference's rates towards higher / lower peaks
         self.filter = TranslationFilter(params, translation.shape_hw, core.target_cells())
         self.filter.filter_f = translation.filter_f  # trained on the same first sample (mu = 0)
         # True while the decision filter has seen exactly the core's training history: then both are
@@ -82,7 +79,7 @@ class DecisionMemory:
             turns.append(float(degrees))
         windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
         # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
-        # (docs/results-tracker.md, the cost of a lost frame); the spectra and responses are the same numbers.
+        # (docs/results-tracker.md, "Speed: where the time goes"); the spectra and responses are the same numbers.
         spectra = fourier.rfft2_channels_last(windows * self.filter.cos_window[None, :, :, None])  # (M, H, W//2+1, C)
         assert self.filter.filter_f is not None
         filter_hwc = np.ascontiguousarray(np.moveaxis(self.filter.filter_f.conj(), 0, -1))  # (H, W//2+1, C)
@@ -102,7 +99,7 @@ class DecisionMemory:
     def train(self, core: JsarTracker, own_peak: float) -> None:
         """Learn the core's last training sample (a reliable committed frame); own_peak is this
         filter's peak on that frame's detection sample (updates the reference)."""
-        self.reference = updated_reference(self.reference, own_peak, REFERENCE_RISE, REFERENCE_FALL)
+        self.reference = updated_reference(self.reference, own_peak, self.rise_rate, self.fall_rate)
         if self.in_sync:
             # Same previous filter, same sample, label and windows -> the same STRCF solution.
             self.filter.filter_f = core.translation.filter_f

@@ -1,25 +1,19 @@
 """JSAR-Re failure monitor: a pure, I/O-free state machine over the translation response peak.
 
-Per frame the caller passes the raw translation peak (the tracker's FFT convention: forward DFT
-unnormalised, inverse 1/N, as MATLAB, so a filter's response to its own training sample peaks near
-the Gaussian label's 1), the last confident box (x, y, w, h) px, the image size and the 0-based
-frame index (0 = the initialisation frame).
-
-- confident <=> peak > enable_peak (zeta_e) and peak > relative_drop x reference, the reference
-  being an asymmetric running mean of reliable peaks (fast up, slow down). The relative test is an
-  addition: per-target peak levels range from about 0.013 (a deforming bird) to 0.06, so a target
-  replaced by background can halve the peak and stay above the absolute zeta_e;
-- reliable <=> peak > reliable_peak (zeta_s, the paper's rule): the decision filter trains on that
-  sample, and on a committed frame the reference follows it, fast up and slowly down, so a gradual
-  occlusion (the synthetic scene's canopy: 0.057 -> 0.019 over ~20 frames) cannot drag it down far
-  enough to hide the loss;
+Per frame: the raw translation peak (MATLAB FFT convention, jsar.config), the last confident box (x, y, w, h)
+px, the image size and the 0-based frame index (0 = the initialisation frame).
+- confident <=> peak > confident_peak (zeta_e) and peak > relative_drop x the reference, an asymmetric
+  running mean of reliable committed peaks (fast up, slow down; the relative test is an addition);
+- reliable <=> peak > reliable_peak (zeta_s, the paper's rule): the decision filter learns that sample;
 - eligible <=> frame_index >= warmup_frames, min_area < w*h < max_area and the box inside the image
   (`inside_rule`). A frame that is not confident but not eligible is committed as plain JSAR.
+Why the relative test and the asymmetric reference: docs/method.md ("JSAR-Re").
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from jsar.api import Box
 from jsar.redetect.params import InsideRule, MonitorParams
 
 
@@ -38,7 +32,7 @@ class Verdict:
         return self.eligible and not self.confident
 
 
-def box_is_inside(box: tuple[float, float, float, float], image_wh: tuple[int, int], rule: InsideRule) -> bool:
+def box_is_inside(box: Box, image_wh: tuple[int, int], rule: InsideRule) -> bool:
     """Whether box (x, y, w, h) px lies inside a W x H image: whole box ("full") or its centre ("centre")."""
     x, y, w, h = box
     width, height = image_wh
@@ -63,7 +57,7 @@ class FailureMonitor:
         self.params = params
         self.reference: float | None = None
 
-    def eligible(self, box: tuple[float, float, float, float], image_wh: tuple[int, int], frame_index: int) -> bool:
+    def eligible(self, box: Box, image_wh: tuple[int, int], frame_index: int) -> bool:
         """Whether a loss may be declared on this frame (warm-up over, target size and position sane)."""
         p = self.params
         area = box[2] * box[3]
@@ -74,11 +68,11 @@ class FailureMonitor:
         """(confident, reliable) for a raw peak against the current reference; changes nothing."""
         p = self.params
         reference = self.reference
-        confident = peak > p.enable_peak and (reference is None or peak > p.relative_drop * reference)
+        confident = peak > p.confident_peak and (reference is None or peak > p.relative_drop * reference)
         reliable = peak > p.reliable_peak
         return confident, reliable
 
-    def assess(self, peak: float, box: tuple[float, float, float, float], image_wh: tuple[int, int],
+    def assess(self, peak: float, box: Box, image_wh: tuple[int, int],
                frame_index: int) -> Verdict:
         """One frame's verdict from its raw translation peak and the last confident box (px). A
         reliable peak updates the reference when the frame will be committed (confident, or not

@@ -19,38 +19,22 @@ EdgeFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 @dataclass(frozen=True)
 class EdgeBoxesSettings:
-    """cv2.ximgproc.EdgeBoxes settings (the original's values) plus how the search region is prepared.
+    """cv2.ximgproc.EdgeBoxes settings (the original's values unless said) plus how the search region is prepared."""
 
-    min_area_fraction: EdgeBoxes' minimum box area = this * target area (pixels^2), at least
-    min_area_floor_px2, so targets down to the failure monitor's 100 px^2 stay findable (the original
-    kept EdgeBoxes' fixed 1000 px^2). max_area_ratio: boxes larger than this * target area are
-    dropped (EdgeBoxes has no maximum; on cluttered frames boxes spanning the whole region otherwise
-    take most of the max_boxes slots); EdgeBoxes is asked for candidate_factor * max_boxes boxes so
-    that max_boxes remain after that filter. working_target_side_px: the region is resampled so that
-    the target's sqrt(w*h) spans about this many pixels (scale clamped to [min_working_scale,
-    max_working_scale]); this bounds the cost on big targets and gives tiny ones enough edge pixels.
-    max_working_pixels caps the resampled region's area (EdgeBoxes' cost grows with it: a whole
-    1280x720 frame at a small target's working scale took 2.5 s), shrinking the scale further when
-    omega has grown large.
-    edge_min_mag: EdgeBoxes' edgeMinMag (default 0.1): gradient edges are denser than the
-    structured-edge output the default was tuned on; 0.15 halves the cost on cluttered frames at the
-    same recall (measured on the shared sequences, see the report).
-    """
-
-    alpha: float = 0.625
-    beta: float = 0.85
-    min_score: float = 0.01
-    max_boxes: int = 30
-    max_aspect_ratio: float = 3.0
-    min_area_fraction: float = 0.3
-    min_area_floor_px2: float = 16.0
-    max_area_ratio: float = 3.0
-    candidate_factor: int = 4
-    working_target_side_px: float = 32.0
-    edge_min_mag: float = 0.15
-    min_working_scale: float = 0.125
-    max_working_scale: float = 4.0
-    max_working_pixels: int = 256 * 256
+    alpha: float = 0.625  # EdgeBoxes' sliding-window step size (IoU of neighbouring windows)
+    beta: float = 0.85  # EdgeBoxes' NMS threshold (IoU)
+    min_score: float = 0.01  # EdgeBoxes' minimum box score
+    max_boxes: int = 30  # proposals kept
+    max_aspect_ratio: float = 3.0  # EdgeBoxes' maximum box aspect ratio
+    min_area_fraction: float = 0.3  # minimum box area = this x the target's area, at least min_area_floor_px2 (the original: a fixed 1000 px^2)
+    min_area_floor_px2: float = 16.0  # the minimum box area's floor (px^2): targets down to the monitor's smallest stay findable
+    max_area_ratio: float = 3.0  # boxes larger than this x the target's area are dropped (they took most slots on clutter)
+    candidate_factor: int = 4  # EdgeBoxes is asked for this x max_boxes boxes, so max_boxes remain after that filter
+    working_target_side_px: float = 32.0  # the region is resampled so the target's sqrt(w*h) spans about this (px)
+    edge_min_mag: float = 0.15  # EdgeBoxes' edgeMinMag (its default 0.1): gradient edges are denser; same recall, half the cost
+    min_working_scale: float = 0.125  # the resampling scale's lower bound
+    max_working_scale: float = 4.0  # the resampling scale's upper bound
+    max_working_pixels: int = 256 * 256  # the resampled region's area bound (px^2; a whole 1280x720 frame took 2.5 s)
 
     def __post_init__(self) -> None:
         if not 0 < self.alpha < 1 or not 0 < self.beta <= 1:
@@ -80,9 +64,9 @@ class Proposals:
     region: tuple[int, int, int, int]  # searched region (x, y, w, h), integer pixels, inside the image
 
 
-def search_region(center_xy: tuple[float, float], target_wh: tuple[float, float], omega: float,
+def search_region(centre_xy: tuple[float, float], target_wh: tuple[float, float], omega: float,
                   image_wh: tuple[int, int]) -> tuple[int, int, int, int]:
-    """Square of side omega*sqrt(w*h) px centred at center_xy, clipped to the image -> (x, y, w, h) ints.
+    """Square of side omega*sqrt(w*h) px centred at centre_xy, clipped to the image -> (x, y, w, h) ints.
 
     A square larger than the image gives the whole image. Raises ValueError if the clipped region is
     empty (centre far outside the image) or the inputs are not positive.
@@ -92,12 +76,12 @@ def search_region(center_xy: tuple[float, float], target_wh: tuple[float, float]
         raise ValueError(f"search region needs positive target size and omega, got {target_wh}, {omega}")
     image_w, image_h = image_wh
     side = omega * math.sqrt(w * h)
-    x0 = max(0, int(math.floor(center_xy[0] - side / 2)))
-    y0 = max(0, int(math.floor(center_xy[1] - side / 2)))
-    x1 = min(image_w, int(math.ceil(center_xy[0] + side / 2)))
-    y1 = min(image_h, int(math.ceil(center_xy[1] + side / 2)))
+    x0 = max(0, int(math.floor(centre_xy[0] - side / 2)))
+    y0 = max(0, int(math.floor(centre_xy[1] - side / 2)))
+    x1 = min(image_w, int(math.ceil(centre_xy[0] + side / 2)))
+    y1 = min(image_h, int(math.ceil(centre_xy[1] + side / 2)))
     if x1 - x0 < 3 or y1 - y0 < 3:
-        raise ValueError(f"search region around {center_xy} of side {side:.1f} px misses the {image_w}x{image_h} image")
+        raise ValueError(f"search region around {centre_xy} of side {side:.1f} px misses the {image_w}x{image_h} image")
     return (x0, y0, x1 - x0, y1 - y0)
 
 
@@ -114,17 +98,17 @@ def min_box_area(target_wh: tuple[float, float], settings: EdgeBoxesSettings) ->
     return max(settings.min_area_floor_px2, settings.min_area_fraction * target_wh[0] * target_wh[1])
 
 
-def generate_proposals(frame: np.ndarray, center_xy: tuple[float, float], target_wh: tuple[float, float],
+def generate_proposals(frame: np.ndarray, centre_xy: tuple[float, float], target_wh: tuple[float, float],
                        omega: float, settings: EdgeBoxesSettings = EdgeBoxesSettings(),
                        edges: EdgeFunction = edge_maps) -> Proposals:
-    """EdgeBoxes proposals in the omega-square around center_xy; boxes in full-frame pixels, best first.
+    """EdgeBoxes proposals in the omega-square around centre_xy; boxes in full-frame pixels, best first.
 
     frame: HxW[x3] uint8. target_wh: last confident target size (pixels). `edges` computes the edge
     and orientation maps (default: smoothed gradients; a `StructuredEdges` instance when a model file
     is configured).
     """
     image_h, image_w = frame.shape[:2]
-    rx, ry, rw, rh = search_region(center_xy, target_wh, omega, (image_w, image_h))
+    rx, ry, rw, rh = search_region(centre_xy, target_wh, omega, (image_w, image_h))
     scale = working_scale(target_wh, (rw, rh), settings)
     region = frame[ry:ry + rh, rx:rx + rw]
     out_w, out_h = max(3, round(rw * scale)), max(3, round(rh * scale))

@@ -3,15 +3,11 @@
 Conventions: offsets in target sides sqrt(w*h) from the last confident centre, positions in full-frame
 pixels (x right, y down), scores are raw decision-filter peaks (MATLAB FFT convention, as eta_d).
 
-The lattice holds window centres at stride x (i, j), (i, j) != (0, 0) (the centre window is the core
-tracker's own detection sample, scored apart), within a square of side area + stride (so the ring
-just beyond the paper's omega square is searched: its windows reach omega's corners), nearest ring
-first. The centre's window and those of the nearest `turned_rings` rings are also scored with the image
-turned by each of the search's angles (a target that turned while hidden, where it was lost): the cycle
-is the centre's turned windows, then ring by ring the ring's upright windows followed (near rings only)
-by its turned ones. Each lost frame scores `windows_per_frame` entries of
-the cycle; the area grows per lost frame (the paper's omega schedule), so farther rings join the
-cycle as the loss goes on.
+The lattice holds window centres at stride x (i, j) != (0, 0) (the centre window is the core's own
+detection sample, scored apart) within a square of side area + stride, nearest ring first. The cycle:
+the centre's turned windows, then ring by ring its upright windows followed (first `turned_rings` rings
+only) by its turned ones. Each lost frame scores `windows_per_frame` entries of the cycle; the area
+grows per lost frame (the paper's omega), so farther rings join as the loss goes on.
 """
 from __future__ import annotations
 
@@ -103,13 +99,13 @@ def search_cycle(area_sides: float, stride_sides: float, angles_deg: tuple[float
 
 def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams, min_peak: float = 0.0,
                 fraction: float | None = None) -> float:
-    """The acceptance bar (raw peak) after `lost_frames` failed frames: max(accept_peak / decay^t,
-    reference x max(accept_floor, fraction / decay^t), min_peak), fraction = accept_fraction unless given
+    """The acceptance bar (raw peak) after `lost_frames` failed frames: max(peak / decay^t,
+    reference x max(floor, fraction / decay^t), min_peak), fraction = fraction unless given
     (reference None: the absolute part alone, or inf when that is 0: nothing to compare with yet)."""
-    decay = accept.accept_decay ** lost_frames
-    start = accept.accept_fraction if fraction is None else fraction
-    relative = reference * max(accept.accept_floor, start / decay) if reference is not None else 0.0
-    bar = max(accept.accept_peak / decay, relative)
+    decay = accept.decay ** lost_frames
+    start = accept.fraction if fraction is None else fraction
+    relative = reference * max(accept.floor, start / decay) if reference is not None else 0.0
+    bar = max(accept.peak / decay, relative)
     return max(bar, min_peak) if bar > 0 else math.inf
 
 
@@ -122,7 +118,7 @@ class LossSearch:
 
     anchor_xy: tuple[float, float]
     side_px: float
-    search: SearchParams
+    lattice: SearchParams
     accept: AcceptParams
     lost_frames: int = 0
     cursor: int = 0
@@ -137,16 +133,16 @@ class LossSearch:
 
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""
-        s = self.search
+        s = self.lattice
         return min(s.area_start_sides * s.area_growth ** max(self.lost_frames - 1, 0), s.area_max_sides)
 
     def windows(self, frame_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright),
         at most windows_per_frame entries of search_cycle whose centre lies in the frame; advances
         the cycle."""
-        entries = search_cycle(self.area_sides(), self.search.stride_sides, self.search.turned_angles_deg,
-                               self.search.turned_rings)
-        budget = min(self.search.windows_per_frame, len(entries))
+        entries = search_cycle(self.area_sides(), self.lattice.stride_sides, self.lattice.turned_angles_deg,
+                               self.lattice.turned_rings)
+        budget = min(self.lattice.windows_per_frame, len(entries))
         if budget == 0:
             return np.empty((0, 2)), np.empty(0)
         picked = entries[(self.cursor + np.arange(budget)) % len(entries)]

@@ -31,14 +31,14 @@ from jsar.tracking.translation import TranslationFilter
 class Localisation:
     """One detection: where the target is now, how confident, and the sample it was found in.
 
-    center_xy: new centre (px); peak: raw translation response maximum; displacement_cells:
+    centre_xy: new centre (px); peak: raw translation response maximum; displacement_cells:
     (dy, dx) found in the feature map; sample_f: the detection sample's spectrum (C, H, W//2+1)
     (reused for training); search_side: side (px) of the square it was cut from; scale_factor:
     size factor of the chosen search scale (STRCF's multi-scale search; 1.0 for JSAR);
     response: the (H, W) response map (cells, peak position = displacement, wrapped).
     """
 
-    center_xy: tuple[float, float]
+    centre_xy: tuple[float, float]
     peak: float
     displacement_cells: tuple[float, float]
     sample_f: np.ndarray
@@ -110,7 +110,7 @@ class JsarTracker:
     @property
     def box(self) -> Box:
         """Current target box (x, y, w, h) in pixels."""
-        cx, cy = self.center_xy
+        cx, cy = self.centre_xy
         w, h = self.size_wh
         return (cx - w / 2.0, cy - h / 2.0, w, h)
 
@@ -128,13 +128,13 @@ class JsarTracker:
         best: Localisation | None = None
         for factor in factors:
             side = base_side * factor
-            sample_f = self._sample_spectrum(image, self.center_xy, side)
+            sample_f = self._sample_spectrum(image, self.centre_xy, side)
             resp, resp_f = self.translation.response(sample_f)
             dy, dx, peak = dcf.subpixel_peak(resp, resp_f, p.newton_iterations)
             if best is None or peak > best.peak:
                 px_per_cell = side / self._cells
-                center = (self.center_xy[0] + dx * px_per_cell, self.center_xy[1] + dy * px_per_cell)
-                best = Localisation(center, peak, (dy, dx), sample_f, side, factor, resp)
+                centre = (self.centre_xy[0] + dx * px_per_cell, self.centre_xy[1] + dy * px_per_cell)
+                best = Localisation(centre, peak, (dy, dx), sample_f, side, factor, resp)
         assert best is not None
         return best
 
@@ -143,9 +143,9 @@ class JsarTracker:
         image = self._prepare_checked(frame)
         height, width = image.shape[:2]
         # Keep the centre on the image: a target leaving the view is followed to the border.
-        cx = min(max(loc.center_xy[0], 0.0), float(width))
-        cy = min(max(loc.center_xy[1], 0.0), float(height))
-        self.center_xy = (cx, cy)
+        cx = min(max(loc.centre_xy[0], 0.0), float(width))
+        cy = min(max(loc.centre_xy[1], 0.0), float(height))
+        self.centre_xy = (cx, cy)
         if self.use_size_filter:
             self._update_size(image)
         else:
@@ -166,15 +166,15 @@ class JsarTracker:
         box = validate_box(box, image.shape)
         self._setup(image, box)
 
-    def relocate(self, center_xy: tuple[float, float]) -> None:
-        """Move the target's centre to center_xy px, keeping the size and every filter as they are
+    def relocate(self, centre_xy: tuple[float, float]) -> None:
+        """Move the target's centre to centre_xy px, keeping the size and every filter as they are
         (the target was found again elsewhere; nothing is learnt from this frame)."""
         if not self._initialised:
             raise RuntimeError("tracker used before init(frame, box)")
-        cx, cy = (float(v) for v in center_xy)
+        cx, cy = (float(v) for v in centre_xy)
         if not (math.isfinite(cx) and math.isfinite(cy)):
-            raise ValueError(f"centre must be finite, got {center_xy}")
-        self.center_xy = (cx, cy)
+            raise ValueError(f"centre must be finite, got {centre_xy}")
+        self.centre_xy = (cx, cy)
 
     def hold_size_until_recognised(self, fraction: float) -> None:
         """Keep the size (the size filter still learns each frame at it) until the size filter's
@@ -199,17 +199,17 @@ class JsarTracker:
         """The colour-attribute table the translation features use (None in grey mode)."""
         return None if self._grey else self._colour_table
 
-    def sample_spectrum(self, frame: np.ndarray, center_xy: tuple[float, float], side: float) -> np.ndarray:
-        """Windowed feature spectrum (C, H, W//2+1) of the square of side `side` px at `center_xy`,
+    def sample_spectrum(self, frame: np.ndarray, centre_xy: tuple[float, float], side: float) -> np.ndarray:
+        """Windowed feature spectrum (C, H, W//2+1) of the square of side `side` px at `centre_xy`,
         exactly as the translation filter sees its samples (e.g. to score re-detection proposals)."""
-        return self._sample_spectrum(self._prepare_checked(frame), center_xy, side)
+        return self._sample_spectrum(self._prepare_checked(frame), centre_xy, side)
 
     # ----------------------------------------------------------------- internals
     def _setup(self, image: np.ndarray, box: Box) -> None:
         """Fresh filters for `box` on `image`, trained on that frame (first-frame rules: mu = 0)."""
         p = self.params
         x, y, w, h = box
-        self.center_xy = (x + w / 2.0, y + h / 2.0)
+        self.centre_xy = (x + w / 2.0, y + h / 2.0)
         self._min_side = min(p.min_target_side_px, w, h)
         self.size_wh = (w, h)
         self._cells = p.search_patch_px // p.cell_size
@@ -217,11 +217,11 @@ class JsarTracker:
         self.size_filter = SizeFilter(p, (w, h)) if self.use_size_filter else None
         self.size_peak_mean: float | None = None  # running mean of the size filter's response peaks
         self.size_hold_fraction: float | None = None  # see hold_size_until_recognised
-        sample_f = self._sample_spectrum(image, self.center_xy, self._search_side())
+        sample_f = self._sample_spectrum(image, self.centre_xy, self._search_side())
         self.translation.train(sample_f)
         self.last_training_sample_f = sample_f
         if self.size_filter is not None:
-            size_sample = self.size_filter.sample(image, self.center_xy, self.size_wh)
+            size_sample = self.size_filter.sample(image, self.centre_xy, self.size_wh)
             self.size_filter.train(self.size_filter.spectrum(size_sample))
         self._initialised = True
 
@@ -229,7 +229,7 @@ class JsarTracker:
         """Estimate scale and aspect at the new centre; train the size filter at the new size (at the
         old one during a hold: hold_size_until_recognised)."""
         assert self.size_filter is not None
-        sample = self.size_filter.sample(image, self.center_xy, self.size_wh)
+        sample = self.size_filter.sample(image, self.centre_xy, self.size_wh)
         sample_f = self.size_filter.spectrum(sample)
         resp = self.size_filter.response(sample_f)
         peak, mean = float(resp.max()), self.size_peak_mean
@@ -246,7 +246,7 @@ class JsarTracker:
             new_size = self._clamp((w * fw, h * fh), image)
             if new_size != self.size_wh:
                 self.size_wh = new_size
-                sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.center_xy, new_size))
+                sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.centre_xy, new_size))
             self.size_filter.train(sample_f)
             return
         i, j = best_cell(resp)
@@ -261,9 +261,9 @@ class JsarTracker:
                 # The new grid is the old one shifted by (i - c, j - c) cells around the same
                 # centre: reuse the overlap, sample only the cells that enter the grid.
                 sample = self.size_filter.shifted_sample(
-                    image, self.center_xy, new_size, sample, (i - centre_i, j - centre_j))
+                    image, self.centre_xy, new_size, sample, (i - centre_i, j - centre_j))
             else:  # clamped: not on the old grid, sample it afresh
-                sample = self.size_filter.sample(image, self.center_xy, new_size)
+                sample = self.size_filter.sample(image, self.centre_xy, new_size)
             self.size_wh = new_size
             sample_f = self.size_filter.spectrum(sample)
         self.size_filter.train(sample_f)
@@ -284,10 +284,10 @@ class JsarTracker:
         cells_per_px = self._cells / self._search_side()
         return h * cells_per_px, w * cells_per_px
 
-    def _sample_spectrum(self, image: np.ndarray, center_xy: tuple[float, float], side: float) -> np.ndarray:
+    def _sample_spectrum(self, image: np.ndarray, centre_xy: tuple[float, float], side: float) -> np.ndarray:
         """Spectrum (C, H, W//2+1) of the windowed features of the square search patch."""
         out = self.params.search_patch_px
-        patch = patches.sample_patch(image, center_xy, (side, side), (out, out))
+        patch = patches.sample_patch(image, centre_xy, (side, side), (out, out))
         table = None if self._grey else self._colour_table
         feats = translation_features.extract_features(patch, self.params.cell_size, table)
         return self.translation.sample_spectrum(feats)

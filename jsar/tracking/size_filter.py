@@ -90,13 +90,13 @@ class SizeFilter:
         self.numerator: np.ndarray | None = None  # (S, A//2+1, D) complex64
         self.denominator: np.ndarray | None = None  # (S, A//2+1) float32
 
-    def sample(self, frame: np.ndarray, center_xy: tuple[float, float], size_wh: tuple[float, float]) -> np.ndarray:
-        """(S, A, D) float32: vectorised fHOG of every grid patch around `center_xy` (unwindowed)."""
+    def sample(self, frame: np.ndarray, centre_xy: tuple[float, float], size_wh: tuple[float, float]) -> np.ndarray:
+        """(S, A, D) float32: vectorised fHOG of every grid patch around `centre_xy` (unwindowed)."""
         sizes = grid_sizes(size_wh, self.params).reshape(-1, 2)
-        return self._features(frame, center_xy, sizes).reshape(self.grid_shape[0], self.grid_shape[1], -1)
+        return self._features(frame, centre_xy, sizes).reshape(self.grid_shape[0], self.grid_shape[1], -1)
 
     def shifted_sample(
-        self, frame: np.ndarray, center_xy: tuple[float, float], size_wh: tuple[float, float],
+        self, frame: np.ndarray, centre_xy: tuple[float, float], size_wh: tuple[float, float],
         previous: np.ndarray, shift: tuple[int, int],
     ) -> np.ndarray:
         """The grid sample at `size_wh` = the size of cell (c + di, c + dj) of `previous`.
@@ -117,15 +117,15 @@ class SizeFilter:
         missing = ~(keep_i[:, None] & keep_j[None, :])
         if missing.any():
             sizes = grid_sizes(size_wh, self.params)[missing]
-            out[missing] = self._features(frame, center_xy, sizes)
+            out[missing] = self._features(frame, centre_xy, sizes)
         return out
 
-    def _features(self, frame: np.ndarray, center_xy: tuple[float, float], sizes: np.ndarray) -> np.ndarray:
-        """(N, D) float32 vectorised fHOG of the N patches of `sizes` (N, 2) px around `center_xy`."""
+    def _features(self, frame: np.ndarray, centre_xy: tuple[float, float], sizes: np.ndarray) -> np.ndarray:
+        """(N, D) float32 vectorised fHOG of the N patches of `sizes` (N, 2) px around `centre_xy`."""
         if frame.ndim == 3:
             # fHOG of the size filter runs on luminance: convert only the region the grid covers.
-            frame, center_xy = grey_region(frame, center_xy, sizes.max(axis=0))
-        crops = patches.sample_patches(frame, center_xy, sizes, self.model_wh)
+            frame, centre_xy = grey_region(frame, centre_xy, sizes.max(axis=0))
+        crops = patches.sample_patches(frame, centre_xy, sizes, self.model_wh)
         return fhog.fhog_batch(crops, self.params.cell_size).reshape(len(sizes), -1)
 
     def spectrum(self, sample: np.ndarray) -> np.ndarray:
@@ -237,7 +237,7 @@ def bound_side(size_wh: tuple[float, float], side_bounds_px: tuple[float, float]
 
 
 def grey_region(
-    frame: np.ndarray, center_xy: tuple[float, float], extent_wh: np.ndarray
+    frame: np.ndarray, centre_xy: tuple[float, float], extent_wh: np.ndarray
 ) -> tuple[np.ndarray, tuple[float, float]]:
     """(grey crop, centre in crop coordinates) of the BGR frame region of size extent_wh around centre.
 
@@ -246,12 +246,12 @@ def grey_region(
     """
     height, width = frame.shape[:2]
     half_w, half_h = extent_wh[0] / 2.0 + 2.0, extent_wh[1] / 2.0 + 2.0
-    x0 = max(0, int(math.floor(center_xy[0] - half_w)))
-    x1 = min(width, int(math.ceil(center_xy[0] + half_w)) + 1)
-    y0 = max(0, int(math.floor(center_xy[1] - half_h)))
-    y1 = min(height, int(math.ceil(center_xy[1] + half_h)) + 1)
+    x0 = max(0, int(math.floor(centre_xy[0] - half_w)))
+    x1 = min(width, int(math.ceil(centre_xy[0] + half_w)) + 1)
+    y0 = max(0, int(math.floor(centre_xy[1] - half_h)))
+    y1 = min(height, int(math.ceil(centre_xy[1] + half_h)) + 1)
     if x1 <= x0 or y1 <= y0:  # region entirely off the image: its nearest border pixels
         x0, x1 = (0, 1) if x1 <= 0 else (width - 1, width) if x0 >= width else (x0, x1)
         y0, y1 = (0, 1) if y1 <= 0 else (height - 1, height) if y0 >= height else (y0, y1)
     grey = cv2.cvtColor(frame[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY)
-    return grey, (center_xy[0] - x0, center_xy[1] - y0)
+    return grey, (centre_xy[0] - x0, centre_xy[1] - y0)

@@ -34,9 +34,9 @@ ifeq ($(shell uname -m),x86_64)
 test: export OPENBLAS_CORETYPE ?= Haswell
 endif
 # -n 2: two workers, one a core (about 7 min instead of 14); --dist loadgroup keeps the firmware tests on one
-# worker. -rs: say why tests were skipped (e.g. no JSAR_DATA_ROOT).
+# worker. -rs: say why tests were skipped (e.g. no JSAR_DATA_ROOT); --durations: the 15 slowest, the budget's watch list.
 test: $(STAMP)
-	$(PY) -m pytest -q -rs -n 2 --dist loadgroup
+	$(PY) -m pytest -q -rs -n 2 --dist loadgroup --durations=15
 
 # MAVProxy, a ground station the tests run against (MAVLink signing), in its own environment: its
 # dependencies stay out of the project's. Tests that need it skip and say so without it.

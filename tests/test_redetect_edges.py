@@ -100,6 +100,19 @@ def test_search_region_is_clipped_and_whole_image_when_larger():
         search_region((-500, -500), (10, 10), 5.0, (640, 480))
 
 
+@pytest.mark.parametrize("values, message", [
+    ({"alpha": 1.0}, r"EdgeBoxesSettings\.alpha must be in \(0, 1\), got 1\.0"),
+    ({"beta": 0.0}, r"EdgeBoxesSettings\.beta must be in \(0, 1\], got 0\.0"),
+    ({"max_boxes": 0}, r"EdgeBoxesSettings\.max_boxes must be >= 1, got 0"),
+    ({"min_area_fraction": 3.0}, r"EdgeBoxesSettings\.min_area_fraction must be < max_area_ratio \(3\.0\)"),
+    ({"min_working_scale": 5.0}, r"EdgeBoxesSettings\.min_working_scale must be <= max_working_scale"),
+    ({"max_working_pixels": 4095}, r"EdgeBoxesSettings\.max_working_pixels must be >= 4096, got 4095"),
+])
+def test_edgeboxes_settings_out_of_range_are_refused_naming_the_field(values, message):
+    with pytest.raises(ValueError, match=message):
+        EdgeBoxesSettings(**values)
+
+
 def test_bright_rectangle_on_texture_is_among_the_top_proposals():
     image = _textured(480, 640, seed=1)
     target = (300.0, 200.0, 60.0, 40.0)

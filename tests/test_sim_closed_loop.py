@@ -9,9 +9,9 @@ Centring: the ground-truth centre of the car within |dx| <= 0.1 W and |dy| <= 0.
 frames where >= 50 % of the car is visible, outside the link drop and the 4 s after it (the daemon
 cannot command the gimbal while the link is down).
 
-The scene is the issue's: ground textured from real frames (JSAR_DATA_ROOT; these tests skip without it,
-and CI always sets it). The procedural ground `make run` falls back to on a bare machine is another
-scene, not silently substituted here: on it the PX4 centring check fails (README, sim section).
+The ground: textured from real frames when JSAR_DATA_ROOT is set (CI always sets it; the thresholds were
+set on it), else the procedural ground `make run` uses on a bare machine, with the same checks. Only the
+replay of a real sequence needs the data (it skips without it).
 """
 from __future__ import annotations
 
@@ -56,9 +56,9 @@ class Scenario:
     accel_m_s2: float  # the mock's braking (ArduCopter SITL's, 2.5 m/s/s)
 
 
-def run_scenario(flavour: str) -> Scenario:
+def run_scenario(flavour: str, ground: str) -> Scenario:
     cfg = ClosedLoopConfig(flavour=flavour, duration_s=DURATION_S, guidance="velocity",
-                           scene=SceneConfig(occlusion_times_s=(OCCLUSION_S,), texture="data"),
+                           scene=SceneConfig(occlusion_times_s=(OCCLUSION_S,), texture=ground),
                            link_drops=((DROP_START_S, DROP_S),),
                            operator_modes=((REENGAGE_S, "OFFBOARD"),) if flavour == "px4" else (),
                            video_path=OUT / f"test_sim_closed_loop_{flavour}.avi")
@@ -94,9 +94,18 @@ def trace(result: RunResult) -> str:
     return "\n".join(lines)
 
 
+@pytest.fixture(scope="module")
+def ground(request) -> str:
+    """The scene's ground texture: "data" (real frames) when JSAR_DATA_ROOT is set, else "procedural"."""
+    if os.environ.get("JSAR_DATA_ROOT"):
+        request.getfixturevalue("data_root")  # skips, as before, when it does not name a directory
+        return "data"
+    return "procedural"
+
+
 @pytest.fixture(scope="module", params=["ardupilot", "px4"])
-def scenario(request, data_root) -> Scenario:
-    return run_scenario(request.param)
+def scenario(request, ground) -> Scenario:
+    return run_scenario(request.param, ground)
 
 
 def test_daemon_survives_and_answers_every_frame(scenario):
@@ -201,7 +210,7 @@ def test_mavsdk_ground_station_selects_gets_status_and_stops(scenario):
     assert scenario.status_after_stop is not None and scenario.status_after_stop.status_name == "IDLE"
 
 
-def test_soak_flat_memory_and_latency(data_root):
+def test_soak_flat_memory_and_latency(ground):
     """A bounded soak (62 s simulated, lockstep): RSS not sloping after warm-up (a one-off step, e.g.
     the first large re-detection, is not a leak), per-frame CPU (hence latency) not growing, the car in
     view; all judged so that another process on the machine does not decide (see sim.soak). 62 s: the
@@ -209,7 +218,7 @@ def test_soak_flat_memory_and_latency(data_root):
     not end the loss on the canopy). The one-hour soak: `python -m sim.soak --minutes 60`."""
     duration = 62.0
     cfg = ClosedLoopConfig(duration_s=duration, guidance="velocity", rss_every_s=1.0,
-                           scene=SceneConfig(texture="data"))
+                           scene=SceneConfig(texture=ground))
     with ClosedLoop(cfg) as loop:
         result = loop.run()
     report = analyse(result, duration, cfg.fps)

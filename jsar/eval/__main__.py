@@ -2,30 +2,12 @@
 [--sequences a,b] [--longterm [--kinds ...] [--lengths 5,15,40] [--seed 0]] [--max-frames N] [--params JSON]
 [--starts exact|sre|sre:I,J,...] [--jobs N]
 
---starts runs each sequence from perturbed initial boxes as well (OTB's spatial robustness evaluation,
-jsar.eval.sre), one pass or --longterm (the same injected events for every start), always scored against
-the unperturbed ground truth. `exact` (default): the ground truth's first box only. `sre`: all 11 starts,
-by index 0 exact; 1-4 shift2_+x+y, shift2_+x-y, shift2_-x+y, shift2_-x-y (2 px diagonal shifts); 5-8
-shift10_-x, shift10_+x, shift10_-y, shift10_+y (10 % of the box's width / height); 9 scale0.9, 10 scale1.1
-(about the centre); perturbed boxes clipped to the frame. `sre:I,J,...`: those starts, 0 among them (for
-exploring, e.g. sre:0,2,5,9). The tables and "sequences" / "summary" in the JSON stay the exact start's;
-then per sequence and per set the mean, standard deviation and min / max over the starts of AUC,
-precision and (--longterm) re-acquired within 15 frames, false re-initialisations per absent frame and
-absent frames reported lost, beside the exact start's value; the JSON's "sre" holds them and every
-start's per-sequence figures and boxes.
-
---jobs N runs the (sequence, start) or (sequence, kind, start) runs in N forked worker processes, each
-single-threaded like the main one (default 1: in this process); results are the same as with 1, but the
-speeds are measured with N runs sharing the machine.
-
---params sets a tracker's parameters as jsar.create takes them, e.g. JSAR-Re with four windows a lost
-frame: --params '{"jsar-re": {"redetect": {"search": {"windows_per_frame": 4}}}}' (an ablation of one
-setting without editing code); the JSON result records them ("params").
-
-One thread: the BLAS / OpenMP env vars are set to 1 for libraries loaded later, cv2.setNumThreads(1),
-and threadpoolctl caps the pools of libraries already loaded (numpy's OpenBLAS is loaded by
-`import jsar`, before this module runs, so env vars alone would be too late); the resulting
-pool sizes are printed and stored in the JSON ("threads").
+The options: --help; the protocol (one pass, long-term, SRE starts) and its outputs: docs/evaluation.md.
+With several --starts the tables and the JSON's "sequences" / "summary" stay the exact start's; the JSON's
+"sre" holds the spread over the starts and every start's per-sequence figures and boxes.
+One thread, so speeds compare: the BLAS / OpenMP env vars are set to 1, cv2.setNumThreads(1), and
+threadpoolctl caps the pools already loaded (`import jsar` loads numpy's OpenBLAS before this module runs);
+the pool sizes are printed and stored in the JSON ("threads").
 """
 from __future__ import annotations
 

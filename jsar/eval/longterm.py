@@ -1,28 +1,12 @@
 """Long-term protocol: target-absent events injected into real sequences, and the metrics on them.
 
-Two kinds of injected event, each hiding the target for K frames and then letting it come back,
-and the sequence's own absent runs:
-
-- "occlusion": in every event frame the target region (the gt box enlarged by `margin`) is
-  overwritten by a background patch of the same size copied from beside the target in that same
-  frame (the side is chosen once per event so the occluder looks consistent); if no side fits in
-  the frame, the region is filled by cv2.inpaint (Telea) instead. Either way no target pixel stays.
-- "out-of-view": the whole frame is translated (constant output size) so that the union of the
-  event's gt boxes lies outside the view, the uncovered band filled by replicating the frame edge
-  on the side away from the target; the shift is constant over the event (a camera that looked
-  away and back), and the translated frame is the one the tracker sees.
-
-- "real": nothing injected; the events are the runs of NaN rows in the sequence's own ground truth
-  (full occlusion or out of view as annotated) that are followed by a visible frame. Sequences
-  without such a run have no "real" events.
-
-Ground truth is NaN (absent) inside an event. Injected event start frames are drawn from a seeded
-generator (seed and sequence name), after the first `first_start` frames, never overlapping, and
-each event is followed by at least `gap_after` visible frames so that re-acquisition can be
-measured; a placement that would touch one of the sequence's own absent frames is drawn again, so
-an injected event never hides or merges with a real one. Each event is scored in the run of its own
-kind only (`EventSequence.scored_spans`): a real absent run is one event, counted once. Frames are
-produced lazily from the original files; nothing is copied to disk.
+Kinds of event, each hiding the target for K frames before it comes back: "occlusion" (the target region
+overwritten by background from beside it, else inpainted: no target pixel stays), "out-of-view" (the frame
+translated so the event's boxes lie outside it, a camera that looked away and back) and "real" (nothing
+injected: the sequence's own NaN ground-truth runs followed by a visible frame). Ground truth is NaN inside an
+event. Injected events are placed by a seeded generator, never overlapping each other or a real absent run, each
+followed by visible frames so re-acquisition can be measured; each run is scored on its own kind's events only.
+Frames are produced lazily from the original files. The protocol's figures: docs/evaluation.md.
 """
 from __future__ import annotations
 

@@ -1,33 +1,12 @@
 """python -m jsar.eval.misses LONGTERM.json [...] [--tracker jsar-re] [--events] [--false] [--by-sequence]
 
 What became of each long-term event in `python -m jsar.eval --longterm --json` results, for one tracker:
-re-acquired, or why not; several results (seeds, kernels) are pooled, and `--by-sequence` counts the outcomes
-per sequence over all of them (which sequences the misses come from). Distances are in target sides sqrt(w*h)
-of the box on the frame before the event.
-
-Outcomes (the first that applies):
-- "re-acquired": on target within the scoring window after the target came back;
-- "began off target": the box was not on the target on the frame before the event (a cascade from an
-  earlier miss, or a one-pass failure): nothing of the target to re-acquire;
-- "took during absence": the tracker reported "recovered" while the target was absent;
-- "took wrong after": it reported "recovered" in the window after the return, not onto the target;
-- "stayed lost": it reported "lost" on every frame of that window;
-- "never lost": it reported "tracking" throughout the event and the window (it followed something else);
-- "other": a mix (e.g. a loss that ended on the window's last frames through the core, off the target).
-
-For each event also: how far the target came back from where the loss began (the box before the event) and
-from where the box was on the event's last frame; a search that stays where the target vanished and one that
-follows the track differ there.
-
-`--false`: the frames the protocol counts as false re-initialisations (jsar.eval.longterm.longterm_scores), by
-kind (the first that applies):
-- "taken while absent": the tracker reported "recovered" on an absent frame;
-- "moved while lost": the box jumped on an absent frame while the tracker reported "lost" (a search moving
-  its waiting place, a refuted take restored);
-- "jumped while tracking": the box jumped on an absent frame while the tracker reported "tracking";
-- "taken wrong": it reported "recovered" on a visible frame with no overlap with the target.
-For the two "taken" kinds, how many ended a loss of at most `short_loss` frames (the core confident again
-after a brief drop, rather than a search's take).
+re-acquired, or why not (`Outcome`, the first that applies: `EventStates.outcome`), with how far the target came
+back from where the loss began and from the box on the event's last frame (target sides sqrt(w*h)): a search
+that stays where the target vanished and one that follows the track differ there. Several results (seeds,
+kernels) are pooled; `--by-sequence` counts outcomes per sequence. `--false`: the frames the protocol counts as
+false re-initialisations, by kind (FALSE_KINDS: `false_frames`), and how many "taken" ones ended a short loss
+(the core confident again after a brief drop rather than a search's take).
 """
 from __future__ import annotations
 
@@ -49,7 +28,7 @@ FALSE_KINDS = ("taken while absent", "moved while lost", "jumped while tracking"
 
 
 class Outcome(StrEnum):
-    """What became of a long-term event, in the order they are tried (the module's docstring: when each applies)."""
+    """What became of a long-term event, in the order they are tried (when each applies: EventStates.outcome)."""
 
     REACQUIRED = "re-acquired"
     BEGAN_OFF_TARGET = "began off target"

@@ -1,25 +1,11 @@
 """Spatial robustness evaluation (OTB's SRE): every sequence run from perturbed initial boxes.
 
-A user's click is never pixel-exact, and a tracker's result at one exact initial box can be luck, so each
-sequence is also run from boxes around the ground truth's first one. The eleven starts, by index:
-
-  0 exact          the ground truth's first box, unchanged (today's one pass)
-  1 shift2_+x+y    x + 2, y + 2 px            2 shift2_+x-y   x + 2, y - 2 px
-  3 shift2_-x+y    x - 2, y + 2 px            4 shift2_-x-y   x - 2, y - 2 px
-  5 shift10_-x     x - 0.1 w                  6 shift10_+x    x + 0.1 w
-  7 shift10_-y     y - 0.1 h                  8 shift10_+y    y + 0.1 h
-  9 scale0.9       w, h x 0.9 about the box centre
- 10 scale1.1       w, h x 1.1 about the box centre
-
-Boxes are 0-based (x, y, w, h) float pixels, top-left origin (jsar.eval.dataset). A perturbed box is clipped
-to the frame [0, width] x [0, height] (the intersection); the exact box is never changed. Scoring is always
-against the unperturbed ground truth.
-
-`--starts` takes `exact` (the default: start 0 alone), `sre` (all eleven) or `sre:I,J,...` (those indices,
-which must include 0: the exact start's figures are reported beside the mean). Spread is over the starts:
-population standard deviation (ddof 0), minimum and maximum; per sequence of a tracker's per-start figures,
-per set of the per-start set figures (the mean over sequences for AUC / precision, pooled over runs for the
-long-term rates, as jsar.eval reports them for one start).
+A click is never pixel-exact and one exact start can be luck, so each sequence also runs from the eleven
+`SRE_STARTS` around the ground truth's first box (0 exact; 2 px diagonal shifts; 10 % shifts; scales 0.9 and
+1.1 about the centre), clipped to the frame and always scored against the unperturbed ground truth. Boxes are
+0-based (x, y, w, h) float pixels, top-left origin. `--starts`: STARTS_SYNTAX. The spread over the starts
+(`spread`: mean, population std, min, max) is per sequence of a tracker's per-start figures and per set of the
+per-start set figures (mean over sequences for AUC / precision, pooled over runs for the long-term rates).
 """
 from __future__ import annotations
 

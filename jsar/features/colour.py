@@ -1,29 +1,12 @@
 """Colour attributes: a 10-channel per-pixel colour descriptor looked up from a 32768-entry table.
 
-The original tracker uses a colour-names table learned from web images (van de Weijer et al.),
-which is not available to this project. This module derives an equivalent table from first
-principles, and loads an external one (.npy) when supplied.
-
-Derivation (`derived_colour_table`):
-1. Quantise RGB to 32 levels per channel (bin i covers values 8i..8i+7); the table row of a pixel is
-   `r // 8 + 32 * (g // 8) + 1024 * (b // 8)` on its R, G, B values (the original's indexing).
-2. Convert every bin centre (8i + 3.5) and one prototype sRGB colour for each of the 11 basic colour
-   terms (Berlin & Kay: black, blue, brown, grey, green, orange, pink, purple, red, white, yellow)
-   to CIELAB (cv2.cvtColor, D65), where Euclidean distance approximates perceived difference.
-3. Soft assignment: p_t = softmax_t(-d_t^2 / (2 sigma^2)) over the 11 terms, d_t the CIELAB distance
-   to prototype t, sigma = 16 (about the distance at which two colours start to get different
-   names, so a colour between two prototypes is shared and one near a prototype is not).
-4. 10-D projection: the 11 probabilities sum to one, so they live on a 10-D simplex and one
-   direction (the all-ones vector) carries no information. They are projected onto the Helmert
-   orthonormal basis Q (11 x 10) of the sum-zero plane: f = p @ Q. This is an isometry of the
-   simplex (distances and inner products of differences are kept, nothing is dropped), and
-   because the filters' objectives are invariant to an orthogonal mixing of channels, any such
-   basis gives the same tracker; the original's 10-channel table is the same kind of projection.
-An external 32768 x 11 table is projected with the same Q; a 32768 x 10 table is used as is.
-
-sigma was chosen before measuring and not tuned on the shared sequences: `python -m
-bench.colour_ab DATA_ROOT [--sigma S]` measures the tracker with and without the colour
-channels (numbers in the README's features section; they move with the tracker's version).
+The original's learned colour-names table (van de Weijer et al.) is not available, so `derived_colour_table`
+derives one: each RGB bin (row r//8 + 32*(g//8) + 1024*(b//8), the original's indexing) is soft-assigned to the
+11 basic colour terms (Berlin & Kay) by its CIELAB distance d_t to a prototype of each, p_t =
+softmax_t(-d_t^2 / (2 sigma^2)), and projected onto the Helmert basis of the sum-zero plane (11 -> 10 without
+loss; the filters do not change under an orthogonal mixing of channels). sigma = 16, about where two colours
+start to get different names, was chosen before measuring (`python -m bench.colour_ab` measures it). An
+external .npy table is loaded instead when given (32768 x 11, projected the same way, or 32768 x 10 as is).
 """
 from __future__ import annotations
 

@@ -1,31 +1,13 @@
-"""Felzenszwalb HOG (fHOG): 31 channels per cell = 18 signed + 9 unsigned orientations + 4 texture.
+"""Felzenszwalb HOG (fHOG, PAMI 2010): 31 channels per cell = 18 signed + 9 unsigned orientations + 4 texture.
 
-Definition implemented here (Felzenszwalb et al., PAMI 2010, with soft binning as in the common
-fast implementations):
-- Input: grey HxW or colour HxWx3 on a 0..255 scale (uint8 or float). Gradients are central
-  differences I[x+1] - I[x-1], one-sided I[1] - I[0] at the image border (border replicated, what
-  cv2.Sobel ksize=1 with BORDER_REPLICATE computes). Colour: per pixel the channel with the largest
-  gradient magnitude is used (the first of equal ones).
-- Orientation: theta = atan2(gy, gx) in image coordinates (x right, y down, so theta grows
-  clockwise on screen), 18 signed bins of 20 degrees whose centres are k * 20 degrees, k = 0..17;
-  each pixel's magnitude is split linearly between the two nearest bin centres (soft binning).
-- Space: cell = `cell` px; each pixel is split bilinearly between the four nearest cell centres
-  (cell c's centre is at (c + 0.5) * cell); pixels beyond the last whole cell are ignored. Output
-  size (H // cell, W // cell).
-- Normalisation: cell energy E = sum over the 9 unsigned bins of (h[o] + h[o+9])^2; each cell has
-  four 2x2-cell blocks around it (energy map edge-replicated at the border), factor
-  n_k = 1 / sqrt(block energy + eps); every histogram value times n_k is clipped at 0.2.
-- Channels: 0..17 signed: 0.5 * sum_k min(h[o] n_k, 0.2); 18..26 unsigned: 0.5 * sum_k
-  min((h[o] + h[o+9]) n_k, 0.2); 27..30 texture: 0.2357 * sum_o min(h[o] n_k, 0.2) for k = 0..3.
-  eps = 1e-4 on this histogram scale (gradients not halved, no 1/cell^2 factor, so eps is
-  relatively ~1000x smaller than in piotr's toolbox; it only matters where the block energy is
-  comparable to eps, i.e. practically flat regions). Everything else is scale free: the features
-  are contrast invariant up to eps.
-
-Implementation: `fhog` / `fhog_batch` run the compiled kernel (jsar/features/_kernels.c); the numpy
-functions below (`gradients`, `orientation_histograms`, `clipped_normalised`,
-`features_from_histograms`, `fhog_batch_reference`) are the readable specification the kernel is
-tested against (agreement to 2e-5).
+Input grey HxW or colour HxWx3 on 0..255 (colour: per pixel the channel with the largest gradient). Gradients:
+central differences, one-sided at the border (cv2.Sobel ksize=1, BORDER_REPLICATE). Orientation atan2(gy, gx)
+in image coordinates (x right, y down): 18 signed bins centred at k * 20 degrees, each pixel's magnitude split
+linearly between the two nearest; each pixel split bilinearly between the four nearest cell centres
+((c + 0.5) * cell px), output (H // cell, W // cell). Every cell normalised by its four 2x2-cell blocks
+(1 / sqrt(block energy + EPS)) and clipped at 0.2; EPS is on this unscaled histogram scale, so it matters only
+on flat regions. The compiled kernel (jsar/features/_kernels.c) runs `fhog` / `fhog_batch`; the numpy functions
+below are the specification it is tested against (agreement to 2e-5).
 """
 from __future__ import annotations
 

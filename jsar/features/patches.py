@@ -1,24 +1,13 @@
 """Image patches: crop a region (possibly partly or wholly outside the image) and resample it.
 
-Conventions: continuous pixel coordinates, pixel k covers [k, k+1); a region is given by its
-centre (cx, cy) and size (w, h) in pixels (floats) and covers [cx - w/2, cx + w/2) x
-[cy - h/2, cy + h/2); the output size is (out_w, out_h) pixels. Arrays are (rows, cols[, 3]).
-
-Resampling is separable and chosen per axis from that axis' scale s = region size / output size:
-- s > 1 (shrinking): output pixel j is the exact mean of the image over its footprint
-  [x0 + j*s, x0 + (j+1)*s) (what cv2.INTER_AREA computes; fractional region offsets included);
-- s <= 1 (enlarging): linear interpolation at the output pixel's centre x0 + (j+0.5)*s, which is the
-  mean over a 1 px footprint centred there (cv2.INTER_LINEAR's sampling positions).
-Outside the image the border pixels are replicated. This is folded into the resampling weights by
-clamping source indices, so only the in-image part of the region is read and no padded copy is
-allocated, however far outside the image or however large the region is.
-The result is rounded to the nearest integer (half up) and returned as uint8, like cv2.resize on uint8 input.
-On whole-pixel regions inside the image this equals cv2.resize (INTER_AREA / INTER_LINEAR) up to
-rounding and OpenCV's 1/32-pixel fixed-point interpolation weights.
-
-Implementation: the compiled kernel (jsar/features/_kernels.c) does the work for `sample_patch`,
-`sample_patches` and `resample_regions`; `axis_weights` + `resample_regions_reference` are the
-numpy specification it is tested against.
+Pixel k covers [k, k+1); a region of centre (cx, cy) and size (w, h) px covers [cx - w/2, cx + w/2) x
+[cy - h/2, cy + h/2); arrays are (rows, cols[, 3]). Per axis, from the scale s = region size / output size:
+shrinking (s > 1), the exact mean over each output pixel's footprint (cv2.INTER_AREA); enlarging, linear
+interpolation at its centre (cv2.INTER_LINEAR's positions). The border is replicated by clamping source
+indices, so no padded copy is made however far outside the region lies. uint8 results are rounded half up,
+equal to cv2.resize on whole-pixel regions inside the image up to OpenCV's fixed-point weights.
+The compiled kernel (jsar/features/_kernels.c) runs `sample_patch`, `sample_patches` and `resample_regions`;
+`axis_weights` + `resample_regions_reference` are the numpy specification it is tested against.
 """
 from __future__ import annotations
 

@@ -11,6 +11,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from jsar.checked import at_least, at_most_key, below_key, check_fields, checked, interval, positive
 from jsar.redetect.edges import edge_maps
 
 # Image (HxW[x3]) -> (edge magnitude 0..1, orientation radians [0, pi)), float32 HxW each.
@@ -21,38 +22,23 @@ EdgeFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 class EdgeBoxesSettings:
     """cv2.ximgproc.EdgeBoxes settings (the original's values unless said) plus how the search region is prepared."""
 
-    alpha: float = 0.625  # EdgeBoxes' sliding-window step size (IoU of neighbouring windows)
-    beta: float = 0.85  # EdgeBoxes' NMS threshold (IoU)
+    alpha: float = checked(0.625, interval(0, 1, low_open=True, high_open=True))  # EdgeBoxes' sliding-window step size (IoU of neighbouring windows)
+    beta: float = checked(0.85, interval(0, 1, low_open=True))  # EdgeBoxes' NMS threshold (IoU)
     min_score: float = 0.01  # EdgeBoxes' minimum box score
-    max_boxes: int = 30  # proposals kept
-    max_aspect_ratio: float = 3.0  # EdgeBoxes' maximum box aspect ratio
-    min_area_fraction: float = 0.3  # minimum box area = this x the target's area, at least min_area_floor_px2 (the original: a fixed 1000 px^2)
-    min_area_floor_px2: float = 16.0  # the minimum box area's floor (px^2): targets down to the monitor's smallest stay findable
+    max_boxes: int = checked(30, at_least(1))  # proposals kept
+    max_aspect_ratio: float = checked(3.0, at_least(1))  # EdgeBoxes' maximum box aspect ratio
+    min_area_fraction: float = checked(0.3, positive, below_key("max_area_ratio"))  # minimum box area = this x the target's area, at least min_area_floor_px2 (the original: a fixed 1000 px^2)
+    min_area_floor_px2: float = checked(16.0, positive)  # the minimum box area's floor (px^2): targets down to the monitor's smallest stay findable
     max_area_ratio: float = 3.0  # boxes larger than this x the target's area are dropped (they took most slots on clutter)
-    candidate_factor: int = 4  # EdgeBoxes is asked for this x max_boxes boxes, so max_boxes remain after that filter
-    working_target_side_px: float = 32.0  # the region is resampled so the target's sqrt(w*h) spans about this (px)
-    edge_min_mag: float = 0.15  # EdgeBoxes' edgeMinMag (its default 0.1): gradient edges are denser; same recall, half the cost
-    min_working_scale: float = 0.125  # the resampling scale's lower bound
+    candidate_factor: int = checked(4, at_least(1))  # EdgeBoxes is asked for this x max_boxes boxes, so max_boxes remain after that filter
+    working_target_side_px: float = checked(32.0, positive)  # the region is resampled so the target's sqrt(w*h) spans about this (px)
+    edge_min_mag: float = checked(0.15, interval(0, 1, high_open=True))  # EdgeBoxes' edgeMinMag (its default 0.1): gradient edges are denser; same recall, half the cost
+    min_working_scale: float = checked(0.125, positive, at_most_key("max_working_scale"))  # the resampling scale's lower bound
     max_working_scale: float = 4.0  # the resampling scale's upper bound
-    max_working_pixels: int = 256 * 256  # the resampled region's area bound (px^2; a whole 1280x720 frame took 2.5 s)
+    max_working_pixels: int = checked(256 * 256, at_least(64 * 64))  # the resampled region's area bound (px^2; a whole 1280x720 frame took 2.5 s)
 
     def __post_init__(self) -> None:
-        if not 0 < self.alpha < 1 or not 0 < self.beta <= 1:
-            raise ValueError(f"EdgeBoxes alpha, beta must be in (0, 1), got {self.alpha}, {self.beta}")
-        if self.max_boxes < 1:
-            raise ValueError(f"EdgeBoxes max_boxes must be >= 1, got {self.max_boxes}")
-        if self.max_aspect_ratio < 1:
-            raise ValueError(f"EdgeBoxes max_aspect_ratio must be >= 1, got {self.max_aspect_ratio}")
-        if self.min_area_fraction <= 0 or self.min_area_floor_px2 <= 0:
-            raise ValueError("EdgeBoxes min_area_fraction and min_area_floor_px2 must be > 0")
-        if self.max_area_ratio <= self.min_area_fraction or self.candidate_factor < 1:
-            raise ValueError("EdgeBoxes max_area_ratio must exceed min_area_fraction; candidate_factor >= 1")
-        if not 0 <= self.edge_min_mag < 1:
-            raise ValueError(f"EdgeBoxes edge_min_mag must be in [0, 1), got {self.edge_min_mag}")
-        if self.max_working_pixels < 64 * 64:
-            raise ValueError(f"EdgeBoxes max_working_pixels must be >= 4096, got {self.max_working_pixels}")
-        if not 0 < self.min_working_scale <= self.max_working_scale or self.working_target_side_px <= 0:
-            raise ValueError("EdgeBoxes working scale bounds must satisfy 0 < min <= max, side > 0")
+        check_fields(self, "EdgeBoxesSettings")
 
 
 @dataclass(frozen=True)

@@ -6,12 +6,10 @@ confident box, i.e. at a fixed IMAGE position. Coasting points the camera where 
 predicted to be, offset from the camera axis as at the last confident frame, so the target stays near the
 image position where it was lost; after `coast_s` the gimbal holds (zero rate), as without coasting.
 
-Why a ground-position model and not an angular rate: with guidance the vehicle follows the target, so
-the target's bearing barely moves while tracking; the loop commands zero velocity once the track is
-lost and the vehicle brakes, and only then does the bearing start to move. Every confident frame
-already places the target on flat ground (control.geo.locate_on_ground: camera ray through the box
-centre from the vehicle's position, heading and gimbal attitude); the target's ground velocity is the
-least-squares slope of those positions over the last `coast_fit_s`. While coasting the prediction is
+Why a ground position, not an angular rate: with guidance the bearing barely moves while tracking and starts
+to move only once the vehicle brakes (docs/service.md, "Control"). Each confident frame places the target on
+flat ground (control.geo.locate_on_ground); its ground velocity is the least-squares slope of those positions
+over the last `coast_fit_s`. While coasting the prediction is
     target(t) = target(t0) + velocity * integral of decay over [t0, t]
 with decay 1 for the first half of coast_s after the last confident frame t0 (constant velocity: a car
 does not stop under a canopy), then falling linearly to 0 at t0 + coast_s (the prediction comes to rest

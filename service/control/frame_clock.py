@@ -1,17 +1,11 @@
 """Controller time step from the frames' capture timestamps (the source's clock, not the service's).
 
-The gimbal controller integrates over the interval between the capture times of the frames it
-processes, and guidance is throttled on the same clock. The result is a function of the frames
-alone, however long the service took per frame: a lockstep simulation (frames stamped with simulated
-time) or a replay is reproducible, and with a live camera the capture clock runs at wall-clock speed
-anyway (v4l2 / file: read time; zenoh: the publisher's header timestamp).
-
-An interval the integrator must not use makes the caller reset the controller's memory (integral,
-last error, slew reference) instead of producing a spike: the first frame after a (re)start, a
-capture time not later than the previous one (a repeated stamp, a clock stepped back), a gap longer
-than `reset_gap_s` (a stalled or restarted stream), a frame id not above the previous one (a
-restarted publisher), or a frame size change (decided by the caller). A usable interval is clamped to
-[min_step_s, max_step_s], so a few dropped frames cannot kick the integrator either.
+The gimbal controller integrates over the interval between the capture times of the frames it processes,
+and guidance is throttled on the same clock: the result depends on the frames alone, so a lockstep
+simulation or a replay is reproducible (v4l2 / file: read time; zenoh: the publisher's header timestamp).
+An unusable interval resets the controller's memory instead of producing a spike: the first frame after a
+(re)start, a capture time not later than the previous one, a gap over `reset_gap_s`, a frame id not above
+the previous one, or a frame size change (the caller's). A usable one is clamped to [min_step_s, max_step_s].
 """
 from __future__ import annotations
 

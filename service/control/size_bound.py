@@ -1,17 +1,12 @@
 """Range size bound (pure): the target's ground size, remembered from the track, bounds the box size.
 
-The size filter models scale and aspect ratio, not in-plane rotation: in the closed-loop soak the box
-of a car that kept turning shrank ~0.25 % per frame to a tenth of the car's side, then followed the
-background; after a re-initialisation on a half-hidden car its side grew to more than twice the car's. A
-ground target's pixel size follows from its range (geo.ground_px_per_m), which the service knows.
-
-Sizes: `side` = sqrt(w * h) of the box, in pixels, or in metres on the ground (pixels / px_per_m).
-The memory holds the box's ground side on confident frames, one sample every `every_s` seconds of
-capture time, at most `max_samples`; its median (`reference_m`, computed when a sample is added, not per
-frame) is the reference. A median of the track's own boxes,
-not the selection alone: the operator's rectangle is looser than the tracker's box (the sim's
-selection, the car's outline at 30 degrees, had a 1.5x larger side than the tracker's box once it
-settled), and a slow drift of the box moves a median over minutes of samples only slowly.
+The size filter models scale and aspect ratio, not in-plane rotation: a car that keeps turning shrinks the
+box, and a re-initialisation on a half-hidden car grows it (docs/service.md, "Control"). A ground
+target's pixel size follows from its range (geo.ground_px_per_m), which the service knows.
+Sizes: `side` = sqrt(w * h) of the box, in pixels, or in metres on the ground (pixels / px_per_m). The
+memory holds the box's ground side on confident frames, one sample every `every_s` s of capture time, at
+most `max_samples`; their median (`reference_m`, computed when a sample is added) is the reference: the
+track's own boxes, not the operator's looser rectangle, and a median moves slowly under a slow drift.
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Command flood (issue 42), with the daemon as a process on loopback: a ground station sends COMMAND_LONG
-to the camera at 1,000 a second while it tracks a 30-fps camera. The tracking frame rate holds (the
+to the camera at 1,000 a second while it tracks a camera (10 fps here, 30 in bench/faults.py). The tracking frame rate holds (the
 frames the daemon processed per second, against the mean of the same windows just before and after
 the flood, as a ratio), and every command is answered: accepted, or refused with its result code (the reason in the
 log, the status's `mavlink_refusals` and, for the operator's commands, STATUSTEXT). ACKs are counted
@@ -97,11 +97,11 @@ def frames_per_second(rig: FaultRig, seconds: float, during: threading.Event | N
     return (last - first) / (t1 - t0), (cpu1 - cpu0) / (t1 - t0)
 
 
-def run_flood(workdir: Path, rate_hz: float, seconds: float) -> dict[str, Any]:
-    """Track a 30-fps camera; its frame rate for `seconds` without the flood, while flooding, and without again
-    (the baseline is the mean of the two windows around the flood); the figures."""
+def run_flood(workdir: Path, rate_hz: float, seconds: float, camera_fps: float = 30.0) -> dict[str, Any]:
+    """Track a `camera_fps` camera; its frame rate for `seconds` without the flood, while flooding, and without
+    again (the baseline is the mean of the two windows around the flood); the figures."""
     rig = FaultRig(workdir, "zenoh").start()
-    camera = Publisher(rig, fps=30.0)
+    camera = Publisher(rig, fps=camera_fps)
     feeder = Feeder(camera).start()
     flooder: Flooder | None = None
     try:
@@ -153,7 +153,10 @@ def summary(figures: dict[str, Any]) -> str:
 
 
 def test_a_command_flood_is_answered_and_the_frame_rate_holds(tmp_path: Path) -> None:
-    figures = run_flood(tmp_path, rate_hz=1000.0, seconds=2.0)
+    # A 10-fps camera: within what the daemon tracks with the other core busy (about 17 fps on one quiet core,
+    # 9-12 beside another test), so the ratio says whether the flood costs frames, not how busy the machine is.
+    # bench/faults.py floods a 30-fps camera, where the daemon is CPU-bound.
+    figures = run_flood(tmp_path, rate_hz=1000.0, seconds=2.0, camera_fps=10.0)
     print("\n" + summary(figures))
     assert figures["sent"] == 2000
     assert figures["all_answered"] and figures["answered"] == figures["sent"], figures["acks"]

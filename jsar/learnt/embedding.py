@@ -16,9 +16,9 @@ import math
 import cv2
 import numpy as np
 
+from jsar.api import Box
 from jsar.learnt.mobilenet import FeatureNet
 
-Box = tuple[float, float, float, float]
 POOLINGS = ("mean", "grid", "mean+grid")
 
 

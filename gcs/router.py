@@ -1,8 +1,7 @@
 """`python -m gcs.router`: a Zenoh router (zenoh-python in router mode), for a fleet without Eclipse's zenohd.
 
-Every drone's daemon (config.yaml `zenoh.connect: ["tcp/ROUTER:7447"]`, its own `zenoh.prefix`) and the web
-station (`--zenoh tcp/ROUTER:7447 --zenoh-mode client`) connect to it; it forwards every drone's telemetry,
-status and preview to the station.
+Every drone's daemon (`zenoh.connect: ["tcp/ROUTER:7447"]`, its own `zenoh.prefix`) and the web station
+(`--zenoh tcp/ROUTER:7447 --zenoh-mode client`) connect to it; it forwards every drone's samples to the station.
 
     python -m gcs.router --listen tcp/0.0.0.0:7447
     python -m gcs.router --listen tls/0.0.0.0:7447 --tls-ca ca.crt --tls-cert router.crt --tls-key router.key \\

@@ -9,7 +9,7 @@ Make them (frames and ground truth stay outside the repository):
 
     python3 ../shared/tools/get_more_data.py --list-repos --manifest bench/heldout_sequences.py
     # fetch each printed snapshot with the search tool's `fetch`, then
-    python3 ../shared/tools/get_more_data.py MIRROR_DIR ~/uav-heldout --manifest bench/heldout_sequences.py
+    python3 ../shared/tools/get_more_data.py MIRROR_DIR HELDOUT_DIR --manifest bench/heldout_sequences.py
 
 Record format: the tool's own `MANIFEST` (1-based inclusive frame ranges into the sorted frame
 names; UAV123 sub-sequences share their boundary frame). All UAV123@10fps. The first seven (listed

@@ -16,7 +16,6 @@ import argparse
 import json
 import signal
 import sys
-import threading
 from typing import Any
 
 import yaml
@@ -75,18 +74,18 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"gcs.router: {exc}", file=sys.stderr)
         return 2
+    # Blocked before zenoh starts its threads (they inherit the mask); the main thread then takes them with
+    # sigwait: a handler's stop.set() can deadlock when it lands inside a wait on the same event.
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
     try:
         session = zenoh.open(config)
     except Exception as exc:  # zenoh.ZError: address in use, bad endpoint, an access list Zenoh refuses
         print(f"gcs.router: cannot start on {listen}: {str(exc).split(' at ')[0]}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
     print(f"zenoh router listening on {', '.join(listen)}; Ctrl-C to stop", flush=True)
     try:
-        while not stop.wait(0.5):  # wake now and then so a signal is handled promptly
-            pass
+        signal.sigwait(stop_signals)
     finally:
         session.close()
     return 0

@@ -13,6 +13,8 @@ from service.logs import setup_logging
 
 log = logging.getLogger("service")
 
+STOP_SIGNALS = frozenset({signal.SIGTERM, signal.SIGINT})  # a clean stop: systemd, podman stop, Ctrl-C
+
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="jsar-service", description=__doc__,
@@ -46,13 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         return configuration_error(exc)
     setup_logging(config.logging)
     stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("event=signal signal=%s", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    # Blocked before any thread starts, so every thread inherits the mask and Service.run's main thread
+    # takes SIGTERM / SIGINT synchronously (sigtimedwait): no handler runs in the middle of other code.
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
     from service.app import Service  # heavy imports after the config is known to be good
 
     try:
@@ -63,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         log.error('event=startup_failed error="%s"', exc)
         return 1
     try:
-        daemon.run(stop)
+        daemon.run(stop, STOP_SIGNALS)
     except RuntimeError as exc:
         log.error('event=exit reason="%s"', exc)
         return 1

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import threading
 import time
 from typing import Any
@@ -26,7 +27,7 @@ from service.telemetry import Telemetry, open_session
 from service.video.rtp_stream import RtpH264Stream, check_destination
 from service.video.zenoh_preview import ZenohPreview
 
-SIGNAL_POLL_S = 0.1  # s: how often the main thread wakes to run pending signal handlers
+SIGNAL_POLL_S = 0.1  # s: how often the main thread looks for a stop signal or a stop request
 
 log = logging.getLogger("service")
 
@@ -141,8 +142,11 @@ class Service:
             "config": as_plain(self.config),
         }
 
-    def run(self, stop: threading.Event) -> None:
-        """Start the threads, notify systemd, run the loop until `stop`, then shut down (< 2 s).
+    def run(self, stop: threading.Event, signals: frozenset[int] = frozenset()) -> None:
+        """Start the threads, notify systemd, run the loop until `stop` or one of `signals`, then shut down (< 2 s).
+
+        `signals` (SIGTERM, SIGINT) must be blocked in every thread (service.__main__ blocks them before any
+        thread starts): the main thread takes them synchronously, so no handler ever interrupts it.
 
         RuntimeError if the tracking loop itself crashed (the process then exits non-zero and systemd
         restarts it); per-frame errors are handled inside the loop.
@@ -181,12 +185,17 @@ class Service:
         runner = threading.Thread(target=run_loop, name="tracking-loop", daemon=True)
         runner.start()
         try:
-            # Timed waits, not one blocking wait: a process signal can land on any thread (zenoh's, the
-            # workers'), and Python runs its handler only once the main thread runs bytecode again; an
-            # untimed wait may then never return. The likely cause of one CI failure: the daemon still
-            # running 10 s after SIGINT, no `event=signal` in its log.
-            while not stop.wait(SIGNAL_POLL_S):
-                pass
+            # Signals are taken here with sigtimedwait, not by a handler: a handler runs on the main thread
+            # between two bytecodes, and its stop.set() deadlocked when it landed inside stop.wait() on the
+            # same event, whose internal lock the main thread then held (one CI failure: `event=signal` in
+            # the log, the loop and the capture thread still running 5 s later).
+            while not stop.is_set():
+                received = signal.sigtimedwait(signals, SIGNAL_POLL_S) if signals else None
+                if received is not None:
+                    log.info("event=signal signal=%s", signal.Signals(received.si_signo).name)
+                    stop.set()
+                elif not signals:
+                    stop.wait(SIGNAL_POLL_S)
         finally:
             runner.join(timeout=0.8)
             if runner.is_alive():

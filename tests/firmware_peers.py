@@ -226,14 +226,24 @@ class Station(Background):
         with self._send_lock:
             self.conn.mav.send(build(self.conn.mav))
 
-    def command(self, target: tuple[int, int], command: int, params: list[float], timeout: float = 5.0) -> Any:
-        """COMMAND_LONG to target; its COMMAND_ACK from that target (AssertionError on none)."""
+    def command(self, target: tuple[int, int], command: int, params: list[float], timeout: float = 10.0,
+                retry_s: float = 1.5) -> Any:
+        """COMMAND_LONG to target, sent again every retry_s with the confirmation field counting up (the
+        MAVLink command protocol: a lost command or ack is retransmitted, as QGroundControl does); the first
+        COMMAND_ACK from that target (AssertionError on none within timeout s)."""
         since = time.monotonic()
+        deadline = since + timeout
         padded = list(params) + [0.0] * (7 - len(params))
-        self.send(lambda mav: mav.command_long_encode(target[0], target[1], command, 0, *padded))
-        ack = self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command
-                        and (m.get_srcSystem(), m.get_srcComponent()) == target, timeout, since)
-        assert ack is not None, f"no COMMAND_ACK for {command} from {target} within {timeout} s"
+        confirmation = 0
+        while True:
+            self.send(lambda mav: mav.command_long_encode(target[0], target[1], command, confirmation, *padded))
+            wait_s = min(retry_s, deadline - time.monotonic())
+            ack = self.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == command
+                            and (m.get_srcSystem(), m.get_srcComponent()) == target, wait_s, since)
+            if ack is not None or time.monotonic() >= deadline or confirmation == 255:
+                break
+            confirmation += 1
+        assert ack is not None, f"no COMMAND_ACK for {command} from {target} within {timeout} s ({confirmation + 1} sent)"
         return ack
 
     def wait(self, predicate: Callable[[Any], bool], timeout: float, since: float = 0.0) -> Any:

@@ -103,11 +103,16 @@ def ground(request) -> str:
     return "procedural"
 
 
+# The scenario tests share one worker: under xdist each worker would otherwise run both module-scoped scenarios.
+ONE_WORKER = pytest.mark.xdist_group("closed-loop-scenarios")
+
+
 @pytest.fixture(scope="module", params=["ardupilot", "px4"])
 def scenario(request, ground) -> Scenario:
     return run_scenario(request.param, ground)
 
 
+@ONE_WORKER
 def test_daemon_survives_and_answers_every_frame(scenario):
     result = scenario.result
     assert result.daemon_alive, "daemon died"
@@ -117,12 +122,14 @@ def test_daemon_survives_and_answers_every_frame(scenario):
     assert result.dropped_frames == 0  # lockstep: nothing to drop
 
 
+@ONE_WORKER
 def test_target_centred_on_90_percent_of_visible_frames(scenario):
     ratio = scenario.result.centring_ratio(exclude=((DROP_START_S, DROP_END_S + RECENTRE_S),))
     assert ratio >= 0.90, (f"{scenario.flavour}: car centred on only {ratio:.1%} of visible frames\n"
                            + trace(scenario.result))
 
 
+@ONE_WORKER
 def test_recovered_after_occlusion_and_recentred(scenario):
     records = scenario.result.records
     hidden = [r.time_s for r in records if abs(r.time_s - OCCLUSION_S) < 2.0 and not r.truth.visible]
@@ -137,6 +144,7 @@ def test_recovered_after_occlusion_and_recentred(scenario):
         + trace(scenario.result))
 
 
+@ONE_WORKER
 def test_link_drop_stops_guidance_within_firmware_timeout(scenario):
     records = scenario.result.records
     stop_by = DROP_START_S + scenario.timeout_s + 0.1
@@ -155,6 +163,7 @@ def test_link_drop_stops_guidance_within_firmware_timeout(scenario):
     assert scenario.result.daemon_alive
 
 
+@ONE_WORKER
 def test_link_drop_resumes_cleanly(scenario):
     records = scenario.result.records
     setpoints_after = [c for c in scenario.commands if c.msg_type == "SET_POSITION_TARGET_LOCAL_NED"
@@ -182,6 +191,7 @@ def test_link_drop_resumes_cleanly(scenario):
         assert any(c.outcome == "applied" for c in setpoints_after if c.time_s >= reengaged_s)
 
 
+@ONE_WORKER
 def test_vehicle_follows_with_bounded_distance(scenario):
     records = scenario.result.records
     resumed = DROP_END_S + 2.0 if scenario.flavour == "ardupilot" else REENGAGE_S + 1.0
@@ -195,12 +205,14 @@ def test_vehicle_follows_with_bounded_distance(scenario):
     assert max(r.target_distance_m for r in records if r.time_s < OCCLUSION_S) < 80.0
 
 
+@ONE_WORKER
 def test_daemon_never_arms_or_changes_mode(scenario):
     sent = [c for c in scenario.commands if c.msg_type in ("COMMAND_LONG", "COMMAND_INT")
             and c.fields.get("command") in (176, 400)]
     assert not sent and "SET_MODE" not in scenario.records_by_type
 
 
+@ONE_WORKER
 def test_mavsdk_ground_station_selects_gets_status_and_stops(scenario):
     assert scenario.result.selection_result == "SUCCESS"
     assert len(scenario.statuses_while_tracking) >= 10

@@ -12,12 +12,11 @@ The seeds are the scenes where the track went wrong before the drift check (docs
 - seed 0: the car turns at 22 s; the box, grown tall, slid onto grass and stayed there "tracking";
 - seed 7: the loss under the canopy at 8 s ended on the canopy the coasting core had learnt;
 - seed 5: the car came back from a canopy at 33 s turned by 90 degrees and was never taken up again.
-Gimbal only (guidance off) and velocity guidance, on each flavour. Runs go two at a time (2 cores).
+Gimbal only (guidance off) and velocity guidance, on each flavour; one run a test (xdist spreads them).
 """
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -45,16 +44,9 @@ def run(flavour: str, guidance: str, seed: int) -> RunResult:
         return loop.run()
 
 
-@pytest.fixture(scope="module")
-def results() -> dict[tuple[str, str, int], RunResult]:
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        futures = {key: pool.submit(run, *key) for key in RUNS}
-        return {key: future.result() for key, future in futures.items()}
-
-
 @pytest.mark.parametrize("key", RUNS, ids=[f"{f}-{g}-seed{s}" for f, g, s in RUNS])
-def test_procedural_ground_keeps_the_car_and_never_follows_background(results, key):
-    result = results[key]
+def test_procedural_ground_keeps_the_car_and_never_follows_background(key):
+    result = run(*key)
     line = verdict(result).line()
     assert result.daemon_alive, line
     assert not result.false_locks(), line

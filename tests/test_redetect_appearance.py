@@ -21,7 +21,7 @@ def test_max_cosine_takes_the_closest_memory_row_and_minus_one_for_an_empty_memo
 
 
 def test_the_selection_itself_is_the_target_and_an_orthogonal_window_another_object():
-    memory = AppearanceMemory(VerifyParams(), unit(1, 0, 0))
+    memory = AppearanceMemory(VerifyParams(reject_nearer_other=False), unit(1, 0, 0))
     target, other = memory.judge(np.vstack([unit(1, 0.1, 0), unit(0, 0, 1)]))
     assert target.verdict is Verdict.TARGET and target.other == -1.0
     assert other.verdict is Verdict.OTHER
@@ -37,6 +37,18 @@ def test_a_look_alike_as_close_as_the_target_leaves_a_candidate_unsure_and_a_far
     assert memory.judge(nearer[None])[0].verdict is Verdict.TARGET
     far = unit(0.2, 1, 0)  # cos 0.2 to the target: under reject_similarity
     assert memory.judge(far[None])[0].verdict is Verdict.OTHER
+
+
+def test_with_reject_nearer_other_a_look_unlike_every_memory_is_unsure_not_other():
+    """A target back from an occlusion turned looks like neither memory: it is refused only when a look-alike
+    is at least as near as the target memory."""
+    memory = AppearanceMemory(VerifyParams(reject_similarity=0.5), unit(1, 0, 0))
+    turned = unit(0.3, 0, 1)  # cos 0.29 to the target, and no look-alike learnt yet
+    assert memory.judge(turned[None])[0].verdict is Verdict.UNSURE
+    memory.learn_others(unit(0, 0.2, 1)[None])  # a look-alike nearer to it (cos 0.92) than the target is
+    assert memory.judge(turned[None])[0].verdict is Verdict.OTHER
+    strict = AppearanceMemory(VerifyParams(reject_similarity=0.5, reject_nearer_other=False), unit(1, 0, 0))
+    assert strict.judge(turned[None])[0].verdict is Verdict.OTHER
 
 
 def test_a_candidate_close_enough_but_without_the_margin_is_unsure():
@@ -91,5 +103,6 @@ def test_map_peaks_keeps_the_best_maxima_a_spacing_apart_above_the_minimum():
 def test_the_target_memory_does_not_learn_a_look_it_would_call_another_object():
     memory = AppearanceMemory(VerifyParams(reject_similarity=0.5), unit(1, 0, 0))
     assert memory.learn_target(unit(1, 0.5, 0))  # cos 0.89: the target, changed a little
-    assert not memory.learn_target(unit(0, 1, 0))  # cos 0.45 to both: a slide onto something else
+    memory.learn_others(unit(0.1, 1, 0)[None])  # a look-alike seen beside it
+    assert not memory.learn_target(unit(0, 1, 0))  # cos 0.45 to the target, 0.99 to the look-alike: a slide onto it
     assert len(memory.target_rows()) == 2

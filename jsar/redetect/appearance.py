@@ -6,7 +6,8 @@ It compares embeddings (unit vectors from an ImageNet network, jsar.learnt) with
   candidates the verifier refused while lost.
 A candidate's similarity to a memory is its largest cosine there; it is "target" when its target
 similarity reaches `min_similarity` and beats its look-alike similarity by `margin` (DaSiamRPN's
-distractor-aware score as a margin), "other" when it falls under `reject_similarity`, else "unsure".
+distractor-aware score as a margin), "other" when it falls under `reject_similarity` (and, with
+`reject_nearer_other`, a look-alike is at least as near), else "unsure".
 Conventions: boxes (x, y, w, h) px; embeddings (N, D) float32 rows of unit length.
 """
 from __future__ import annotations
@@ -114,7 +115,7 @@ class AppearanceMemory:
         for t, o in zip(target.tolist(), other.tolist()):
             if t >= self.params.min_similarity and t - o >= self.params.margin:
                 verdict = Verdict.TARGET
-            elif t < self.params.reject_similarity:
+            elif t < self.params.reject_similarity and (o >= t or not self.params.reject_nearer_other):
                 verdict = Verdict.OTHER
             else:
                 verdict = Verdict.UNSURE

@@ -38,6 +38,7 @@ from service.sources.base import Frame, LatestSlot
 log = logging.getLogger("service.loop")
 CLOCK_LIMITS = ClockLimits()  # controller time step bounds, capture-clock seconds
 FRAME_GAP_S = 0.5  # no frame for this long while tracking: hold gimbal and vehicle
+SEARCH_LOG_EVERY_S = 1.0  # while lost, the re-detection's best candidate is logged at most this often (s)
 
 
 class Outputs(Protocol):
@@ -110,6 +111,7 @@ class TrackingLoop:
         self.history = TrackHistory()  # recent confident pointing, for the coast's rate estimate
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
+        self.search_logged_s = -math.inf  # time.monotonic() of the last event=search line
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "lost_drift": 0, "lost_appearance": 0, "recovered": 0, "tracker_errors": 0,
@@ -369,7 +371,21 @@ class TrackingLoop:
         if all(math.isfinite(v) for v in result.box):
             self.box = result.box
         self._set_state(LoopState(result.state))
+        if self.state == LoopState.LOST:
+            self._log_search(time.monotonic())
         return result
+
+    def _log_search(self, now_s: float) -> None:
+        """While lost, at most once per SEARCH_LOG_EVERY_S: the re-detection's best candidate on this frame against
+        its bar (trackers with a `last_step`, JSAR-Re's SearchStep), so that a loss that never ends can be read
+        from the log: nothing near the target, or the target found and refused."""
+        step = getattr(self.tracker, "last_step", None)
+        if step is None or step.best is None or now_s - self.search_logged_s < SEARCH_LOG_EVERY_S:
+            return
+        self.search_logged_s = now_s
+        best = step.best
+        log.info("event=search best_score=%.3f bar=%.3f best_centre_px=%.0f,%.0f windows=%d taken=%s", best.score,
+                 step.bar, best.x, best.y, step.windows, step.taken)
 
     def _set_state(self, state: LoopState) -> None:
         if state == self.state:

@@ -244,3 +244,54 @@ def test_loop_coasts_while_lost_then_holds(coast_s: float) -> None:
     assert all(cmd.rates is not None and cmd.rates[0] > 0 for cmd in coasting[1:int(FPS)])  # turning east
     assert all(cmd.rates == (0.0, 0.0) and not cmd.coasting for cmd, _ in lost[len(coasting):])
     assert loop.counters["coasts"] == 1 and loop.counters["coast_frames"] == len(coasting)
+
+
+def test_while_lost_the_search_s_best_candidate_is_logged_once_a_second(monkeypatch, caplog):
+    """event=search: the re-detection's best candidate against its bar, from a tracker's `last_step`, at most once per
+    SEARCH_LOG_EVERY_S of the service's clock; nothing while tracking."""
+    import logging
+    from types import SimpleNamespace
+
+    from jsar.api import TrackResult
+    from service.control.geo import GimbalAttitude
+    from jsar.redetect.jsar_re import SearchStep
+    from jsar.redetect.search import Candidate
+    from service import loop as loop_module
+    from service.loop import SEARCH_LOG_EVERY_S, TrackingLoop
+    from service.mavlink import commands as c
+    from service.mavlink.autopilot import AutopilotView
+    from service.sources.base import Frame, LatestSlot
+
+    view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
+                         gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))
+    clock = [100.0]
+    monkeypatch.setattr(loop_module, "time", SimpleNamespace(monotonic=lambda: clock[0]))
+    lost_from = 5
+
+    class Searching:
+        def init(self, image, box):
+            self.box, self.frames, self.last_step = box, 0, None
+
+        def update(self, image):
+            self.frames += 1
+            if self.frames < lost_from:
+                return TrackResult(self.box, 1.0, "tracking")
+            best = Candidate(40.0 + self.frames, 52.0, 0.21)
+            self.last_step = SearchStep(best, 0.35, 6, False, own=Candidate(50.0, 50.0, 0.1))
+            return TrackResult(self.box, 0.1, "lost")
+
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Searching, SimpleNamespace(apply=lambda now_s, command: None),
+                        lambda: view)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))
+    image = np.zeros((100, 100, 3), np.uint8)
+    caplog.set_level(logging.INFO, logger="service.loop")
+    for k in range(20):  # 20 frames within one instant of the service's clock: one line
+        loop.step(Frame(image, k, k / FPS, 0.0))
+    lines = [r.getMessage() for r in caplog.records if "event=search" in r.getMessage()]
+    assert lines == ["event=search best_score=0.210 bar=0.350 best_centre_px=45,52 windows=6 taken=False"]
+    clock[0] += SEARCH_LOG_EVERY_S
+    loop.step(Frame(image, 20, 20 / FPS, 0.0))
+    lines = [r.getMessage() for r in caplog.records if "event=search" in r.getMessage()]
+    assert len(lines) == 2 and "best_centre_px=60,52" in lines[1]  # the selection frame is init, not an update

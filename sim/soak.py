@@ -196,11 +196,13 @@ def analyse(result: RunResult, duration_s: float, fps: float = 30.0) -> SoakRepo
 
 
 def soak(duration_s: float, flavour: str = "ardupilot", pace: str = "lockstep", seed: int = 0,
-         rss_every_s: float = 5.0, video: Path | None = None, live: bool = False) -> SoakReport:
-    """Run the closed loop for duration_s simulated seconds and analyse it."""
+         rss_every_s: float = 5.0, video: Path | None = None, live: bool = False,
+         workdir: Path | None = None) -> SoakReport:
+    """Run the closed loop for duration_s simulated seconds and analyse it; workdir (kept) holds the daemon's
+    config and log (None: a temporary directory)."""
     cfg = ClosedLoopConfig(flavour=flavour, duration_s=duration_s, pace=pace, guidance="velocity",
                            scene=SceneConfig(seed=seed), rss_every_s=rss_every_s, video_path=video)
-    with ClosedLoop(cfg) as loop:
+    with ClosedLoop(cfg, workdir=workdir) as loop:
         result = loop.run(live=live)
     return analyse(result, duration_s, cfg.fps)
 
@@ -211,11 +213,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--flavour", choices=("ardupilot", "px4"), default="ardupilot")
     parser.add_argument("--pace", choices=("lockstep", "realtime"), default="lockstep")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workdir", type=Path,
+                        help="keep the daemon's config and log (service.log: its event=search lines while lost) here")
     args = parser.parse_args(argv)
     exit_on_sigterm()
     duration_s = args.minutes * 60.0
     # every 30 s for the hour; at least 20 samples in a short run (the trend needs >= 4 after warm-up)
-    report = soak(duration_s, args.flavour, args.pace, args.seed, rss_every_s=min(30.0, duration_s / 20.0), live=True)
+    if args.workdir is not None:
+        args.workdir.mkdir(parents=True, exist_ok=True)
+    report = soak(duration_s, args.flavour, args.pace, args.seed, rss_every_s=min(30.0, duration_s / 20.0), live=True,
+                  workdir=args.workdir)
     criteria = SoakCriteria()
     print(report.describe())
     print(report.summary)

@@ -33,7 +33,7 @@ run: $(STAMP)
 ifeq ($(shell uname -m),x86_64)
 test: export OPENBLAS_CORETYPE ?= Haswell
 endif
-# -n 2: two workers, one a core (9 min 12 s on a clean clone at cb7e4bf, docs/deploy.md "CI"); --dist loadgroup keeps the firmware tests on one
+# -n 2: two workers, one a core (8 min 14 s on a clean clone at a5806d0, docs/deploy.md "CI"); --dist loadgroup keeps the firmware tests on one
 # worker. -rs: say why tests were skipped (e.g. no JSAR_DATA_ROOT); --durations: the 15 slowest, the budget's watch list.
 test: $(STAMP)
 	$(PY) -m pytest -q -rs -n 2 --dist loadgroup --durations=15

@@ -210,6 +210,28 @@ def test_stop_is_prompt_even_while_the_tracker_is_stuck_in_a_frame(frames_dir: P
         release.set()
 
 
+def test_jsar_re_s_verifier_network_loads_at_start_not_on_the_first_selection(frames_dir: Path, caplog) -> None:
+    """About 1 s of loading would otherwise hold the loop on the operator's first selection (frames queue, the
+    gimbal waits); csrt has nothing to prepare."""
+    import logging
+
+    from service.app import Service
+    from tests.service_peers import service_config
+
+    caplog.set_level(logging.INFO, logger="service")
+    for name, band, prepared in (("jsar-re", 2, True), ("csrt", 0, False)):
+        config = service_config(free_udp_port(), {"source": {"path": str(frames_dir)},
+                                                  "tracker": {"name": name, "range_size_band": band}})
+        service = Service(config)
+        try:
+            lines = [r.getMessage() for r in caplog.records if "event=tracker_prepared" in r.getMessage()]
+            assert bool([line for line in lines if f"tracker={name} " in line]) is prepared, lines
+        finally:
+            service.link.close()  # built, never run: no thread to stop
+    from jsar.redetect.appearance import shared_embedder
+    assert shared_embedder.cache_info().currsize == 1  # the network every later JsarReTracker shares
+
+
 class _StderrLines:
     """The daemon's stderr read line by line on a thread; wait_for(text) waits on a condition, not a sleep."""
 

@@ -148,6 +148,11 @@ class JsarReTracker:
         self.recent_centres.clear()
         self._remember_position()
 
+    def prepare(self) -> None:
+        """Load now what init() would load on first use: the verifier's network (about 1 s; one per process)."""
+        if self.redetect.verify.enabled and self.embedder is None:
+            self.embedder = shared_embedder()
+
     def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None:
         """Bound the box side sqrt(w*h) to (lo, hi) px (None: unbounded), for the core's size estimate
         and for re-acquired boxes; see JsarTracker.set_side_bounds. init() clears it."""

@@ -817,6 +817,24 @@ def test_a_target_that_looks_otherwise_is_followed_while_lost_and_kept_after():
     assert max(math.dist(_centre(held[i][1]), _centre(truth[i])) for i in range(1, 70)) > 8
 
 
+def test_with_coast_unless_other_the_core_does_not_coast_on_what_the_verifier_calls_another_object():
+    """search.coast_unless_other: a coasting core on still ground held the prediction on itself in the real-time soak;
+    with the option the core coasts only where the verifier does not call its box another object."""
+    frames, truth = _fading_target(70, 60, 6, back_at=55)
+
+    def run(places: list[tuple[float, float]]) -> dict[int, tuple[str, Box]]:
+        redetect = _redetect(search={"coast_unless_other": True}, verify={"enabled": True, "watch_frames": 0})
+        tracker = JsarReTracker(JsarParams.jsar_re(), redetect, embedder=_PlaceEmbedder(places))
+        tracker.init(frames[0], truth[0])
+        return _run(tracker, frames[1:])
+
+    followed = run([_centre(box) for box in truth])  # the verifier knows the target wherever it is
+    assert [i for i in followed if followed[i][0] == "lost"], "the fading must cost the core its confidence"
+    assert all(math.dist(_centre(followed[i][1]), _centre(truth[i])) < 8 for i in range(1, 70))
+    refused = run([_centre(truth[0])])  # it knows only the selection's place: elsewhere "another object"
+    assert max(math.dist(_centre(refused[i][1]), _centre(truth[i])) for i in range(1, 70)) > 8
+
+
 def test_the_core_confident_again_on_the_target_ends_the_loss_against_its_own_bar():
     # The faded target comes back from frame 55 half faded: the core is confident on it again and the decision
     # filter scores it about 0.67x its level. No search candidate is taken (held off for the whole run): only

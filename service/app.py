@@ -48,10 +48,10 @@ class Service:
             probe = jsar.create(tracker_cfg.name, **tracker_cfg.params)  # fail at start on bad tracker params
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"tracker.params: {exc}") from exc
-        prepare = getattr(probe, "prepare", None)
-        if prepare is not None:  # loaded at start, not on the operator's first selection (frames would queue behind it)
+        load_models = getattr(probe, "load_models", None)
+        if load_models is not None:  # at start, not on the operator's first selection (frames would queue behind it)
             began = time.monotonic()
-            prepare()
+            load_models()
             log.info("event=tracker_prepared tracker=%s load_s=%.2f", tracker_cfg.name, time.monotonic() - began)
         if tracker_cfg.range_size_band != 0 and not isinstance(probe, SideBoundedTracker):
             raise ConfigError(f"tracker.range_size_band: tracker {tracker_cfg.name!r} cannot bound its box size; "

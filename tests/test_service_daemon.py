@@ -212,14 +212,14 @@ def test_stop_is_prompt_even_while_the_tracker_is_stuck_in_a_frame(frames_dir: P
 
 def test_jsar_re_s_verifier_network_loads_at_start_not_on_the_first_selection(frames_dir: Path, caplog) -> None:
     """About 1 s of loading would otherwise hold the loop on the operator's first selection (frames queue, the
-    gimbal waits); csrt has nothing to prepare."""
+    gimbal waits); jsar and csrt have no model to load (and jsar's own `prepare(frame)` is not called)."""
     import logging
 
     from service.app import Service
     from tests.service_peers import service_config
 
     caplog.set_level(logging.INFO, logger="service")
-    for name, band, prepared in (("jsar-re", 2, True), ("csrt", 0, False)):
+    for name, band, prepared in (("jsar-re", 2, True), ("jsar", 2, False), ("csrt", 0, False)):
         config = service_config(free_udp_port(), {"source": {"path": str(frames_dir)},
                                                   "tracker": {"name": name, "range_size_band": band}})
         service = Service(config)

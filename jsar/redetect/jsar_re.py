@@ -148,7 +148,7 @@ class JsarReTracker:
         self.recent_centres.clear()
         self._remember_position()
 
-    def prepare(self) -> None:
+    def load_models(self) -> None:
         """Load now what init() would load on first use: the verifier's network (about 1 s; one per process)."""
         if self.redetect.verify.enabled and self.embedder is None:
             self.embedder = shared_embedder()

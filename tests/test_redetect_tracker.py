@@ -1124,3 +1124,33 @@ def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_
     assert watched[41][0] == "lost" and causes[40] == "appearance"
     unwatched, _ = run(0)
     assert all(unwatched[i][0] == "tracking" for i in range(1, 50))
+
+
+def test_after_an_appearance_loss_the_core_does_not_coast_on_the_place_called_another_object():
+    """The still target is called another object from frame 40 (the test above's scene): the loss's cause is
+    "appearance". A coast there would commit the core on what the verifier refused, and the prediction,
+    following the coast, would hold the search on it (the real-time soak: a core on a canopy for minutes).
+    By default the core waits instead; search.coast_after_drift lets it coast as a peak loss would."""
+    background = _background()
+    centre = (100 + TARGET / 2, 100 + TARGET / 2)
+
+    def coasting_frames(coast_after_drift: bool) -> list[bool]:
+        embedder = _PlaceEmbedder([centre])
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"coast_after_drift": coast_after_drift},
+                                                                verify={"enabled": True, "watch_frames": 1}),
+                                embedder=embedder)
+        tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
+        coasting = []
+        for index in range(1, 60):
+            if index == 40:
+                embedder.targets = []
+            tracker.update(_frame(background, (100, 100)))
+            if tracker.loss is not None:
+                assert tracker.loss_cause == "appearance"
+                coasting.append(tracker.loss.coasting)
+        return coasting
+
+    waited = coasting_frames(False)
+    assert len(waited) >= 10 and not any(waited)
+    coasted = coasting_frames(True)
+    assert len(coasted) >= 10 and any(coasted), "the core must coast where allowed: the scenario tests nothing"

@@ -339,14 +339,19 @@ class JsarReTracker:
     def _coast(self, frame: np.ndarray, loc: Localisation, loss: LossSearch) -> None:
         """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
         within coast_radius_sides of where the target was going (a target still there whose look
-        changed moves on as predicted; an absent one's background does not) and, with
-        search.coast_unless_other, the verifier does not call it another object; else the core waits at
-        the prediction, learning nothing. The decision filter learns nothing either way."""
+        changed moves on as predicted; an absent one's background does not), the loss's cause is the
+        monitor's (unless search.coast_after_drift) and, with search.coast_unless_other, the verifier does
+        not call it another object; else the core waits at the prediction, learning nothing. The
+        decision filter learns nothing either way."""
         radius = self.redetect.search.coast_radius_sides * loss.side_px
         near = math.hypot(loc.centre_xy[0] - loss.anchor_xy[0], loc.centre_xy[1] - loss.anchor_xy[1]) <= radius
         # The motion model follows a coasting core: on still ground that the verifier calls another object the
         # prediction would stay on the core, and every lattice window would have to beat it (_beating_the_core).
-        if near and not (self.redetect.search.coast_unless_other and self._looks_other(frame, loc.centre_xy)):
+        # A drift or appearance loss began because the core's place was judged not the target: a coast there
+        # relearns it, and the prediction, following the coast, holds the search on it.
+        refused = self.loss_cause in ("drift", "appearance") and not self.redetect.search.coast_after_drift
+        if near and not refused and not (self.redetect.search.coast_unless_other
+                                         and self._looks_other(frame, loc.centre_xy)):
             self.core.commit(frame, loc)
             self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target

@@ -765,7 +765,8 @@ def test_the_loop_reads_the_autopilot_once_per_frame() -> None:
 
 def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(caplog):
     """JSAR-Re says why a loss began (`loss_cause`): a drift (the box left the target's colours while the
-    tracker was confident) is counted apart and named in the track_state log line."""
+    tracker was confident) is counted apart and named in the track_state log line; how a loss ended
+    (`last_event`) is named there too."""
     from jsar.api import TrackResult
     from service.loop import TrackingLoop
     from service.sources.base import Frame, LatestSlot
@@ -775,12 +776,14 @@ def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(c
 
     class Scripted:
         loss_cause: str | None = None
+        last_event: str | None = None
 
         def init(self, image, box):
             self.box = box
 
         def update(self, image):
             state, self.loss_cause = script.pop(0)
+            self.last_event = "core recovered" if state == "recovered" else None
             return TrackResult(self.box, 1.0, state)
 
     class Record:
@@ -797,6 +800,7 @@ def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(c
     assert loop.counters["lost"] == 2 and loop.counters["lost_drift"] == 1 and loop.counters["recovered"] == 1
     lines = [r.getMessage() for r in caplog.records if "event=track_state" in r.getMessage()]
     assert any("to=lost cause=drift" in line for line in lines) and any("to=lost cause=peak" in line for line in lines)
+    assert any('from=lost to=recovered how="core recovered"' in line for line in lines), lines
 
 
 def test_gimbal_manager_handshake_claims_when_nobody_controls_and_yields_to_a_taker() -> None:

@@ -110,6 +110,7 @@ class JsarReTracker:
         self.frame_index = -1
         self.reacquisitions = 0
         self.last_step: SearchStep | None = None
+        self.last_event: str | None = None  # the TRANSITIONS event of the last update (diagnostics: how a loss ended)
         # (frame index, centre x px, centre y px) of the last committed frames: the motion model.
         self.recent_centres: collections.deque[tuple[int, float, float]] = collections.deque(
             maxlen=self.redetect.search.motion_frames)
@@ -191,6 +192,7 @@ class JsarReTracker:
     def _go(self, event: str) -> None:
         """Move the phase by TRANSITIONS (KeyError: no such transition); leaving LOST ends the loss."""
         left, self.phase = self.phase, TRANSITIONS[(self.phase, event)]
+        self.last_event = event
         if left is Phase.LOST and self.phase is not Phase.LOST:
             self.loss, self.drift_frames, self.away_checks, self.loss_cause = None, 0, 0, None
         assert (self.phase is Phase.LOST) == (self.loss is not None)

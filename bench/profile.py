@@ -55,6 +55,11 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("jsar.tracking.translation", "TranslationFilter.response", "response"),
     ("jsar.dcf", "subpixel_peak", "peak"),
     ("jsar.tracking.translation", "TranslationFilter.train", "ADMM"),
+    ("jsar.dcf", "_BoxDft.inverse", "box DFT"),
+    ("jsar.dcf", "_BoxDft.forward", "box DFT"),
+    ("jsar.fourier", "rfft2", "FFT"),
+    ("jsar.fourier", "rfft2_channels_last", "FFT"),
+    ("jsar.fourier", "irfft2", "FFT"),
     ("jsar.tracking.size_filter", "SizeFilter.sample", "size sample"),
     ("jsar.tracking.size_filter", "SizeFilter.shifted_sample", "size sample"),
     ("jsar.tracking.size_filter", "SizeFilter.spectrum", "size DFT"),
@@ -73,13 +78,45 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("jsar.redetect.appearance", "NetworkEmbedder.embed", "verifier embedding"),
     ("jsar.redetect.appearance", "NetworkEmbedder.gate_peaks", "whole-gate search"),
 )
-# The rows of the stage tables: a segment counts in the outermost stage of its path that is a row
-# (everything inside it included), else in "rest" (the Python between the stages).
-TRACKED_ROWS = ("crop", "features", "window + FFT", "response", "peak", "size sample", "size DFT", "size response",
-                "size update", "ADMM", "decision: core sample", "decision: update", "colour checks",
-                "verifier embedding", "checkpoint copy")
-LOST_ROWS = ("locate", "decision: core sample", "decision: windows", "verifier embedding", "whole-gate search",
-             "colour checks", "commit")
+# The rows of the stage tables, (row, stages): a segment counts in the first row whose stages appear in
+# its stage path in that order ("locate", "fHOG" matches "locate/features/fHOG"), else in "rest" (the
+# Python between the stages). Rows may repeat (two entries, one row).
+TRACKED_ROWS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("translation: crop", ("locate", "crop")),
+    ("translation: fHOG", ("locate", "fHOG")),
+    ("translation: colour names", ("locate", "colour names")),
+    ("translation: gray, feature stack", ("locate", "features")),
+    ("translation: FFT of the sample, inverse FFT of the response", ("locate", "FFT")),
+    ("translation: cosine window", ("locate", "window + FFT")),
+    ("translation: response product, peak (Newton)", ("locate", "response")),
+    ("translation: response product, peak (Newton)", ("locate", "peak")),
+    ("size filter: 169 crops", ("size filter", "crop")),
+    ("size filter: 169 fHOG", ("size filter", "fHOG")),
+    ("size filter: DFT over the grid (matrix products)", ("size filter", "size DFT")),
+    ("size filter: response, update", ("size filter", "size response")),
+    ("size filter: response, update", ("size filter", "size update")),
+    ("translation update (ADMM): box DFTs (matrix products)", ("commit", "ADMM", "box DFT")),
+    ("translation update (ADMM): FFTs", ("commit", "ADMM", "FFT")),
+    ("translation update (ADMM): element-wise", ("commit", "ADMM")),
+    ("jsar-re: decision filter on the core's sample", ("decision: core sample",)),
+    ("jsar-re: decision filter update", ("decision: update",)),
+    ("jsar-re: colour checks", ("colour checks",)),
+    ("jsar-re: verifier embedding", ("verifier embedding",)),
+    ("jsar-re: checkpoint copy", ("checkpoint copy",)),
+)
+LOST_ROWS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("core: translation detection (locate)", ("locate",)),
+    ("decision filter on the core's sample", ("decision: core sample",)),
+    ("windows: crops", ("decision: windows", "crop")),
+    ("windows: fHOG", ("decision: windows", "fHOG")),
+    ("windows: colour names", ("decision: windows", "colour names")),
+    ("windows: FFTs", ("decision: windows", "FFT")),
+    ("windows: gray, stacking, spectral products, peaks", ("decision: windows",)),
+    ("verifier embedding", ("verifier embedding",)),
+    ("whole-gate search", ("whole-gate search",)),
+    ("colour checks", ("colour checks",)),
+    ("core commit (coasting)", ("commit",)),
+)
 # Library groups of callgrind's objects (ob=), first match of the file name wins; numpy's and libc's
 # functions are split further by name (NUMPY_LOOPS, LIBC_COPIES).
 LIBRARIES: tuple[tuple[str, str], ...] = (
@@ -200,9 +237,15 @@ def by_function(costs: Counter) -> Counter:
     return grouped
 
 
-def row_of(path: str, rows: tuple[str, ...]) -> str:
-    """The table row of a segment with stage path "a/b/c": its outermost stage that is a row, else "rest"."""
-    return next((stage for stage in path.split("/") if stage in rows), "rest") if path else "rest"
+def row_of(path: str, rows: tuple[tuple[str, tuple[str, ...]], ...]) -> str:
+    """The table row of a segment with stage path "a/b/c": the first row whose stages appear in it in order,
+    else "rest"."""
+    stages = path.split("/") if path else []
+    for row, pattern in rows:
+        remaining = iter(stages)
+        if all(any(stage == wanted for stage in remaining) for wanted in pattern):
+            return row
+    return "rest"
 
 
 @dataclass
@@ -372,7 +415,7 @@ def marker_cost(dumps: list[Dump]) -> float:
     return (totals["marked"] - totals["plain"]) / 100.0
 
 
-def summary(profiles: dict[tuple[str, str], Profile], per_call: float, top: int) -> dict[str, Any]:
+def summary(profiles: dict[tuple[str, str], Profile], per_call: float) -> dict[str, Any]:
     """Per sequence and kind, millions of instructions per frame: total, by library, by stage row, top functions."""
     out: dict[str, Any] = {"marker_instructions_per_stage_call": per_call, "sequences": {}}
     for (sequence, kind), profile in sorted(profiles.items()):
@@ -396,13 +439,13 @@ def summary(profiles: dict[tuple[str, str], Profile], per_call: float, top: int)
             "libraries": per_frame(by_library(profile.costs)),
             "stage_paths": per_frame(profile.stages),
             "stages": per_frame(stage_rows),
-            "functions": [(fn, ob, count / frames / 1e6)
-                          for (fn, ob), count in by_function(profile.costs).most_common(top)],
+            "functions": [(fn, ob, count / frames / 1e6) for (fn, ob), count in by_function(profile.costs).most_common()
+                          if count >= frames * 1e4],  # >= 0.01 M a frame: the top list and the lookups of report()
         }
     return out
 
 
-def report(result: dict[str, Any]) -> None:
+def report(result: dict[str, Any], top: int = 15) -> None:
     """Print the tables: by library, by stage (rows and full paths), top functions."""
     print(f"\nmarkers: {result['marker_instructions_per_stage_call']:.0f} instructions per marked stage call")
     for sequence, kinds in result["sequences"].items():
@@ -427,18 +470,22 @@ def report(result: dict[str, Any]) -> None:
             if not present:
                 continue
             print(f"\n{title}")
-            for row in (*rows, "rest"):
+            for row in (*dict.fromkeys(row for row, _ in rows), "rest"):
                 if any(row in kinds[kind]["stages"] for kind in present):
-                    print(f"  {row:40s} " + " ".join(_cell(kinds[kind]["stages"].get(row, 0.0), kinds[kind]["total"])
+                    print(f"  {row:56s} " + " ".join(_cell(kinds[kind]["stages"].get(row, 0.0), kinds[kind]["total"])
                                                       for kind in present))
         for kind in shown:
             print(f"\n(b) {kind}: exclusive per stage path")
             for path, count in sorted(kinds[kind]["stage_paths"].items()):
                 print(f"  {path or '(top level)':70s} {_cell(count, kinds[kind]['total'])}")
         for kind in shown:
-            print(f"\n(c) {kind}: top functions by exclusive instructions")
-            for fn, ob, count in kinds[kind]["functions"]:
-                print(f"  {fn[:60]:60s} {ob[:40]:40s} {_cell(count, kinds[kind]['function_total'])}")
+            print(f"\n(c) {kind}: top functions by exclusive instructions, and their instructions in the other kinds")
+            costs = {kind: {(fn, ob): count for fn, ob, count in kinds[kind]["functions"]} for kind in shown}
+            others = [other for other in shown if other != kind]
+            print(f"  {'function':50s} {'object':28s} {kind:>17s} " + " ".join(f"{o:>17s}" for o in others))
+            for fn, ob, count in kinds[kind]["functions"][:top]:
+                print(f"  {fn[:50]:50s} {ob[:28]:28s} {_cell(count, kinds[kind]['function_total'])} " + " ".join(
+                    _cell(costs[o].get((fn, ob), 0.0), kinds[o]["function_total"]) for o in others))
 
 
 def _cell(millions: float, total: float) -> str:
@@ -459,7 +506,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
     args = parser.parse_args(argv)
     if args.report is not None:
-        report(json.loads(args.report.read_text()))
+        report(json.loads(args.report.read_text()), args.top)
         return 0
     sequences = [s for s in args.sequences.split(",") if s]
     for sequence in sequences:
@@ -471,8 +518,8 @@ def main(argv: list[str] | None = None) -> int:
     worker_args = [str(args.data_root.resolve()), "--sequences", ",".join(sequences), "--frames", str(args.frames),
                    "--lost-frames", str(args.lost_frames)]
     dumps = run_callgrind(worker_args, args.keep)
-    result = summary(collect(dumps), marker_cost(dumps), args.top)
-    report(result)
+    result = summary(collect(dumps), marker_cost(dumps))
+    report(result, args.top)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1))

@@ -89,12 +89,14 @@ def test_libraries_split_numpy_and_libc_by_function():
         {("malloc", "libc.so.6"): 5})
 
 
-def test_row_is_the_outermost_row_stage_of_the_path():
-    rows = ("features", "fHOG", "size sample")
-    assert row_of("locate/features/fHOG", rows) == "features"
-    assert row_of("commit/size filter/size sample/fHOG", rows) == "size sample"
-    assert row_of("commit/size filter", rows) == "rest"
-    assert row_of("", rows) == "rest"
+def test_row_is_the_first_whose_stages_appear_in_order():
+    rows = (("translation fHOG", ("locate", "fHOG")), ("size crops", ("size sample", "crop")),
+            ("translation", ("locate",)), ("size crops", ("size filter", "crop")))
+    assert row_of("locate/features/fHOG", rows) == "translation fHOG"
+    assert row_of("locate/features", rows) == "translation"
+    assert row_of("commit/size filter/size sample/crop", rows) == "size crops"
+    assert row_of("crop/size sample", rows) == "rest"  # the stages in the other order
+    assert row_of("commit", rows) == "rest" and row_of("", rows) == "rest"
 
 
 def test_collect_sums_counters_per_kind_and_stage_and_skips_other_dumps():
@@ -109,10 +111,10 @@ def test_collect_sums_counters_per_kind_and_stage_and_skips_other_dumps():
     assert jsar.stages == Counter({"": 55, "locate/features": 20}) and jsar.frames == Counter({"1": 35, "2": 40})
     assert jsar.costs == Counter({("libc.so.6", "malloc"): 32}) and jsar.segments == 4
     assert marker_cost(dumps) == 20.0  # (3000 - 1000) instructions over 100 calls
-    result = summary(profiles, 20.0, top=3)["sequences"]["s"]["jsar"]
+    result = summary(profiles, 20.0)["sequences"]["s"]["jsar"]
     assert result["total"] == pytest.approx(37.5e-6) and result["frame_totals"] == pytest.approx([35e-6, 40e-6])
     assert result["stage_calls_per_frame"] == 0.5  # 4 segments = 2 frame ends + 2 dumps of one stage call
-    assert result["stages"] == pytest.approx({"rest": 27.5e-6, "features": 10e-6})
+    assert result["stages"] == pytest.approx({"rest": 27.5e-6, "translation: gray, feature stack": 10e-6})
 
 
 def test_stage_marks_label_each_segment_with_the_open_stages():

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm ablation bench instructions instructions-arm64 image check-arm64 check-systemd clean mavproxy
+.PHONY: run test eval longterm ablation bench instructions profile instructions-arm64 image check-arm64 check-systemd clean mavproxy
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml requirements-no-deps.txt jsar/features/_kernels.c
@@ -70,6 +70,10 @@ bench: $(STAMP)
 # build that `make check-arm64` installed (qemu-aarch64 + a counting plugin). Slow. See docs/deploy.md.
 instructions: $(STAMP)
 	$(PY) -m bench.instructions $(DATA) --json out/instructions-$(shell uname -m).json
+
+# Where a frame's instructions go: by library, C function and tracker stage (callgrind; docs/deploy.md).
+profile: $(STAMP)
+	$(PY) -m bench.profile $(DATA) --sequences OTB_Crossing,DTB70_MountainBike6 --json out/profile.json
 
 instructions-arm64: $(STAMP)
 	for cpu in cortex-a72 cortex-a76; do \

@@ -399,8 +399,8 @@ class TrackingLoop:
             self.counters["lost_appearance"] += cause == "appearance"
         elif self.state == LoopState.LOST:
             self.counters["recovered"] += 1
-        # How the state changed, where the tracker says (JSAR-Re: its TRANSITIONS event, e.g. "core recovered").
-        how = getattr(self.tracker, "last_event", None)
+        # How a loss ended, where the tracker says (JSAR-Re: its TRANSITIONS event, e.g. "core recovered").
+        how = getattr(self.tracker, "last_event", None) if self.state == LoopState.LOST else None
         log.info("event=track_state from=%s to=%s%s%s", self.state, state, f" cause={cause}" if cause else "",
                  f' how="{how}"' if how else "")
         self.state = state

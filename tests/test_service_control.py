@@ -783,7 +783,7 @@ def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(c
 
         def update(self, image):
             state, self.loss_cause = script.pop(0)
-            self.last_event = "core recovered" if state == "recovered" else None
+            self.last_event = "core recovered" if state == "recovered" else "tracked"
             return TrackResult(self.box, 1.0, state)
 
     class Record:
@@ -801,6 +801,7 @@ def test_a_loss_the_tracker_calls_a_drift_is_counted_and_logged_with_its_cause(c
     lines = [r.getMessage() for r in caplog.records if "event=track_state" in r.getMessage()]
     assert any("to=lost cause=drift" in line for line in lines) and any("to=lost cause=peak" in line for line in lines)
     assert any('from=lost to=recovered how="core recovered"' in line for line in lines), lines
+    assert sum("how=" in line for line in lines) == 1, lines  # only where a loss ended
 
 
 def test_gimbal_manager_handshake_claims_when_nobody_controls_and_yields_to_a_taker() -> None:

@@ -83,12 +83,14 @@ def parse_dumps(folder: Path) -> list[tuple[str, int]]:
 
 
 def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, float]]]:
-    """{sequence: {kind: {frames, mean, median, max}}} from labels 'sequence|kind|frame'."""
+    """{sequence: {kind: {frames, mean, median, max, counts}}} from labels 'sequence|kind|frame' (counts: per
+    frame, in frame order: jsar-re's verifier watches every verify.watch_frames-th frame)."""
     grouped: dict[str, dict[str, list[int]]] = {}
     for label, count in dumps:
         sequence, kind, _ = label.split("|")
         grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
-    return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v)}
+    return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v),
+                         "counts": v}
                   for kind, v in kinds.items()} for seq, kinds in grouped.items()}
 
 

@@ -128,8 +128,63 @@ class AutopilotStub:
 
 def cpu_seconds(pid: int) -> float:
     """utime + stime of a process from /proc (seconds)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return parse_stat(Path(f"/proc/{pid}/stat").read_text())[1] / os.sysconf("SC_CLK_TCK")
+
+
+def parse_stat(line: str) -> tuple[str, int]:
+    """(comm, utime + stime in clock ticks) of one /proc/PID[/task/TID]/stat line.
+
+    comm is field 2 in parentheses and may itself hold spaces and parentheses: it runs from the first "("
+    to the last ")"; utime and stime are fields 14 and 15 (proc(5)).
+    """
+    head, tail = line.rsplit(")", 1)
+    fields = tail.split()
+    return head.split("(", 1)[1], int(fields[11]) + int(fields[12])
+
+
+def thread_times(pid: int) -> dict[int, tuple[str, int]]:
+    """Each live thread of process pid: tid -> (comm, utime + stime in clock ticks); threads that end while
+    being read are left out."""
+    found: dict[int, tuple[str, int]] = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            found[int(task.name)] = parse_stat((task / "stat").read_text())
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+    return found
+
+
+SERVICE_THREADS = ("tracking-loop", "capture", "mavlink-rx", "mavlink-tx", "video-preview", "video-stream")
+ZENOH_RUNTIMES = ("app", "acc", "net", "rx", "tx")  # zenoh-runtime's pools, threads named <pool>-<n>
+ZENOH_WATCHDOGS = ("Watchdog Confirmator", "Watchdog Validator")  # zenoh's shared-memory threads, cut to 15 bytes
+THREAD_GROUPS = (*SERVICE_THREADS, "main", "zenoh runtime", "other native")
+
+
+def thread_group(comm: str, tid: int, pid: int) -> str:
+    """The report row of a daemon thread: its service name (service.threads sets them), "main" (the process's
+    first thread, which waits for signals), "zenoh runtime" (Zenoh's Rust pools) or "other native"."""
+    if tid == pid:
+        return "main"
+    if comm.startswith("capture-"):  # capture-<reader name>, cut to 15 bytes by the kernel
+        return "capture"
+    if comm in SERVICE_THREADS:
+        return comm
+    pool, _, number = comm.rpartition("-")
+    if (pool in ZENOH_RUNTIMES and number.isdigit()) or any(name[:15] == comm for name in ZENOH_WATCHDOGS):
+        return "zenoh runtime"
+    return "other native"
+
+
+def cpu_ms_per_frame_by_group(start: dict[int, tuple[str, int]], end: dict[int, tuple[str, int]], pid: int,
+                              frames: int, ticks_per_s: float) -> dict[str, float]:
+    """CPU ms per frame of each thread group between two thread_times samples (every group of THREAD_GROUPS,
+    0 where no thread of it ran); a thread born in between counts from 0, one that ended is not seen."""
+    if frames <= 0:
+        raise ValueError(f"frames must be > 0, got {frames}")
+    ticks = dict.fromkeys(THREAD_GROUPS, 0)
+    for tid, (comm, end_ticks) in end.items():
+        ticks[thread_group(comm, tid, pid)] += end_ticks - start.get(tid, (comm, 0))[1]
+    return {group: count / ticks_per_s * 1e3 / frames for group, count in ticks.items()}
 
 
 class UdpSink:
@@ -161,12 +216,18 @@ class UdpSink:
         self.sock.close()
 
 
-def video_counters(session: object) -> dict:
-    """The preview_* / stream_* counters of the daemon's status ({} without an answer)."""
+def status_counters(session: object) -> dict:
+    """The counters of the daemon's status, with the frames the source read as source_frames ({} without an
+    answer)."""
     replies = [r.ok for r in session.get("bench/status", timeout=5.0) if r.ok is not None]  # type: ignore[attr-defined]
     if not replies:
         return {}
-    counters = json.loads(replies[0].payload.to_string())["counters"]
+    status = json.loads(replies[0].payload.to_string())
+    return {**status["counters"], "source_frames": status["source"]["frames"]}
+
+
+def video_counters(counters: dict) -> dict:
+    """The preview_* / stream_* counters among the daemon's status counters."""
     return {k: v for k, v in counters.items() if k.startswith(("preview_", "stream_"))}
 
 
@@ -229,7 +290,8 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
         autopilot.track(gt[min(current + 1, len(gt) - 1)])
         with lock:
             lock.wait_for(lambda: any(r["state"] != "idle" for r in reports), 30.0)
-        counters_start = video_counters(session)
+        counters_start = status_counters(session)
+        threads_start = thread_times(proc.pid)
         start_wall, start_cpu = time.monotonic(), cpu_seconds(proc.pid)
         stream_bytes_before = sink.bytes if sink else 0
         start_index = len(reports)
@@ -237,8 +299,9 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
             lock.wait_for(lambda: proc.poll() is not None or (reports and reports[-1]["frame_id"] >= len(gt) - 2)
                           or time.monotonic() - start_wall > seconds, seconds + 5)
         wall, cpu = time.monotonic() - start_wall, cpu_seconds(proc.pid) - start_cpu
+        threads_end = thread_times(proc.pid)
         stream_kbit_s = (sink.bytes - stream_bytes_before) * 8 / 1000 / wall if sink else 0.0
-        counters_end = video_counters(session)
+        counters_end = status_counters(session)
         subscriber.undeclare()
         preview_subscriber.undeclare()
     finally:
@@ -257,6 +320,10 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
     track = np.array([r["latency_ms"]["track"] for r in window])
     queue = np.array([r["latency_ms"]["queue"] for r in window])
     frames_seen = window[-1]["frame_id"] - window[0]["frame_id"] + 1
+    # the loop's own count over the exact window of the thread samples (the telemetry's may miss a sample)
+    loop_frames = counters_end.get("frames", 0) - counters_start.get("frames", 0)
+    threads_ms = cpu_ms_per_frame_by_group(threads_start, threads_end, proc.pid, loop_frames or len(window),
+                                           os.sysconf("SC_CLK_TCK"))
     centre_err = [np.hypot(r["box_px"][0] + r["box_px"][2] / 2 - g[0] - g[2] / 2,
                            r["box_px"][1] + r["box_px"][3] / 2 - g[1] - g[3] / 2)
                   for r in window for g in [gt[r["frame_id"]]] if np.all(np.isfinite(g))]
@@ -269,11 +336,30 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
             "gimbal_commands": autopilot.gimbal_commands, "previews_received": previews[0],
             "stream_datagrams_received": sink.datagrams if sink else 0,
             "stream_kbit_s": stream_kbit_s,
-            "video_counters": counters_end,
+            "video_counters": video_counters(counters_end),
+            "window_frames": {"loop": loop_frames, "source": counters_end.get("source_frames", 0)
+                              - counters_start.get("source_frames", 0),
+                              "preview_sent": counters_end.get("preview_sent", 0) - counters_start.get("preview_sent", 0),
+                              "stream_sent": counters_end.get("stream_sent", 0) - counters_start.get("stream_sent", 0)},
+            "thread_cpu_ms_per_frame": threads_ms,
+            "threads_seen": sorted({comm for comm, _ in threads_end.values()}),
             # CPU time of each encoder's thread over the tracking window, in cores (contention does not inflate it)
             "preview_encoder_cores": (counters_end.get("preview_cpu_ms", 0) - counters_start.get("preview_cpu_ms", 0)) / 1e3 / wall,
             "stream_encoder_cores": (counters_end.get("stream_cpu_ms", 0) - counters_start.get("stream_cpu_ms", 0)) / 1e3 / wall,
             "centre_error_median_px": float(np.median(centre_err)) if centre_err else float("nan")}
+
+
+def threads_table(results: list[dict]) -> str:
+    """Markdown: CPU ms per processed frame by thread group (rows) for each run (columns), with the total."""
+    runs = [f"{r['tracker']} video {r['video']}" + (f" r{r['round']}" if r.get("round", 1) > 1 else "") for r in results]
+    lines = ["| thread | " + " | ".join(runs) + " |", "|---|" + "---|" * len(runs)]
+    for group in THREAD_GROUPS:
+        lines.append(f"| {group} | " + " | ".join(f"{r['thread_cpu_ms_per_frame'][group]:.2f}" for r in results) + " |")
+    lines.append("| **whole process** | " + " | ".join(f"**{sum(r['thread_cpu_ms_per_frame'].values()):.2f}**"
+                                                   for r in results) + " |")
+    lines.append("| frames: loop / source / preview / stream | " + " | ".join(
+        "{loop} / {source} / {preview_sent} / {stream_sent}".format(**r["window_frames"]) for r in results) + " |")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -286,6 +372,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="comma-separated: off (preview and stream off), on (both on, each with a viewer)")
     parser.add_argument("--rounds", type=int, default=1,
                         help="repeat every tracker x video run this many times, interleaved (noisy shared machines)")
+    parser.add_argument("--threads-report", action="store_true",
+                        help="also print CPU ms per processed frame by daemon thread (from /proc/PID/task/*/stat)")
     parser.add_argument("--out", default=str(REPO / "out" / "bench"))
     args = parser.parse_args(argv)
     root = os.environ.get("JSAR_DATA_ROOT")
@@ -324,6 +412,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"{c.get('preview_rate_skipped')} | {r['previews_received']} | {c.get('stream_sent')} | "
                   f"{c.get('stream_dropped')} | {r['stream_datagrams_received']} | {r['stream_kbit_s']:.0f} "
                   f"| {r['preview_encoder_cores']:.3f} | {r['stream_encoder_cores']:.3f} |")
+    if args.threads_report:
+        print("\nCPU ms per processed frame by daemon thread over the tracking window (utime + stime of "
+              "/proc/PID/task/*/stat at its start and end; frames = the loop's count)")
+        print(threads_table(results))
     (out / "results.json").write_text(json.dumps(results, indent=2))
     return 0
 

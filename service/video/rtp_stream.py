@@ -26,6 +26,7 @@ import numpy as np
 from service.config import ConfigError, StreamConfig
 from service.mavlink.video_stream import VideoStreamDescription
 from service.sources.base import Frame
+from service.video.hardware_encoder import detect_encoder, probe_nodes
 from service.video.latest_frame_worker import LatestFrameWorker, WorkerOutput, fit_size
 
 log = logging.getLogger("service.video")
@@ -70,12 +71,24 @@ def h264_encoder_library():  # -> the av module
     return av
 
 
+def has_encoder(av, name: str) -> bool:  # av: the PyAV module
+    """Whether this PyAV build has the FFmpeg encoder `name`."""
+    try:
+        av.codec.Codec(name, "w")
+    except ValueError:  # av.codec.codec.UnknownCodecError
+        return False
+    return True
+
+
 class RtpH264Stream(WorkerOutput):
     """Sends the newest tracked frame as H.264 over RTP/UDP to config.host:config.port, at most fps a second."""
 
     def __init__(self, config: StreamConfig, hfov_deg: float) -> None:
         """ConfigError naming video.stream.enabled when PyAV or its libx264 encoder is missing."""
         self._av = h264_encoder_library()
+        # a hardware encoder (the Pi 4's V4L2 memory-to-memory one) is reported at start, not used: docs/deploy.md
+        self.encoder = detect_encoder(probe_nodes, lambda: has_encoder(self._av, "h264_v4l2m2m"))
+        log.info("event=video_encoder %s", self.encoder.log_fields())
         self.config = config
         self.hfov_deg = hfov_deg
         self.url = rtp_url(config.host, config.port)
@@ -157,5 +170,7 @@ class RtpH264Stream(WorkerOutput):
             fps=cfg.fps, bitrate_bps=cfg.bitrate_kbps * 1000, hfov_deg=self.hfov_deg, running=self.running())
 
     def status(self) -> dict[str, object]:
+        hardware = self.encoder.hardware
         return {"url": self.url, "running": self.running(), "size": list(self._size) if self._size else None,
+                "encoder": self.encoder.encoder, "hardware_h264": hardware.path if hardware else None,
                 "encoder_opens": self.encoder_opens, **self.worker.counters()}

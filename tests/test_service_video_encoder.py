@@ -86,3 +86,9 @@ def test_the_stream_logs_its_encoder_and_the_hardware_found_at_start(
     assert len(lines) == 1
     assert "encoder=libx264 hardware_h264=/dev/video11 hardware_driver=bcm2835-codec hardware_used=false" in lines[0]
     assert stream.status()["encoder"] == "libx264" and stream.status()["hardware_h264"] == "/dev/video11"
+
+
+def test_the_stream_encodes_with_libx264_ultrafast_zerolatency_one_thread() -> None:
+    options = rtp_stream.x264_options(StreamConfig(fps=30.0, bitrate_kbps=1500, keyframe_interval_s=0.5))
+    assert options == {"preset": "ultrafast", "tune": "zerolatency", "threads": "1", "bf": "0", "g": "15",
+                       "maxrate": "1500k", "bufsize": "1500k"}

@@ -57,6 +57,14 @@ def yuv420(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2YUV_I420)
 
 
+def x264_options(config: StreamConfig) -> dict[str, str]:
+    """libx264's options for the stream: ultrafast + zerolatency (the cheapest preset; no lookahead, no B-frames),
+    one thread, a keyframe every keyframe_interval_s, bit rate capped at bitrate_kbps with a one-second VBV."""
+    return {"preset": "ultrafast", "tune": "zerolatency", "threads": "1", "bf": "0",
+            "g": str(max(1, round(config.keyframe_interval_s * config.fps))),
+            "maxrate": f"{config.bitrate_kbps}k", "bufsize": f"{config.bitrate_kbps}k"}
+
+
 def h264_encoder_library():  # -> the av module
     """PyAV, checked to have the libx264 encoder; ConfigError naming video.stream.enabled otherwise (some
     wheels, e.g. PyAV's armv7l builds, ship FFmpeg without libx264)."""
@@ -111,11 +119,7 @@ class RtpH264Stream(WorkerOutput):
             stream.width, stream.height, stream.pix_fmt = size[0], size[1], "yuv420p"
             stream.bit_rate = cfg.bitrate_kbps * 1000
             stream.codec_context.time_base = fractions.Fraction(1, RTP_CLOCK_HZ)
-            stream.codec_context.options = {
-                "preset": "ultrafast", "tune": "zerolatency", "threads": "1", "bf": "0",
-                "g": str(max(1, round(cfg.keyframe_interval_s * cfg.fps))),
-                "maxrate": f"{cfg.bitrate_kbps}k", "bufsize": f"{cfg.bitrate_kbps}k",  # one second of VBV buffer
-            }
+            stream.codec_context.options = x264_options(cfg)
         except Exception:
             container.close()
             raise

@@ -22,7 +22,8 @@ V4L2_CAP_DEVICE_CAPS = 0x80000000  # device_caps is filled in: the node's own ca
 BUF_TYPE_VIDEO_CAPTURE = 1
 BUF_TYPE_VIDEO_CAPTURE_MPLANE = 9
 V4L2_PIX_FMT_H264 = int.from_bytes(b"H264", "little")  # v4l2_fourcc('H', '2', '6', '4')
-CAPABILITY_SIZE = 104  # struct v4l2_capability: driver[16] card[32] bus_info[32] version capabilities device_caps reserved[3]
+# struct v4l2_capability: driver[16] card[32] bus_info[32] version capabilities device_caps reserved[3]
+CAPABILITY_SIZE = 104
 FMTDESC_SIZE = 64  # struct v4l2_fmtdesc: index type flags description[32] pixelformat mbus_code reserved[3]
 MAX_FORMATS = 64  # a guard against a driver that never ends the enumeration
 

@@ -24,6 +24,7 @@ from service.sources import CaptureWorker, LatestSlot, check_source, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
+from service.threads import service_thread
 from service.video.rtp_stream import RtpH264Stream, check_destination
 from service.video.zenoh_preview import ZenohPreview
 
@@ -187,7 +188,7 @@ class Service:
                 log.exception("event=loop_crashed")
                 stop.set()
 
-        runner = threading.Thread(target=run_loop, name="tracking-loop", daemon=True)
+        runner = service_thread(run_loop, "tracking-loop")
         runner.start()
         try:
             # Signals are taken here with sigtimedwait, not by a handler: a handler runs on the main thread

@@ -35,6 +35,7 @@ from service.mavlink.link import MavlinkLink
 from service.mavlink.video_stream import (VIDEO_STREAM_MESSAGES, VideoStreamDescription, video_stream_information,
                                           video_stream_status)
 from service.sources.base import LatestSlot
+from service.threads import service_thread
 
 log = logging.getLogger("service.mavlink")
 RESULT_NAMES = {value: entry.name.removeprefix("MAV_RESULT_") for value, entry in mavlink.enums["MAV_RESULT"].items()}
@@ -168,8 +169,8 @@ class CameraComponent:
         self._accepted = RepeatedRefusals()  # accepted routine requests: logged at INFO once per kind and source
         self._texts = TextBudget()
         self._text_id = 0  # id of the last chunked STATUSTEXT (1..65535)
-        self._threads = [threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True),
-                         threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)]
+        self._threads = [service_thread(self._receive_loop, "mavlink-rx"),
+                         service_thread(self._send_loop, "mavlink-tx")]
 
     # --- shared state -------------------------------------------------------------------------
     def autopilot(self) -> AutopilotView:

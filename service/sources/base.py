@@ -15,6 +15,8 @@ from typing import Callable, Generic, Literal, Protocol, TypeVar
 
 import numpy as np
 
+from service.threads import service_thread
+
 log = logging.getLogger("service.source")
 
 T = TypeVar("T")
@@ -158,7 +160,7 @@ class CaptureWorker:
         self.health = SourceHealth()
         self._retry = (retry_initial_s, retry_max_s)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"capture-{reader.name}", daemon=True)
+        self._thread = service_thread(self._run, f"capture-{reader.name}")
 
     def start(self) -> None:
         self._thread.start()

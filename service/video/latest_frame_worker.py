@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from service.sources.base import Frame, LatestSlot
+from service.threads import service_thread
 
 log = logging.getLogger("service.video")
 PACE_SLACK = 0.25  # a frame up to this fraction of a period early still counts as due (camera jitter)
@@ -70,7 +71,7 @@ class LatestFrameWorker:
         self._lock = threading.Lock()
         self._done = threading.Condition()  # notified after each sink call (success or failure)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"video-{name}", daemon=True)
+        self._thread = service_thread(self._run, f"video-{name}")
         self.offered = 0
         self.rate_skipped = 0
         self.sent = 0

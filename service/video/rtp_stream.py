@@ -26,6 +26,7 @@ import numpy as np
 from service.config import ConfigError, StreamConfig
 from service.mavlink.video_stream import VideoStreamDescription
 from service.sources.base import Frame
+from service.video.hardware_encoder import detect_encoder, probe_nodes
 from service.video.latest_frame_worker import LatestFrameWorker, WorkerOutput, fit_size
 
 log = logging.getLogger("service.video")
@@ -56,6 +57,14 @@ def yuv420(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2YUV_I420)
 
 
+def x264_options(config: StreamConfig) -> dict[str, str]:
+    """libx264's options for the stream: ultrafast + zerolatency (the cheapest preset; no lookahead, no B-frames),
+    one thread, a keyframe every keyframe_interval_s, bit rate capped at bitrate_kbps with a one-second VBV."""
+    return {"preset": "ultrafast", "tune": "zerolatency", "threads": "1", "bf": "0",
+            "g": str(max(1, round(config.keyframe_interval_s * config.fps))),
+            "maxrate": f"{config.bitrate_kbps}k", "bufsize": f"{config.bitrate_kbps}k"}
+
+
 def h264_encoder_library():  # -> the av module
     """PyAV, checked to have the libx264 encoder; ConfigError naming video.stream.enabled otherwise (some
     wheels, e.g. PyAV's armv7l builds, ship FFmpeg without libx264)."""
@@ -70,12 +79,24 @@ def h264_encoder_library():  # -> the av module
     return av
 
 
+def has_encoder(av, name: str) -> bool:  # av: the PyAV module
+    """Whether this PyAV build has the FFmpeg encoder `name`."""
+    try:
+        av.codec.Codec(name, "w")
+    except ValueError:  # av.codec.codec.UnknownCodecError
+        return False
+    return True
+
+
 class RtpH264Stream(WorkerOutput):
     """Sends the newest tracked frame as H.264 over RTP/UDP to config.host:config.port, at most fps a second."""
 
     def __init__(self, config: StreamConfig, hfov_deg: float) -> None:
         """ConfigError naming video.stream.enabled when PyAV or its libx264 encoder is missing."""
         self._av = h264_encoder_library()
+        # a hardware encoder (the Pi 4's V4L2 memory-to-memory one) is reported at start, not used: docs/deploy.md
+        self.encoder = detect_encoder(probe_nodes, lambda: has_encoder(self._av, "h264_v4l2m2m"))
+        log.info("event=video_encoder %s", self.encoder.log_fields())
         self.config = config
         self.hfov_deg = hfov_deg
         self.url = rtp_url(config.host, config.port)
@@ -98,11 +119,7 @@ class RtpH264Stream(WorkerOutput):
             stream.width, stream.height, stream.pix_fmt = size[0], size[1], "yuv420p"
             stream.bit_rate = cfg.bitrate_kbps * 1000
             stream.codec_context.time_base = fractions.Fraction(1, RTP_CLOCK_HZ)
-            stream.codec_context.options = {
-                "preset": "ultrafast", "tune": "zerolatency", "threads": "1", "bf": "0",
-                "g": str(max(1, round(cfg.keyframe_interval_s * cfg.fps))),
-                "maxrate": f"{cfg.bitrate_kbps}k", "bufsize": f"{cfg.bitrate_kbps}k",  # one second of VBV buffer
-            }
+            stream.codec_context.options = x264_options(cfg)
         except Exception:
             container.close()
             raise
@@ -157,5 +174,7 @@ class RtpH264Stream(WorkerOutput):
             fps=cfg.fps, bitrate_bps=cfg.bitrate_kbps * 1000, hfov_deg=self.hfov_deg, running=self.running())
 
     def status(self) -> dict[str, object]:
+        hardware = self.encoder.hardware
         return {"url": self.url, "running": self.running(), "size": list(self._size) if self._size else None,
+                "encoder": self.encoder.encoder, "hardware_h264": hardware.path if hardware else None,
                 "encoder_opens": self.encoder_opens, **self.worker.counters()}

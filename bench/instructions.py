@@ -43,6 +43,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Callable  # noqa: E402
 
 HELPER_C = r"""
 #include <valgrind/callgrind.h>
@@ -100,10 +101,6 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
     import cv2
     from threadpoolctl import threadpool_limits
 
-    import jsar
-    from bench.redetect import _load, hide_target, searching_tracker
-    from jsar.eval.dataset import load_sequence
-
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
     if helper is not None:
@@ -128,32 +125,47 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
             print(f"MARK {mark} {label}", flush=True)
 
     for sequence in sequences:
-        images, box = _load(root / sequence, frames + redetect_frames + 1)
-        if len(images) < frames + redetect_frames + 1:
-            raise SystemExit(f"{sequence} has {len(images)} frames, fewer than {frames + redetect_frames + 1}")
-        groundtruth = load_sequence(root / sequence).groundtruth
-        first, tracked = images[0], images[1:frames + 1]
-        hidden = [hide_target(image, groundtruth[index])
-                  for index, image in enumerate(images[frames + 1:], start=frames + 1)]
-        csrt = cv2.TrackerCSRT_create()
-        csrt.init(first, tuple(int(round(v)) for v in box))
-        plain, again = jsar.create("jsar"), jsar.create("jsar-re")
-        plain.init(first, box)
-        again.init(first, box)
-        for index, image in enumerate(tracked, start=1):
-            counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
-            counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
-            counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
-        searching = searching_tracker()
-        searching.init(first, box)
-        for image in tracked:
-            searching.update(image)
-        states: list[str] = []
-        for index, image in enumerate(hidden, start=frames + 1):
-            counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))
+        states = count_frame_kinds(root, sequence, frames, redetect_frames, counted)
         not_lost = sum(state != "lost" for state in states)
         print(f"{sequence}: counted" + (f" ({not_lost} of {len(states)} hidden frames were not lost frames)"
                                         if not_lost else ""), flush=True)
+
+
+def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
+                      counted: Callable[[str, Callable[[], object]], None]) -> list[str]:
+    """Set up the trackers uncounted on `sequence` and hand each measured call to `counted` with its label
+    'sequence|kind|frame': jsar, CSRT and jsar-re on frames 1..frames, then jsar-re's lost frames on the
+    next lost_frames with the target hidden; returns the states of those lost frames."""
+    import cv2
+
+    import jsar
+    from bench.redetect import _load, hide_target, searching_tracker
+    from jsar.eval.dataset import load_sequence
+
+    images, box = _load(root / sequence, frames + lost_frames + 1)
+    if len(images) < frames + lost_frames + 1:
+        raise SystemExit(f"{sequence} has {len(images)} frames, fewer than {frames + lost_frames + 1}")
+    groundtruth = load_sequence(root / sequence).groundtruth
+    first, tracked = images[0], images[1:frames + 1]
+    hidden = [hide_target(image, groundtruth[index])
+              for index, image in enumerate(images[frames + 1:], start=frames + 1)]
+    csrt = cv2.TrackerCSRT_create()
+    csrt.init(first, tuple(int(round(v)) for v in box))
+    plain, again = jsar.create("jsar"), jsar.create("jsar-re")
+    plain.init(first, box)
+    again.init(first, box)
+    for index, image in enumerate(tracked, start=1):
+        counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
+        counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
+        counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
+    searching = searching_tracker()
+    searching.init(first, box)
+    for image in tracked:
+        searching.update(image)
+    states: list[str] = []
+    for index, image in enumerate(hidden, start=frames + 1):
+        counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))
+    return states
 
 
 def count_callgrind(worker_args: list[str]) -> list[tuple[str, int]]:

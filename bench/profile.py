@@ -38,7 +38,7 @@ from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, Callable, Iterable  # noqa: E402
 
-from bench.instructions import build_helper  # noqa: E402
+from bench.instructions import build_helper, count_frame_kinds  # noqa: E402
 
 KINDS = ("jsar", "jsar-re confident", "jsar-re lost", "csrt")
 # (module, attribute path, stage name): the functions the markers wrap. A module-level function is
@@ -330,10 +330,6 @@ def worker(root: Path, sequences: list[str], frames: int, lost_frames: int, help
     import cv2
     from threadpoolctl import threadpool_limits
 
-    import jsar
-    from bench.redetect import _load, hide_target, searching_tracker
-    from jsar.eval.dataset import load_sequence
-
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
     cg = ctypes.CDLL(str(helper))
@@ -356,29 +352,7 @@ def worker(root: Path, sequences: list[str], frames: int, lost_frames: int, help
     counted("calibration|marked|0", lambda: [marked_noop() for _ in range(100)])
     install(marks)
     for sequence in sequences:
-        images, box = _load(root / sequence, frames + lost_frames + 1)
-        if len(images) < frames + lost_frames + 1:
-            raise SystemExit(f"{sequence} has {len(images)} frames, fewer than {frames + lost_frames + 1}")
-        groundtruth = load_sequence(root / sequence).groundtruth
-        first, tracked = images[0], images[1:frames + 1]
-        hidden = [hide_target(image, groundtruth[index])
-                  for index, image in enumerate(images[frames + 1:], start=frames + 1)]
-        csrt = cv2.TrackerCSRT_create()
-        csrt.init(first, tuple(int(round(v)) for v in box))
-        plain, again = jsar.create("jsar"), jsar.create("jsar-re")
-        plain.init(first, box)
-        again.init(first, box)
-        for index, image in enumerate(tracked, start=1):
-            counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
-            counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
-            counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
-        searching = searching_tracker()
-        searching.init(first, box)
-        for image in tracked:
-            searching.update(image)
-        states: list[str] = []
-        for index, image in enumerate(hidden, start=frames + 1):
-            counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))
+        states = count_frame_kinds(root, sequence, frames, lost_frames, counted)
         print(f"{sequence}: counted; hidden frames' states {states}", flush=True)
 
 

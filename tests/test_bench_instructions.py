@@ -10,3 +10,21 @@ def test_summarise_groups_by_sequence_and_kind_and_keeps_the_counts_in_frame_ord
     # a watch frame of jsar-re (the second here) stands out in the counts, not in the median
     assert summary["A"]["jsar-re confident"]["counts"] == [30, 90]
     assert summary["B"]["jsar"]["frames"] == 1
+
+
+def test_count_frame_kinds_labels_every_measured_call_of_both_benchmarks(data_root):
+    """The per-sequence set-up bench.instructions and bench.profile share: each kind on each tracked frame, then
+    jsar-re's lost frames with the target hidden (what a lost frame costs only if they are lost)."""
+    from bench.instructions import count_frame_kinds
+
+    labels: list[str] = []
+
+    def counted(label, call):
+        labels.append(label)
+        call()
+
+    states = count_frame_kinds(data_root, "OTB_Crossing", 2, 2, counted)
+    assert labels == ["OTB_Crossing|jsar|1", "OTB_Crossing|csrt|1", "OTB_Crossing|jsar-re confident|1",
+                      "OTB_Crossing|jsar|2", "OTB_Crossing|csrt|2", "OTB_Crossing|jsar-re confident|2",
+                      "OTB_Crossing|jsar-re lost|3", "OTB_Crossing|jsar-re lost|4"]
+    assert states == ["lost", "lost"]

@@ -26,8 +26,6 @@ import argparse  # noqa: E402
 import ctypes  # noqa: E402
 import fractions  # noqa: E402
 import json  # noqa: E402
-import shutil  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -171,21 +169,13 @@ def worker(sequence: Path, count: int, clip: Path, helper: Path) -> None:
 
 def count_callgrind(sequence: Path, count: int) -> dict[str, float]:
     """Instructions per frame by kind of work, under callgrind (this machine's build)."""
-    from bench.instructions import build_helper, parse_dumps
+    from bench.instructions import parse_dumps, run_worker_under_callgrind
 
-    for tool in ("valgrind", "gcc"):
-        if shutil.which(tool) is None:
-            raise SystemExit(f"{tool} is not installed (apt-get install valgrind gcc)")
     with tempfile.TemporaryDirectory(prefix="jsar-encoders-") as tmp:
         folder = Path(tmp)
-        helper = build_helper(folder)
-        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
-                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.encoders",
-                   str(sequence.parent), "--sequence", sequence.name, "--frames", str(count),
-                   "--worker", str(helper), "--clip", str(folder / "clip.avi")]
-        started = time.monotonic()
-        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
-        print(f"callgrind run took {time.monotonic() - started:.0f} s", flush=True)
+        run_worker_under_callgrind("bench.encoders", [str(sequence.parent), "--sequence", sequence.name, "--frames",
+                                                      str(count), "--clip", str(folder / "clip.avi"), "--worker"],
+                                   folder, folder)
         totals: dict[str, int] = {}
         for label, instructions in parse_dumps(folder):
             kind = label.split("|")[0]

@@ -22,7 +22,7 @@ nothing else. Per sequence, on the same decoded frames:
                   bench.redetect.searching_tracker: warm-up 0, no candidate taken)
 Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
 set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
-to size a Pi with. fps projections: fps = clock * IPC / instructions (see docs/deploy.md).
+to size a Pi with. fps projections: fps = clock * IPC / instructions (see docs/results-cost.md).
 """
 from __future__ import annotations
 
@@ -170,20 +170,26 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
 
 def count_callgrind(worker_args: list[str]) -> list[tuple[str, int]]:
     """(label, instructions) per measured call of this machine's build, under callgrind."""
+    with tempfile.TemporaryDirectory(prefix="jsar-callgrind-") as tmp:
+        folder = Path(tmp)
+        run_worker_under_callgrind("bench.instructions", [*worker_args, "--worker"], folder, folder)
+        return parse_dumps(folder)
+
+
+def run_worker_under_callgrind(module: str, args: list[str], dumps: Path, scratch: Path) -> None:
+    """`python -m module *args HELPER` under callgrind, instrumentation off until the worker starts it; the
+    client-request helper is built in `scratch`, callgrind's dumps land in `dumps` (SystemExit without
+    valgrind or gcc)."""
     for tool in ("valgrind", "gcc"):
         if shutil.which(tool) is None:
             raise SystemExit(f"{tool} is not installed (apt-get install valgrind gcc)")
-    with tempfile.TemporaryDirectory(prefix="jsar-callgrind-") as tmp:
-        folder = Path(tmp)
-        helper = build_helper(folder)
-        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
-                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.instructions",
-                   *worker_args, "--worker", str(helper)]
-        print("running: " + " ".join(command[:5]) + " python -m bench.instructions ...", flush=True)
-        start = time.monotonic()
-        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
-        print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
-        return parse_dumps(folder)
+    helper = build_helper(scratch)
+    command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
+               f"--callgrind-out-file={dumps}/callgrind.out.%p", sys.executable, "-m", module, *args, str(helper)]
+    print(f"running: {' '.join(command[:5])} python -m {module} ...", flush=True)
+    start = time.monotonic()
+    subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
+    print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
 
 
 def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[str, int]]:

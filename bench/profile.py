@@ -28,17 +28,13 @@ import ctypes  # noqa: E402
 import importlib  # noqa: E402
 import json  # noqa: E402
 import re  # noqa: E402
-import shutil  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 from collections import Counter, defaultdict  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, Callable, Iterable  # noqa: E402
 
-from bench.instructions import build_helper, count_frame_kinds  # noqa: E402
+from bench.instructions import count_frame_kinds, run_worker_under_callgrind  # noqa: E402
 
 KINDS = ("jsar", "jsar-re confident", "jsar-re lost", "csrt")
 # (module, attribute path, stage name): the functions the markers wrap. A module-level function is
@@ -358,22 +354,12 @@ def worker(root: Path, sequences: list[str], frames: int, lost_frames: int, help
 
 def run_callgrind(worker_args: list[str], keep: Path | None) -> list[Dump]:
     """Run the worker under callgrind and parse its dumps (kept in `keep` when given)."""
-    for tool in ("valgrind", "gcc"):
-        if shutil.which(tool) is None:
-            raise SystemExit(f"{tool} is not installed (apt-get install valgrind gcc)")
     with tempfile.TemporaryDirectory(prefix="jsar-profile-") as tmp:
         folder = keep if keep is not None else Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         for old in folder.glob("callgrind.out*"):
             old.unlink()
-        helper = build_helper(Path(tmp))
-        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-line=no",
-                   f"--callgrind-out-file={folder}/callgrind.out.%p", sys.executable, "-m", "bench.profile",
-                   *worker_args, "--worker", str(helper)]
-        print("running: " + " ".join(command[:5]) + " python -m bench.profile ...", flush=True)
-        start = time.monotonic()
-        subprocess.run(command, check=True, stderr=subprocess.DEVNULL)
-        print(f"callgrind run took {time.monotonic() - start:.0f} s", flush=True)
+        run_worker_under_callgrind("bench.profile", [*worker_args, "--worker"], folder, Path(tmp))
         paths = dump_files(folder)
         return parse_dumps(path.read_text(errors="replace") for path in paths)
 

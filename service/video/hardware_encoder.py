@@ -3,7 +3,7 @@
 On a Raspberry Pi 4 that is /dev/video11 (driver bcm2835-codec); other boards have their own (Rockchip,
 Amlogic, ...). The same interface everywhere: VIDIOC_QUERYCAP says memory-to-memory, and VIDIOC_ENUM_FMT
 lists H.264 among the formats of its capture queue (an encoder's output; a decoder lists it on the
-output queue). The stream does not use it yet (docs/deploy.md, "The service's own work per frame"):
+output queue). The stream does not use it yet (docs/results-cost.md, "The service's own work per frame"):
 the service logs what it found, so an integrator knows the route is there.
 """
 from __future__ import annotations

@@ -94,7 +94,7 @@ class RtpH264Stream(WorkerOutput):
     def __init__(self, config: StreamConfig, hfov_deg: float) -> None:
         """ConfigError naming video.stream.enabled when PyAV or its libx264 encoder is missing."""
         self._av = h264_encoder_library()
-        # a hardware encoder (the Pi 4's V4L2 memory-to-memory one) is reported at start, not used: docs/deploy.md
+        # a hardware encoder (the Pi 4's V4L2 memory-to-memory one) is reported at start, not used: docs/results-cost.md
         self.encoder = detect_encoder(probe_nodes, lambda: has_encoder(self._av, "h264_v4l2m2m"))
         log.info("event=video_encoder %s", self.encoder.log_fields())
         self.config = config

@@ -111,11 +111,12 @@ class TrackingLoop:
         self.history = TrackHistory()  # recent confident pointing, for the coast's rate estimate
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
+        self.interrupted: CoastState | None = None  # the last coast, ended by a re-acquisition (_lost_command)
         self.search_logged_s = -math.inf  # time.monotonic() of the last event=search line
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "lost_drift": 0, "lost_appearance": 0, "recovered": 0, "tracker_errors": 0,
-                         "resized": 0, "clock_resets": 0, "coasts": 0, "coast_frames": 0,
+                         "resized": 0, "clock_resets": 0, "coasts": 0, "coasts_resumed": 0, "coast_frames": 0,
                          "size_bounded_frames": 0}
 
     # --- the loop -----------------------------------------------------------------------------
@@ -285,6 +286,7 @@ class TrackingLoop:
         self.history = TrackHistory()
         self.coast = None
         self.coast_decided = False
+        self.interrupted = None
 
     def _control_dt(self, frame: Frame) -> float:
         """Controller step (s) from the frame's capture time; resets the controller on an unusable interval."""
@@ -413,6 +415,8 @@ class TrackingLoop:
                                   frame_time_s=stamp)
         if self.state == LoopState.LOST or self.box is None:
             return self._lost_command(stamp, view)
+        if self.coast is not None:
+            self.interrupted = self.coast
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
         if self.config.gimbal.backend != "none" and not view.alive(time.monotonic(),
@@ -451,11 +455,19 @@ class TrackingLoop:
         if not self.coast_decided:
             self.coast_decided = True
             plan = plan_coast(self.history, self.coast_params)
+            interrupted, self.interrupted = self.interrupted, None
             if plan is not None:
                 self.coast = start_coast(plan, last_rates)
                 self.counters["coasts"] += 1
                 log.info("event=coast_start target_velocity_ne_m_s=%.2f,%.2f samples=%d coast_s=%.1f",
                          plan.velocity_ne[0], plan.velocity_ne[1], len(self.history.samples), self.coast_params.coast_s)
+            elif interrupted is not None and stamp - interrupted.plan.start_s < self.coast_params.coast_s:
+                # A re-acquisition too short to fit a new velocity on (a take refuted, a flicker) ends one loss
+                # episode, not the coast: holding instead would let the target drive out of view.
+                self.coast = interrupted
+                self.counters["coasts_resumed"] += 1
+                log.info("event=coast_resumed samples=%d elapsed_s=%.2f", len(self.history.samples),
+                         stamp - interrupted.plan.start_s)
             elif self.coast_params.coast_s > 0:
                 log.info("event=coast_unavailable reason=short_history samples=%d (needs a ground estimate on "
                          ">= %d confident frames over %.2f s)", len(self.history.samples), self.coast_params.min_samples,

@@ -859,6 +859,29 @@ def test_the_core_confident_again_on_the_target_ends_the_loss_against_its_own_ba
     assert all(shut[i][0] == "lost" for i in range(lost[0], 70)), shut
 
 
+def test_a_target_confirmed_at_the_coasting_core_is_judged_afresh_and_not_lost_again_on_the_next_frame():
+    """The real-time soak's flicker: a car that came out of a canopy turned was confirmed at the coasting core,
+    but its peak, judged against the level from before the loss, was lost again on the next frame, six times a
+    second. Here the level from before the loss is raised five-fold on the first lost frame (the target looked
+    far sharper then): the core can never be confident against it, so the loss ends "confirmed at core"; the
+    track must then hold."""
+    frames, truth = _fading_target(90, 40, 3, back_at=55)
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect())
+    tracker.init(frames[0], truth[0])
+    events: dict[int, str | None] = {}
+    states: dict[int, str] = {}
+    for index, frame in enumerate(frames[1:], start=1):
+        result = tracker.update(frame)
+        if result.state == "lost" and "lost" not in states.values():
+            tracker.monitor.reference *= 5.0
+        events[index], states[index] = tracker.last_event, result.state
+        if result.state != "lost":
+            assert math.dist(_centre(result.box), _centre(truth[index])) < 8, (index, result.box, truth[index])
+    exits = [i for i in events if events[i] == "confirmed at core"]
+    assert exits and 55 <= exits[0] <= 62, events
+    assert all(states[i] == "tracking" for i in range(exits[0] + 1, 90)), states
+
+
 def test_a_target_that_changed_for_good_is_followed_but_the_loss_ends_only_through_the_decision_filter():
     """The fading target moving 1.5 px per frame stays faded (a car that turned, or drove into shade, for
     good): the decision filter only ever learnt it as it was. The coasting core follows it, its box on

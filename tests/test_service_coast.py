@@ -295,3 +295,53 @@ def test_while_lost_the_search_s_best_candidate_is_logged_once_a_second(monkeypa
     loop.step(Frame(image, 20, 20 / FPS, 0.0))
     lines = [r.getMessage() for r in caplog.records if "event=search" in r.getMessage()]
     assert len(lines) == 2 and "best_centre_px=60,52" in lines[1]  # the selection frame is init, not an update
+
+
+def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast() -> None:
+    """One coast per loss episode: a re-acquisition too short to fit a new velocity on (a take refuted, a track
+    flickering) followed by a loss resumes the coast it interrupted, until its coast_s is over, instead of holding
+    (the real-time soak's camera held while a car drove out of view)."""
+    from jsar.api import TrackResult
+    from service.control.geo import GimbalAttitude
+    from service.domain import ControlCommand
+    from service.loop import TrackingLoop
+    from service.mavlink import commands as c
+    from service.mavlink.autopilot import AutopilotView
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "camera": {"hfov_deg": 90.0},
+                                  "gimbal": {"coast_s": 3.0, "coast_fit_s": 1.0}})
+    view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
+                         gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))
+    # frames: tracked to 39, lost 40-79 (1.3 s: longer than the fit window), tracked 80-82, lost from 83
+    tracked = set(range(40)) | {80, 81, 82}
+
+    class Scripted:
+        def init(self, image, box):
+            self.box, self.frames = box, 0
+
+        def update(self, image):
+            self.frames += 1
+            x, y, w, h = self.box
+            self.box = (x + 0.2, y, w, h)
+            return TrackResult(self.box, 1.0, "tracking") if self.frames in tracked else TrackResult(self.box, 0.1, "lost")
+
+    commands: list[ControlCommand] = []
+
+    class Record:
+        def apply(self, now_s: float, command: ControlCommand) -> None:
+            commands.append(command)
+
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, Scripted, Record(), lambda: view)
+    selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))
+    image = np.zeros((100, 100, 3), np.uint8)
+    for k in range(200):
+        loop.step(Frame(image, k, k / FPS, 0.0))
+    # commands[k] is frame k's (frame 0 selects); the first coast started at frame 39's capture time
+    coast_end = 39 + int(3.0 * FPS)
+    assert all(commands[k].coasting for k in range(40, 80))
+    assert not any(commands[k].coasting for k in (80, 81, 82))
+    assert all(commands[k].coasting for k in range(83, coast_end - 1)), [commands[k].coasting for k in range(83, 140)]
+    assert not any(commands[k].coasting for k in range(coast_end + 1, 200))
+    assert loop.counters["coasts"] == 1 and loop.counters["coasts_resumed"] == 1

@@ -403,6 +403,10 @@ class JsarReTracker:
             # The decision filter confirms the target where the coasting core already is: keep the core's
             # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
             self._commit(frame, loc, verdict.reliable, own)
+            # The core's peak was judged against the level from before the loss; the target confirmed here may
+            # look otherwise now (turned, shaded): that level would call the next frame lost again, a take
+            # elsewhere restarts it too (_reacquire).
+            self.monitor.restart()
             return "confirmed at core", taken.score
         return self._reacquire_on_probation(frame, loss, taken), taken.score
 

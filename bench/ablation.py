@@ -70,6 +70,14 @@ VARIANTS: dict[str, dict[str, dict[str, Any]]] = {
     # The paper's omega grows without bound; 1000 sides is beyond any frame of up to 2000 px for a lost
     # target of 4 px and more (monitor.min_area_px2 16), and keeps the lattice (O(omega^2) offsets) in memory.
     "paper-omega": {"search": {"area_max_sides": 1000.0}},
+    # The learnt uses (issue 45): the default is the verifier alone. No learnt model at all:
+    "no-verifier": {"verify": {"enabled": False}},
+    # The verifier and the whole-gate search (one network pass over the motion gate per lost frame):
+    "verifier-and-gate-map": {"verify": {"gate_map": True}},
+    # The whole-gate search alone: the network runs, but its verdicts never reach a decision (no cosine is
+    # "target" at 1.0, none "other" under -1, no watch while tracking).
+    "gate-map-alone": {"verify": {"gate_map": True, "min_similarity": 1.0, "reject_similarity": -1.0,
+                                  "watch_frames": 0}},
 }
 
 

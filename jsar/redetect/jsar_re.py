@@ -59,9 +59,10 @@ class SearchStep:
 
     best: Candidate | None
     bar: float
-    windows: int
+    windows: int  # candidates left to the decision, the core's own aside (while it coasts: those beating it)
     taken: bool
     own: Candidate  # the decision filter on the core's own detection sample
+    coasting: bool = False  # the core followed its own detection on the last lost frame
 
 
 @dataclass
@@ -459,7 +460,8 @@ class JsarReTracker:
                             lambda c: self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
         self._learn_refused(candidates, bar, looks)
         best = max(candidates, key=lambda c: c.score)
-        self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own)
+        self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own,
+                                    coasting=loss.coasting)
         return taken
 
     def _reacquire_on_probation(self, frame: np.ndarray, loss: LossSearch, taken: Candidate) -> str:

@@ -624,6 +624,55 @@ typedef struct {
     int first, last;
 } AdmmStep;
 
+/* Iteration 0's right-hand side of n frequencies of one channel: constant = q = x conj(y) (+ mu_n prev);
+ * adds |x|^2 to sxx and conj(x) q to (cr, ci). Branches sit outside the loops so that they vectorise. */
+static inline void admm_rhs_first(const float *restrict x, const float *restrict y, const float *restrict prev,
+                                  float mu_n, float *restrict con, float *restrict q, float *restrict sxx,
+                                  float *restrict cr, float *restrict ci, Py_ssize_t n)
+{
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const float xr = x[2 * j], xi = x[2 * j + 1], yr = y[2 * j], yi = y[2 * j + 1];
+        con[2 * j] = xr * yr + xi * yi;
+        con[2 * j + 1] = xi * yr - xr * yi;
+    }
+    if (prev)
+        for (Py_ssize_t j = 0; j < 2 * n; j++)
+            con[j] += mu_n * prev[j];
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const float xr = x[2 * j], xi = x[2 * j + 1], br = con[2 * j], bi = con[2 * j + 1];
+        q[2 * j] = br;
+        q[2 * j + 1] = bi;
+        sxx[j] += xr * xr + xi * xi;
+        cr[j] += xr * br + xi * bi;
+        ci[j] += xr * bi - xi * br;
+    }
+}
+
+/* A later iteration's right-hand side of n frequencies of one channel: g += box_weight * num (num may be
+ * NULL: no box term), h += p_prev (q - g), q = p g + constant - h; adds conj(x) q to (cr, ci). */
+static inline void admm_rhs_later(const float *restrict x, const float *restrict con, const float *restrict g,
+                                  const float *restrict num, float box_weight, float p_prev, float p,
+                                  float *restrict h, float *restrict q, float *restrict cr, float *restrict ci,
+                                  Py_ssize_t n)
+{
+    float gbox[2 * ADMM_BLOCK];
+    if (num)
+        for (Py_ssize_t j = 0; j < 2 * n; j++)
+            gbox[j] = g[j] + box_weight * num[j];
+    else
+        memcpy(gbox, g, sizeof(float) * (size_t)(2 * n));
+    for (Py_ssize_t j = 0; j < 2 * n; j++) {
+        const float hj = h[j] + p_prev * (q[j] - gbox[j]);
+        h[j] = hj;
+        q[j] = (p * gbox[j] + con[j]) - hj;
+    }
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const float xr = x[2 * j], xi = x[2 * j + 1], br = q[2 * j], bi = q[2 * j + 1];
+        cr[j] += xr * br + xi * bi;
+        ci[j] += xr * bi - xi * br;
+    }
+}
+
 HOT_LOOP_CLONES
 static void strcf_f_step_blocks(const AdmmStep *s)
 {
@@ -642,45 +691,12 @@ static void strcf_f_step_blocks(const AdmmStep *s)
         /* Pass 1: right-hand side into q, the channel sum conj(x) rhs into (cr, ci). */
         for (Py_ssize_t c = 0; c < C; c++) {
             const Py_ssize_t o = 2 * (c * M + k0);
-            const float *x = s->x + o;
-            float *q = s->q + o, *con = s->constant + o;
-            if (s->first) {
-                const float *y = s->label + 2 * k0;
-                const float *prev = s->prev ? s->prev + o : NULL;
-                for (Py_ssize_t j = 0; j < n; j++) {
-                    const float xr = x[2 * j], xi = x[2 * j + 1], yr = y[2 * j], yi = y[2 * j + 1];
-                    float br = xr * yr + xi * yi, bi = xi * yr - xr * yi;
-                    if (prev) {
-                        br += mu_n * prev[2 * j];
-                        bi += mu_n * prev[2 * j + 1];
-                    }
-                    con[2 * j] = q[2 * j] = br;
-                    con[2 * j + 1] = q[2 * j + 1] = bi;
-                    sxx[j] += xr * xr + xi * xi;
-                    cr[j] += xr * br + xi * bi;
-                    ci[j] += xr * bi - xi * br;
-                }
-            } else {
-                float *g = s->g + o, *h = s->h + o;
-                const float *num = s->numerator + o;
-                for (Py_ssize_t j = 0; j < n; j++) {
-                    float gr = g[2 * j], gi = g[2 * j + 1];
-                    if (box_weight != 0.0f) {
-                        gr += box_weight * num[2 * j];
-                        gi += box_weight * num[2 * j + 1];
-                    }
-                    const float hr = h[2 * j] + p_prev * (q[2 * j] - gr);
-                    const float hi = h[2 * j + 1] + p_prev * (q[2 * j + 1] - gi);
-                    h[2 * j] = hr;
-                    h[2 * j + 1] = hi;
-                    const float br = (p * gr + con[2 * j]) - hr, bi = (p * gi + con[2 * j + 1]) - hi;
-                    q[2 * j] = br;
-                    q[2 * j + 1] = bi;
-                    const float xr = x[2 * j], xi = x[2 * j + 1];
-                    cr[j] += xr * br + xi * bi;
-                    ci[j] += xr * bi - xi * br;
-                }
-            }
+            if (s->first)
+                admm_rhs_first(s->x + o, s->label + 2 * k0, s->prev ? s->prev + o : NULL, mu_n, s->constant + o,
+                               s->q + o, sxx, cr, ci, n);
+            else
+                admm_rhs_later(s->x + o, s->constant + o, s->g + o, box_weight != 0.0f ? s->numerator + o : NULL,
+                               box_weight, p_prev, p, s->h + o, s->q + o, cr, ci, n);
         }
         for (Py_ssize_t j = 0; j < n; j++)
             inv[j] = 1.0f / (sxx[j] + shift);

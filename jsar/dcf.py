@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from jsar import fourier
+from jsar.features._native import kernels
 
 
 def gaussian_label(shape_hw: tuple[int, int], sigma: float) -> np.ndarray:
@@ -121,6 +122,7 @@ def admm_solve(
     penalty_growth: float,
     penalty_max: float,
     box_transforms: bool | None = None,
+    kernel: bool | None = None,
 ) -> np.ndarray:
     """STRCF filter spectrum (C, H, W//2+1) complex64 minimising, by ADMM,
 
@@ -142,6 +144,8 @@ def admm_solve(
     only and the forward DFT of a box-supported signal is two small matrix products.
     `box_transforms`: None = use them when the window is such a box covering <= 1/4 of the
     map, False = always full FFTs, True = require the box path (ValueError if not a box).
+    `kernel`: None or True = the element-wise work of each iteration in one compiled pass
+    (`_admm_iterations_compiled`, float32 rounding differs), False = this numpy code (the reference).
     """
     height = sample_f.shape[1]
     shape_hw = (height, reg_window.shape[1])
@@ -150,12 +154,6 @@ def admm_solve(
         mu = 0.0
     # Work with the system multiplied by N: penalty and mu scaled by N, data term as is.
     mu_n = mu * n
-    # Terms that do not change over the iterations.
-    sample_conj = sample_f.conj()
-    sxx = (sample_conj * sample_f).real.sum(axis=0)
-    constant = sample_f * np.conj(label_f)[None]
-    if mu > 0.0:
-        constant += np.complex64(mu_n) * previous_f
     reg_sq = np.float32(lam) * reg_window.astype(np.float32) ** 2
     box = _two_valued_box(reg_window)
     if box_transforms and box is None:
@@ -167,6 +165,17 @@ def admm_solve(
     if box_transforms is False:
         box = None
     partial = _BoxDft(shape_hw, box[0]) if box is not None else None
+    if kernel is None or kernel:
+        return _admm_iterations_compiled(
+            sample_f, label_f, previous_f if mu > 0.0 else None, reg_sq, box, partial, shape_hw, lam=lam,
+            mu_n=mu_n, iterations=iterations, penalty=penalty_init * n, penalty_growth=penalty_growth,
+            penalty_cap=penalty_max * n)
+    # Terms that do not change over the iterations.
+    sample_conj = sample_f.conj()
+    sxx = (sample_conj * sample_f).real.sum(axis=0)
+    constant = sample_f * np.conj(label_f)[None]
+    if mu > 0.0:
+        constant += np.complex64(mu_n) * previous_f
     # Work buffers, reused across iterations: fresh large temporaries cost page faults.
     q = np.empty_like(sample_f)  # right-hand side, then the f-step solution
     tmp = np.empty_like(sample_f)
@@ -211,6 +220,61 @@ def admm_solve(
         np.subtract(q, g_f, out=tmp)
         tmp *= np.float32(penalty)
         h_f += tmp
+        penalty = min(penalty * penalty_growth, penalty_cap)
+    return q
+
+
+def _admm_iterations_compiled(
+    sample_f: np.ndarray,
+    label_f: np.ndarray,
+    previous_f: np.ndarray | None,
+    reg_sq: np.ndarray,
+    box: tuple[tuple[int, int, int, int], float, float] | None,
+    partial: _BoxDft | None,
+    shape_hw: tuple[int, int],
+    *,
+    lam: float,
+    mu_n: float,
+    iterations: int,
+    penalty: float,
+    penalty_growth: float,
+    penalty_cap: float,
+) -> np.ndarray:
+    """`admm_solve`'s iterations (same arguments, penalties and mu already scaled by N) with the
+    element-wise work in `kernels.strcf_f_step`: per iteration one compiled pass (the previous
+    g-step's box term and dual step, the f-step, the next numerator) and the g-step's transforms."""
+    x = np.ascontiguousarray(sample_f, dtype=np.complex64)
+    label = np.ascontiguousarray(label_f, dtype=np.complex64)
+    previous = None if previous_f is None else np.ascontiguousarray(previous_f, dtype=np.complex64)
+    channels, frequencies = x.shape[0], x.shape[1] * x.shape[2]
+    constant = np.empty_like(x)
+    sxx = np.empty(x.shape[1:], np.float32)
+    q = np.empty_like(x)  # the f-step solution
+    numerator = np.empty_like(x)  # the g-step's p F + H
+    g_f = np.empty_like(x)  # written by every g-step before the kernel reads it
+    h_f = np.zeros_like(x)
+    penalty_prev = 0.0
+    box_weight = 0.0  # the previous g-step's element-wise term, added to g_f by the kernel
+    for it in range(iterations):
+        last = it == iterations - 1
+        kernels.strcf_f_step(x, label, previous, constant, sxx, q, g_f, h_f, numerator, channels, frequencies,
+                             mu_n, penalty_prev, penalty, box_weight, float(np.float32(1.0 / (mu_n + penalty))),
+                             it == 0, last)
+        if last:
+            break
+        if partial is not None and box is not None:
+            _, inside, outside = box
+            a = 1.0 / (lam * outside**2 + penalty)
+            b = 1.0 / (lam * inside**2 + penalty) - a
+            inner = partial.inverse(numerator)
+            inner *= np.float32(b)
+            partial.forward(inner, out=g_f)
+            box_weight = float(np.float32(a))
+        else:
+            spatial = fourier.irfft2(numerator, shape_hw)
+            spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
+            g_f[...] = fourier.rfft2(spatial.astype(np.float32, copy=False))
+        penalty_prev = penalty
         penalty = min(penalty * penalty_growth, penalty_cap)
     return q
 

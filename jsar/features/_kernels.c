@@ -600,10 +600,243 @@ static PyObject *colour_cells(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ---------------------------------------------------------------------------------------------
+ * One STRCF ADMM iteration's element-wise work (the numpy reference is jsar/dcf.py's admm_solve with
+ * kernel=False). Spectra are (C, M) complex64 channel-major, M = H * (W//2+1) frequencies; the label,
+ * sxx and the per-frequency solve are per frequency. Iteration 0 computes the terms that stay fixed:
+ *     constant = x conj(y) + mu_n f_prev (f_prev optional),  sxx = sum_c |x_c|^2,  rhs = constant.
+ * Later iterations first finish the previous iteration (its g-step's element-wise term and dual step):
+ *     g += box_weight * numerator (the previous numerator; skipped when box_weight is 0),
+ *     h += p_prev (q - g),  rhs = p g + constant - h.
+ * Then the f-step by Sherman-Morrison over channels, per frequency:
+ *     q = (rhs - x (sum_c conj(x_c) rhs_c) / (sxx + mu_n + p)) / (mu_n + p),
+ * and, unless it is the last iteration, the next g-step's numerator p q + h.
+ * Frequencies are processed in blocks so that the two passes over the channels of a block (the
+ * channel sum, then the solve) run on data still in cache: one trip through memory per iteration. */
+#define ADMM_BLOCK 64
+
+typedef struct {
+    const float *x, *label, *prev;   /* sample (C, M), label (M), previous filter (C, M) or NULL */
+    float *constant, *sxx;           /* (C, M) and (M): written at iteration 0, read afterwards */
+    float *q, *g, *h, *numerator;    /* (C, M) each; g also gets the box term added */
+    Py_ssize_t C, M;
+    float mu_n, p_prev, p, box_weight, inv_total;
+    int first, last;
+} AdmmStep;
+
+/* Iteration 0's right-hand side of n frequencies of one channel: constant = q = x conj(y) (+ mu_n prev);
+ * adds |x|^2 to sxx and conj(x) q to (cr, ci). Branches sit outside the loops so that they vectorise. */
+static inline void admm_rhs_first(const float *restrict x, const float *restrict y, const float *restrict prev,
+                                  float mu_n, float *restrict con, float *restrict q, float *restrict sxx,
+                                  float *restrict cr, float *restrict ci, Py_ssize_t n)
+{
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const float xr = x[2 * j], xi = x[2 * j + 1], yr = y[2 * j], yi = y[2 * j + 1];
+        con[2 * j] = xr * yr + xi * yi;
+        con[2 * j + 1] = xi * yr - xr * yi;
+    }
+    if (prev)
+        for (Py_ssize_t j = 0; j < 2 * n; j++)
+            con[j] += mu_n * prev[j];
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const float xr = x[2 * j], xi = x[2 * j + 1], br = con[2 * j], bi = con[2 * j + 1];
+        q[2 * j] = br;
+        q[2 * j + 1] = bi;
+        sxx[j] += xr * xr + xi * xi;
+        cr[j] += xr * br + xi * bi;
+        ci[j] += xr * bi - xi * br;
+    }
+}
+
+/* A later iteration's right-hand side of n frequencies of one channel: g += box_weight * num (num may be
+ * NULL: no box term), h += p_prev (q - g), q = p g + constant - h; adds conj(x) q to (cr, ci). */
+static inline void admm_rhs_later(const float *restrict x, const float *restrict con, const float *restrict g,
+                                  const float *restrict num, float box_weight, float p_prev, float p,
+                                  float *restrict h, float *restrict q, float *restrict cr, float *restrict ci,
+                                  Py_ssize_t n)
+{
+    float gbox[2 * ADMM_BLOCK];
+    if (num)
+        for (Py_ssize_t j = 0; j < 2 * n; j++)
+            gbox[j] = g[j] + box_weight * num[j];
+    else
+        memcpy(gbox, g, sizeof(float) * (size_t)(2 * n));
+    for (Py_ssize_t j = 0; j < 2 * n; j++) {
+        const float hj = h[j] + p_prev * (q[j] - gbox[j]);
+        h[j] = hj;
+        q[j] = (p * gbox[j] + con[j]) - hj;
+    }
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const float xr = x[2 * j], xi = x[2 * j + 1], br = q[2 * j], bi = q[2 * j + 1];
+        cr[j] += xr * br + xi * bi;
+        ci[j] += xr * bi - xi * br;
+    }
+}
+
+HOT_LOOP_CLONES
+static void strcf_f_step_blocks(const AdmmStep *s)
+{
+    const Py_ssize_t C = s->C, M = s->M;
+    const float mu_n = s->mu_n, p_prev = s->p_prev, p = s->p, box_weight = s->box_weight, inv_total = s->inv_total;
+    const float shift = (float)((double)s->mu_n + (double)s->p); /* mu_n + p, as the reference rounds it */
+    float cr[ADMM_BLOCK], ci[ADMM_BLOCK], inv[ADMM_BLOCK];
+    for (Py_ssize_t k0 = 0; k0 < M; k0 += ADMM_BLOCK) {
+        const Py_ssize_t n = M - k0 < ADMM_BLOCK ? M - k0 : ADMM_BLOCK;
+        float *sxx = s->sxx + k0;
+        for (Py_ssize_t j = 0; j < n; j++)
+            cr[j] = ci[j] = 0.0f;
+        if (s->first)
+            for (Py_ssize_t j = 0; j < n; j++)
+                sxx[j] = 0.0f;
+        /* Pass 1: right-hand side into q, the channel sum conj(x) rhs into (cr, ci). */
+        for (Py_ssize_t c = 0; c < C; c++) {
+            const Py_ssize_t o = 2 * (c * M + k0);
+            if (s->first)
+                admm_rhs_first(s->x + o, s->label + 2 * k0, s->prev ? s->prev + o : NULL, mu_n, s->constant + o,
+                               s->q + o, sxx, cr, ci, n);
+            else
+                admm_rhs_later(s->x + o, s->constant + o, s->g + o, box_weight != 0.0f ? s->numerator + o : NULL,
+                               box_weight, p_prev, p, s->h + o, s->q + o, cr, ci, n);
+        }
+        for (Py_ssize_t j = 0; j < n; j++)
+            inv[j] = 1.0f / (sxx[j] + shift);
+        for (Py_ssize_t j = 0; j < n; j++) {
+            cr[j] *= inv[j];
+            ci[j] *= inv[j];
+        }
+        /* Pass 2: the solve, and the next g-step's numerator. */
+        for (Py_ssize_t c = 0; c < C; c++) {
+            const Py_ssize_t o = 2 * (c * M + k0);
+            const float *x = s->x + o, *h = s->h + o;
+            float *q = s->q + o, *num = s->numerator + o;
+            if (s->last) {
+                for (Py_ssize_t j = 0; j < n; j++) {
+                    const float xr = x[2 * j], xi = x[2 * j + 1];
+                    q[2 * j] = (q[2 * j] - (xr * cr[j] - xi * ci[j])) * inv_total;
+                    q[2 * j + 1] = (q[2 * j + 1] - (xr * ci[j] + xi * cr[j])) * inv_total;
+                }
+            } else if (s->first) { /* h is still zero */
+                for (Py_ssize_t j = 0; j < n; j++) {
+                    const float xr = x[2 * j], xi = x[2 * j + 1];
+                    const float fr = (q[2 * j] - (xr * cr[j] - xi * ci[j])) * inv_total;
+                    const float fi = (q[2 * j + 1] - (xr * ci[j] + xi * cr[j])) * inv_total;
+                    q[2 * j] = fr;
+                    q[2 * j + 1] = fi;
+                    num[2 * j] = p * fr;
+                    num[2 * j + 1] = p * fi;
+                }
+            } else {
+                for (Py_ssize_t j = 0; j < n; j++) {
+                    const float xr = x[2 * j], xi = x[2 * j + 1];
+                    const float fr = (q[2 * j] - (xr * cr[j] - xi * ci[j])) * inv_total;
+                    const float fi = (q[2 * j + 1] - (xr * ci[j] + xi * cr[j])) * inv_total;
+                    q[2 * j] = fr;
+                    q[2 * j + 1] = fi;
+                    num[2 * j] = p * fr + h[2 * j];
+                    num[2 * j + 1] = p * fi + h[2 * j + 1];
+                }
+            }
+        }
+    }
+}
+
+static int host_is_little_endian(void)
+{
+    const uint16_t one = 1;
+    return *(const uint8_t *)&one == 1;
+}
+
+/* A C-contiguous buffer of `count` items of struct code `code` ("f": float32, "Zf": complex64);
+ * a wrong item type is a TypeError, too few items a ValueError, both naming the argument. */
+static int get_typed_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t count, const char *code,
+                            const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0)
+        return -1;
+    const char *fmt = view->format ? view->format : "B";
+    if (fmt[0] == '@' || fmt[0] == '=' || (fmt[0] == '<' && host_is_little_endian()))
+        fmt++;
+    const Py_ssize_t itemsize = code[0] == 'Z' ? 8 : 4;
+    if (strcmp(fmt, code) != 0 || view->itemsize != itemsize) {
+        PyErr_Format(PyExc_TypeError, "%s: expected %s items, got format '%s'", name,
+                     code[0] == 'Z' ? "complex64" : "float32", view->format ? view->format : "B");
+        PyBuffer_Release(view);
+        return -1;
+    }
+    if (view->len < count * itemsize) {
+        PyErr_Format(PyExc_ValueError, "%s: buffer holds %zd bytes, %zd needed", name, view->len, count * itemsize);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* strcf_f_step(x, label, prev, constant, sxx, q, g, h, numerator, C, M, mu_n, p_prev, p, box_weight,
+ *              inv_total, first, last): one iteration as documented above strcf_f_step_blocks; prev may be
+ * None (no temporal term). inv_total is 1 / (mu_n + p) rounded to float32, as the reference uses it. */
+static PyObject *strcf_f_step(PyObject *self, PyObject *args)
+{
+    (void)self;
+    enum { X, LABEL, PREV, CONSTANT, SXX, Q, G, H, NUM, N_BUF };
+    static const char *const names[N_BUF] = {"x", "label", "prev", "constant", "sxx", "q", "g", "h", "numerator"};
+    PyObject *objs[N_BUF];
+    Py_ssize_t C, M;
+    double mu_n, p_prev, p, box_weight, inv_total;
+    int first, last;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOnndddddpp", &objs[X], &objs[LABEL], &objs[PREV], &objs[CONSTANT], &objs[SXX],
+                          &objs[Q], &objs[G], &objs[H], &objs[NUM], &C, &M, &mu_n, &p_prev, &p, &box_weight,
+                          &inv_total, &first, &last))
+        return NULL;
+    if (C < 1 || M < 1) {
+        PyErr_SetString(PyExc_ValueError, "strcf_f_step: sizes must be positive");
+        return NULL;
+    }
+    Py_buffer views[N_BUF];
+    int held[N_BUF] = {0};
+    int failed = 0;
+    for (int b = 0; b < N_BUF && !failed; b++) {
+        if (b == PREV && objs[b] == Py_None)
+            continue;
+        const int per_frequency = b == LABEL || b == SXX;
+        const int writable = b >= CONSTANT && b != G;
+        failed = get_typed_buffer(objs[b], &views[b], writable, per_frequency ? M : C * M, b == SXX ? "f" : "Zf",
+                                  names[b]) < 0;
+        held[b] = !failed;
+    }
+    /* The buffers written must not be one another or an input: the passes read them after writing. */
+    for (int a = CONSTANT; a < N_BUF && !failed; a++)
+        for (int b = 0; b < N_BUF && !failed; b++)
+            if (a != G && a != b && held[a] && held[b] && views[a].buf == views[b].buf) {
+                PyErr_Format(PyExc_ValueError, "strcf_f_step: %s and %s are the same buffer", names[a], names[b]);
+                failed = 1;
+            }
+    if (!failed) {
+        AdmmStep s = {
+            .x = (const float *)views[X].buf, .label = (const float *)views[LABEL].buf,
+            .prev = held[PREV] ? (const float *)views[PREV].buf : NULL,
+            .constant = (float *)views[CONSTANT].buf, .sxx = (float *)views[SXX].buf, .q = (float *)views[Q].buf,
+            .g = (float *)views[G].buf, .h = (float *)views[H].buf, .numerator = (float *)views[NUM].buf,
+            .C = C, .M = M, .mu_n = (float)mu_n, .p_prev = (float)p_prev, .p = (float)p,
+            .box_weight = (float)box_weight, .inv_total = (float)inv_total, .first = first, .last = last,
+        };
+        Py_BEGIN_ALLOW_THREADS
+        strcf_f_step_blocks(&s);
+        Py_END_ALLOW_THREADS
+    }
+    for (int b = 0; b < N_BUF; b++)
+        if (held[b])
+            PyBuffer_Release(&views[b]);
+    if (failed)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
     {"fhog", fhog, METH_VARARGS, "fHOG, 31 channels per cell (see fhog.py)."},
     {"colour_cells", colour_cells, METH_VARARGS, "Cell means of colour-table rows of BGR pixels (see colour.py)."},
+    {"strcf_f_step", strcf_f_step, METH_VARARGS, "One STRCF ADMM iteration's element-wise work (see dcf.admm_solve)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -611,7 +844,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 3
+#define KERNELS_ABI 4
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

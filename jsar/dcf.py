@@ -145,7 +145,8 @@ def admm_solve(
     `box_transforms`: None = use them when the window is such a box covering <= 1/4 of the
     map, False = always full FFTs, True = require the box path (ValueError if not a box).
     `kernel`: None or True = the element-wise work of each iteration in one compiled pass
-    (`_admm_iterations_compiled`, float32 rounding differs), False = this numpy code (the reference).
+    (`_admm_iterations_compiled`; it rounds as this code does where numpy's complex product uses FMA, as on
+    x86-64 with AVX2, and equals it to the bit there), False = this numpy code (the reference).
     """
     height = sample_f.shape[1]
     shape_hw = (height, reg_window.shape[1])

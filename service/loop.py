@@ -112,7 +112,6 @@ class TrackingLoop:
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.interrupted: CoastState | None = None  # the last coast, ended by a re-acquisition (_lost_command)
-        self.reacquired_s = -math.inf  # capture time (s) of the frame that ended the last coast
         self.search_logged_s = -math.inf  # time.monotonic() of the last event=search line
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
@@ -417,7 +416,7 @@ class TrackingLoop:
         if self.state == LoopState.LOST or self.box is None:
             return self._lost_command(stamp, view)
         if self.coast is not None:
-            self.interrupted, self.reacquired_s = self.coast, stamp
+            self.interrupted = self.coast
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
         if self.config.gimbal.backend != "none" and not view.alive(time.monotonic(),
@@ -457,21 +456,18 @@ class TrackingLoop:
             self.coast_decided = True
             plan = plan_coast(self.history, self.coast_params)
             interrupted, self.interrupted = self.interrupted, None
-            # A re-acquisition lost again before it held for coast_fit_s is one loss episode with the loss it
-            # ended: its frames, a take refuted or a core that followed the occluder, fill the fit window and
-            # would give the target the velocity of whatever they were on (the soak's canopy: 0.2 m/s for a car
-            # at 5), so the coast it interrupted goes on while its coast_s lasts.
-            if (interrupted is not None and stamp - interrupted.plan.start_s < self.coast_params.coast_s
-                    and stamp - self.reacquired_s < self.coast_params.fit_window_s):
-                self.coast = interrupted
-                self.counters["coasts_resumed"] += 1
-                log.info("event=coast_resumed tracked_s=%.2f elapsed_s=%.2f", stamp - self.reacquired_s,
-                         stamp - interrupted.plan.start_s)
-            elif plan is not None:
+            if plan is not None:
                 self.coast = start_coast(plan, last_rates)
                 self.counters["coasts"] += 1
                 log.info("event=coast_start target_velocity_ne_m_s=%.2f,%.2f samples=%d coast_s=%.1f",
                          plan.velocity_ne[0], plan.velocity_ne[1], len(self.history.samples), self.coast_params.coast_s)
+            elif interrupted is not None and stamp - interrupted.plan.start_s < self.coast_params.coast_s:
+                # A re-acquisition too short to fit a new velocity on (a take refuted, a flicker) ends one loss
+                # episode, not the coast: holding instead would let the target drive out of view.
+                self.coast = interrupted
+                self.counters["coasts_resumed"] += 1
+                log.info("event=coast_resumed samples=%d elapsed_s=%.2f", len(self.history.samples),
+                         stamp - interrupted.plan.start_s)
             elif self.coast_params.coast_s > 0:
                 log.info("event=coast_unavailable reason=short_history samples=%d (needs a ground estimate on "
                          ">= %d confident frames over %.2f s)", len(self.history.samples), self.coast_params.min_samples,

@@ -23,7 +23,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import ctypes  # noqa: E402
 import fractions  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -152,19 +151,11 @@ def native(frames: list[np.ndarray], clip: Path) -> tuple[dict[str, float], dict
 
 def worker(sequence: Path, count: int, clip: Path, helper: Path) -> None:
     """Under callgrind: every call between a zero and a labelled dump of the counters."""
-    cg = ctypes.CDLL(str(helper))
-    cg.cg_dump.argtypes = [ctypes.c_char_p]
+    from bench.instructions import callgrind_counter
+
     frames = load_frames(sequence, count)
     write_mjpg(frames, clip)
-    cg.cg_start()
-
-    def measure(label: str, call: Callable[[], object]) -> object:
-        cg.cg_zero()
-        result = call()
-        cg.cg_dump(label.encode())
-        return result
-
-    run_work(frames, clip, measure)
+    run_work(frames, clip, callgrind_counter(helper))
 
 
 def count_callgrind(sequence: Path, count: int) -> dict[str, float]:

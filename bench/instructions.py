@@ -43,7 +43,7 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Callable  # noqa: E402
+from typing import Any, Callable  # noqa: E402
 
 HELPER_C = r"""
 #include <valgrind/callgrind.h>
@@ -104,14 +104,7 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
     if helper is not None:
-        cg = ctypes.CDLL(str(helper))
-        cg.cg_dump.argtypes = [ctypes.c_char_p]
-        cg.cg_start()
-
-        def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
-            cg.cg_zero()
-            call()
-            cg.cg_dump(label.encode())
+        counted = callgrind_counter(helper)
     else:
         libc = ctypes.CDLL(None, use_errno=True)
         marks = [0]
@@ -129,6 +122,22 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
         not_lost = sum(state != "lost" for state in states)
         print(f"{sequence}: counted" + (f" ({not_lost} of {len(states)} hidden frames were not lost frames)"
                                         if not_lost else ""), flush=True)
+
+
+def callgrind_counter(helper: Path) -> Callable[[str, Callable[[], Any]], Any]:
+    """Under callgrind: load the client-request helper, start instrumenting, and return counted(label, call), which
+    runs call() between a zero and a dump of the counters named `label` and returns its result."""
+    cg = ctypes.CDLL(str(helper))
+    cg.cg_dump.argtypes = [ctypes.c_char_p]
+    cg.cg_start()
+
+    def counted(label: str, call: Callable[[], Any]) -> Any:
+        cg.cg_zero()
+        result = call()
+        cg.cg_dump(label.encode())
+        return result
+
+    return counted
 
 
 def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,

@@ -204,19 +204,10 @@ def admm_solve(
         # g-step: g = (p f + h) / (lam w^2 + p), spatial, element-wise (p already scaled by N).
         numerator = np.multiply(q, np.float32(penalty), out=tmp)
         numerator += h_f
-        if partial is not None and box is not None:
-            _, inside, outside = box
-            a = 1.0 / (lam * outside**2 + penalty)
-            b = 1.0 / (lam * inside**2 + penalty) - a
-            inner = partial.inverse(numerator)
-            inner *= np.float32(b)
-            partial.forward(inner, out=g_f)
-            numerator *= np.float32(a)
+        outside_weight = _g_step_transforms(numerator, g_f, penalty, lam, box, partial, reg_sq, shape_hw)
+        if outside_weight is not None:
+            numerator *= np.float32(outside_weight)
             g_f += numerator
-        else:
-            spatial = fourier.irfft2(numerator, shape_hw)
-            spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
-            g_f[...] = fourier.rfft2(spatial.astype(np.float32, copy=False))
         # dual ascent on the constraint f = g
         np.subtract(q, g_f, out=tmp)
         tmp *= np.float32(penalty)
@@ -263,21 +254,31 @@ def _admm_iterations_compiled(
                              it == 0, last)
         if last:
             break
-        if partial is not None and box is not None:
-            _, inside, outside = box
-            a = 1.0 / (lam * outside**2 + penalty)
-            b = 1.0 / (lam * inside**2 + penalty) - a
-            inner = partial.inverse(numerator)
-            inner *= np.float32(b)
-            partial.forward(inner, out=g_f)
-            box_weight = float(np.float32(a))
-        else:
-            spatial = fourier.irfft2(numerator, shape_hw)
-            spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
-            g_f[...] = fourier.rfft2(spatial.astype(np.float32, copy=False))
+        outside_weight = _g_step_transforms(numerator, g_f, penalty, lam, box, partial, reg_sq, shape_hw)
+        box_weight = 0.0 if outside_weight is None else float(np.float32(outside_weight))
         penalty_prev = penalty
         penalty = min(penalty * penalty_growth, penalty_cap)
     return q
+
+
+def _g_step_transforms(numerator: np.ndarray, g_f: np.ndarray, penalty: float, lam: float,
+                       box: tuple[tuple[int, int, int, int], float, float] | None, partial: _BoxDft | None,
+                       reg_sq: np.ndarray, shape_hw: tuple[int, int]) -> float | None:
+    """The g-step's transforms into g_f (C, H, W//2+1) from numerator = p F + H: with a box window
+    DFT(b * box * IDFT(numerator)), returning a, whose a * numerator the caller adds (admm_solve's docstring);
+    else the whole g-step by full FFTs, returning None."""
+    if partial is not None and box is not None:
+        _, inside, outside = box
+        a = 1.0 / (lam * outside**2 + penalty)
+        b = 1.0 / (lam * inside**2 + penalty) - a
+        inner = partial.inverse(numerator)
+        inner *= np.float32(b)
+        partial.forward(inner, out=g_f)
+        return a
+    spatial = fourier.irfft2(numerator, shape_hw)
+    spatial *= (1.0 / (reg_sq + np.float32(penalty)))[None]
+    g_f[...] = fourier.rfft2(spatial.astype(np.float32, copy=False))
+    return None
 
 
 def _two_valued_box(window: np.ndarray) -> tuple[tuple[int, int, int, int], float, float] | None:

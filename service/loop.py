@@ -387,7 +387,7 @@ class TrackingLoop:
         self.search_logged_s = now_s
         best = step.best
         log.info("event=search best_score=%.3f bar=%.3f best_centre_px=%.0f,%.0f windows=%d taken=%s core_coasting=%s",
-                 best.score, step.bar, best.x, best.y, step.windows, step.taken, getattr(step, "coasting", False))
+                 best.score, step.bar, best.x, best.y, step.windows, step.taken, step.coasting)
 
     def _set_state(self, state: LoopState) -> None:
         if state == self.state:

@@ -23,17 +23,43 @@
 #define HOT_LOOP_CLONES
 #endif
 
-static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
+static int host_is_little_endian(void)
 {
-    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
+    const uint16_t one = 1;
+    return *(const uint8_t *)&one == 1;
+}
+
+/* A C-contiguous buffer of at least `need` bytes; with `code` ("f": float32, "Zf": complex64; NULL: any) its
+ * items must be of that type. A wrong item type is a TypeError, too few bytes a ValueError, both naming the
+ * argument. */
+static int get_buffer_of(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *code,
+                         const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
     if (PyObject_GetBuffer(obj, view, flags) < 0)
         return -1;
+    if (code) {
+        const char *fmt = view->format ? view->format : "B";
+        if (fmt[0] == '@' || fmt[0] == '=' || (fmt[0] == '<' && host_is_little_endian()))
+            fmt++;
+        if (strcmp(fmt, code) != 0 || view->itemsize != (code[0] == 'Z' ? 8 : 4)) {
+            PyErr_Format(PyExc_TypeError, "%s: expected %s items, got format '%s'", name,
+                         code[0] == 'Z' ? "complex64" : "float32", view->format ? view->format : "B");
+            PyBuffer_Release(view);
+            return -1;
+        }
+    }
     if (view->len < need) {
         PyErr_Format(PyExc_ValueError, "%s: buffer holds %zd bytes, %zd needed", name, view->len, need);
         PyBuffer_Release(view);
         return -1;
     }
     return 0;
+}
+
+static int get_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t need, const char *name)
+{
+    return get_buffer_of(obj, view, writable, need, NULL, name);
 }
 
 /* ---------------------------------------------------------------------------------------------
@@ -727,17 +753,7 @@ static void strcf_f_step_blocks(const AdmmStep *s)
                     q[2 * j] = (q[2 * j] - fmaf(xr, cr[j], -(xi * ci[j]))) * inv_total;
                     q[2 * j + 1] = (q[2 * j + 1] - fmaf(xr, ci[j], xi * cr[j])) * inv_total;
                 }
-            } else if (s->first) { /* h is still zero */
-                for (Py_ssize_t j = 0; j < n; j++) {
-                    const float xr = x[2 * j], xi = x[2 * j + 1];
-                    const float fr = (q[2 * j] - fmaf(xr, cr[j], -(xi * ci[j]))) * inv_total;
-                    const float fi = (q[2 * j + 1] - fmaf(xr, ci[j], xi * cr[j])) * inv_total;
-                    q[2 * j] = fr;
-                    q[2 * j + 1] = fi;
-                    num[2 * j] = p * fr;
-                    num[2 * j + 1] = p * fi;
-                }
-            } else {
+            } else { /* h is zero on the first iteration, as in the reference, which adds it there too */
                 for (Py_ssize_t j = 0; j < n; j++) {
                     const float xr = x[2 * j], xi = x[2 * j + 1];
                     const float fr = (q[2 * j] - fmaf(xr, cr[j], -(xi * ci[j]))) * inv_total;
@@ -755,38 +771,6 @@ static void strcf_f_step_blocks(const AdmmStep *s)
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC pop_options
 #endif
-
-static int host_is_little_endian(void)
-{
-    const uint16_t one = 1;
-    return *(const uint8_t *)&one == 1;
-}
-
-/* A C-contiguous buffer of `count` items of struct code `code` ("f": float32, "Zf": complex64);
- * a wrong item type is a TypeError, too few items a ValueError, both naming the argument. */
-static int get_typed_buffer(PyObject *obj, Py_buffer *view, int writable, Py_ssize_t count, const char *code,
-                            const char *name)
-{
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(obj, view, flags) < 0)
-        return -1;
-    const char *fmt = view->format ? view->format : "B";
-    if (fmt[0] == '@' || fmt[0] == '=' || (fmt[0] == '<' && host_is_little_endian()))
-        fmt++;
-    const Py_ssize_t itemsize = code[0] == 'Z' ? 8 : 4;
-    if (strcmp(fmt, code) != 0 || view->itemsize != itemsize) {
-        PyErr_Format(PyExc_TypeError, "%s: expected %s items, got format '%s'", name,
-                     code[0] == 'Z' ? "complex64" : "float32", view->format ? view->format : "B");
-        PyBuffer_Release(view);
-        return -1;
-    }
-    if (view->len < count * itemsize) {
-        PyErr_Format(PyExc_ValueError, "%s: buffer holds %zd bytes, %zd needed", name, view->len, count * itemsize);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
 
 /* strcf_f_step(x, label, prev, constant, sxx, q, g, h, numerator, C, M, mu_n, p_prev, p, box_weight,
  *              inv_total, first, last): one iteration as documented above strcf_f_step_blocks; prev may be
@@ -816,8 +800,9 @@ static PyObject *strcf_f_step(PyObject *self, PyObject *args)
             continue;
         const int per_frequency = b == LABEL || b == SXX;
         const int writable = b >= CONSTANT && b != G;
-        failed = get_typed_buffer(objs[b], &views[b], writable, per_frequency ? M : C * M, b == SXX ? "f" : "Zf",
-                                  names[b]) < 0;
+        const int complex_items = b != SXX;
+        failed = get_buffer_of(objs[b], &views[b], writable, (per_frequency ? M : C * M) * (complex_items ? 8 : 4),
+                               complex_items ? "Zf" : "f", names[b]) < 0;
         held[b] = !failed;
     }
     /* The buffers written must not be one another or an input: the passes read them after writing. */

@@ -72,8 +72,8 @@ def is_h264_m2m_encoder(node: V4l2Node) -> bool:
 
 def find_h264_encoder(nodes: Iterable[V4l2Node]) -> V4l2Node | None:
     """The first H.264 memory-to-memory encoder among `nodes`, by path order; None when there is none."""
-    encoders = sorted((node for node in nodes if is_h264_m2m_encoder(node)), key=lambda node: video_index(node.path))
-    return encoders[0] if encoders else None
+    return min((node for node in nodes if is_h264_m2m_encoder(node)), key=lambda node: video_index(node.path),
+               default=None)
 
 
 def video_index(path: str) -> tuple[int, str]:

@@ -23,7 +23,7 @@ import numpy as np
 from jsar.api import SideBoundedTracker, Tracker, TrackResult
 from service.config import ServiceConfig
 from service.control.coast import (CoastParams, CoastState, Position, TrackHistory, camera_angles, coast_step,
-                                   plan_coast, remember, start_coast)
+                                   plan_coast, remember, start_coast, velocity_change)
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
 from service.control.geo import (GroundTarget, camera_ray_ned, gimbal_in_earth_frame, ground_px_per_m, locate_on_ground,
                                  relative_gimbal_yaw)
@@ -112,6 +112,7 @@ class TrackingLoop:
         self.coast: CoastState | None = None  # the coast in progress while lost
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.interrupted: CoastState | None = None  # the last coast, ended by a re-acquisition (_lost_command)
+        self.reacquired_s = -math.inf  # capture time (s) of the frame whose re-acquisition ended that coast
         self.search_logged_s = -math.inf  # time.monotonic() of the last event=search line
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
@@ -416,7 +417,7 @@ class TrackingLoop:
         if self.state == LoopState.LOST or self.box is None:
             return self._lost_command(stamp, view)
         if self.coast is not None:
-            self.interrupted = self.coast
+            self.interrupted, self.reacquired_s = self.coast, stamp
         self.coast, self.coast_decided = None, False
         dt = self._control_dt(frame)
         if self.config.gimbal.backend != "none" and not view.alive(time.monotonic(),
@@ -456,18 +457,24 @@ class TrackingLoop:
             self.coast_decided = True
             plan = plan_coast(self.history, self.coast_params)
             interrupted, self.interrupted = self.interrupted, None
-            if plan is not None:
+            resumable = interrupted is not None and stamp - interrupted.plan.start_s < self.coast_params.coast_s
+            # A re-acquisition too short to fit a velocity on (a take refuted, a flicker) ends one loss episode, not
+            # the coast: holding instead would let the target drive out of view. One shorter than the fit window
+            # whose fit contradicts the coast it ended followed something else (the soak's canopy: a car at 5 m/s
+            # fitted at 0.9 m/s from half a second on the canopy, and the camera stopped).
+            contradicted = (resumable and plan is not None and stamp - self.reacquired_s < self.coast_params.fit_window_s
+                            and velocity_change(plan, interrupted.plan) > self.coast_params.resume_change_m_s)
+            if resumable and (plan is None or contradicted):
+                self.coast = interrupted
+                self.counters["coasts_resumed"] += 1
+                log.info("event=coast_resumed samples=%d elapsed_s=%.2f%s", len(self.history.samples),
+                         stamp - interrupted.plan.start_s,
+                         f" refused_velocity_ne_m_s={plan.velocity_ne[0]:.2f},{plan.velocity_ne[1]:.2f}" if plan else "")
+            elif plan is not None:
                 self.coast = start_coast(plan, last_rates)
                 self.counters["coasts"] += 1
                 log.info("event=coast_start target_velocity_ne_m_s=%.2f,%.2f samples=%d coast_s=%.1f",
                          plan.velocity_ne[0], plan.velocity_ne[1], len(self.history.samples), self.coast_params.coast_s)
-            elif interrupted is not None and stamp - interrupted.plan.start_s < self.coast_params.coast_s:
-                # A re-acquisition too short to fit a new velocity on (a take refuted, a flicker) ends one loss
-                # episode, not the coast: holding instead would let the target drive out of view.
-                self.coast = interrupted
-                self.counters["coasts_resumed"] += 1
-                log.info("event=coast_resumed samples=%d elapsed_s=%.2f", len(self.history.samples),
-                         stamp - interrupted.plan.start_s)
             elif self.coast_params.coast_s > 0:
                 log.info("event=coast_unavailable reason=short_history samples=%d (needs a ground estimate on "
                          ">= %d confident frames over %.2f s)", len(self.history.samples), self.coast_params.min_samples,

@@ -84,7 +84,7 @@ COUNTER_MEANINGS = {
     "resized": "frame size changes followed",
     "clock_resets": "capture-clock jumps the controllers restarted on",
     "coasts": "losses the gimbal coasted through on the predicted target motion",
-    "coasts_resumed": "losses right after a re-acquisition too short to fit a velocity that resumed the coast it had ended",
+    "coasts_resumed": "losses soon after a re-acquisition (too short to fit a velocity, or whose fit contradicted the coast) that resumed the coast it had ended",
     "coast_frames": "frames spent coasting",
     "size_bounded_frames": "frames tracked with the range size bound set (box side held within a band around the "
                            "car's remembered ground size); how often it was set, not how often it changed the box",

@@ -297,12 +297,15 @@ def test_while_lost_the_search_s_best_candidate_is_logged_once_a_second(monkeypa
     assert len(lines) == 2 and "best_centre_px=60,52" in lines[1]  # the selection frame is init, not an update
 
 
-@pytest.mark.parametrize("back_frames, resumed", [(3, True), (20, False), (40, False)])
-def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast(back_frames: int, resumed: bool) -> None:
-    """A re-acquisition too short to fit a new velocity on (3 frames), lost again, resumes the coast it interrupted
-    until that coast's coast_s is over, instead of holding; one whose frames fit a velocity (20 or 40 frames) starts a
-    coast of its own. (Resuming also after 20 frames, a track shorter than coast_fit_s, lost the car at the CI soak's
-    canopy: tests/test_sim_closed_loop.py.)"""
+@pytest.mark.parametrize("back_frames, back_moves, resumed",
+                         [(3, False, True), (20, False, True), (20, True, False), (40, False, False)])
+def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast(back_frames: int, back_moves: bool,
+                                                                              resumed: bool) -> None:
+    """A re-acquisition lost again resumes the coast it interrupted, until that coast's coast_s is over, when it was
+    too short to fit a new velocity on (3 frames), or shorter than coast_fit_s (20 frames, 0.67 s) and its fit
+    contradicts the interrupted coast (a place that does not move, where the target moved at about 4 m/s). One
+    that moves on with the target (20 frames), or that lasted longer than coast_fit_s (40 frames), starts a coast
+    of its own."""
     from jsar.api import TrackResult
     from service.control.geo import GimbalAttitude
     from service.domain import ControlCommand
@@ -312,11 +315,11 @@ def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast(b
     from service.sources.base import Frame, LatestSlot
 
     config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}, "camera": {"hfov_deg": 90.0},
-                                  "gimbal": {"coast_s": 3.0, "coast_fit_s": 1.0}})
+                                  "gimbal": {"coast_s": 3.0, "coast_fit_s": 1.0, "coast_resume_change_m_s": 2.0}})
     view = AutopilotView(system_id=1, position=(47.0, 8.0, 530.0, 30.0), attitude=(0.0, 0.0, 0.0),
                          gimbal=GimbalAttitude(pitch=-math.pi / 4, yaw=0.0, yaw_in_earth_frame=False))
     # frames: tracked to 39 (the target moving right), lost 40-79 (1.3 s: longer than the fit window), tracked
-    # back_frames frames from 80 on a place that does not move, lost after
+    # back_frames frames from 80 (on a place that does not move, or on the target moving on), lost after
     back = set(range(80, 80 + back_frames))
     tracked = set(range(40)) | back
 
@@ -326,7 +329,7 @@ def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast(b
 
         def update(self, image):
             self.frames += 1
-            if self.frames < 40:
+            if self.frames < 40 or (back_moves and self.frames in back):
                 x, y, w, h = self.box
                 self.box = (x + 0.2, y, w, h)
             return TrackResult(self.box, 1.0, "tracking") if self.frames in tracked else TrackResult(self.box, 0.1, "lost")

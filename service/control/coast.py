@@ -42,7 +42,8 @@ MIN_SAMPLES = 5  # confident frames needed for a velocity estimate
 class CoastParams:
     """coast_s: coasting time (s, 0 = hold at once); fit_window_s: history the velocity is fitted on
     (s); min_samples / min_span_s: least data for an estimate; kp: pointing feedback (1/s);
-    max_rate (rad/s), max_accel (rad/s^2): the gimbal controller's limits."""
+    max_rate (rad/s), max_accel (rad/s^2): the gimbal controller's limits; resume_change_m_s: a loss within
+    fit_window_s of a re-acquisition resumes the coast it ended when the new fit differs by more (m/s)."""
 
     coast_s: float
     fit_window_s: float
@@ -51,10 +52,11 @@ class CoastParams:
     kp: float
     max_rate: float
     max_accel: float
+    resume_change_m_s: float = math.inf
 
     def __post_init__(self) -> None:
         if not (self.coast_s >= 0 and self.fit_window_s > 0 and self.min_samples >= 2 and self.min_span_s > 0
-                and self.kp >= 0 and self.max_rate > 0 and self.max_accel > 0):
+                and self.kp >= 0 and self.max_rate > 0 and self.max_accel > 0 and self.resume_change_m_s > 0):
             raise ValueError(f"invalid coast parameters {self}")
 
     @staticmethod
@@ -62,7 +64,8 @@ class CoastParams:
         """Degrees in the config -> radians; kp is the gimbal controller's; the history must span a third
         of the fit window (a velocity from 0.1 s of frames is mostly box jitter)."""
         return CoastParams(config.coast_s, config.coast_fit_s, MIN_SAMPLES, config.coast_fit_s / 3.0,
-                           config.kp, math.radians(config.max_rate_deg_s), math.radians(config.max_accel_deg_s2))
+                           config.kp, math.radians(config.max_rate_deg_s), math.radians(config.max_accel_deg_s2),
+                           config.coast_resume_change_m_s)
 
 
 @dataclass(frozen=True)
@@ -187,6 +190,11 @@ def plan_coast(history: TrackHistory, params: CoastParams) -> CoastPlan | None:
     azimuth, elevation = direction((north, east), last.vehicle_ne, last.height_m)
     offset = (wrap_pi(azimuth - last.camera[0]), elevation - last.camera[1])
     return CoastPlan(last.time_s, history.origin, (north, east), (v_north, v_east), offset, last.camera)
+
+
+def velocity_change(plan: CoastPlan, other: CoastPlan) -> float:
+    """Length (m/s) of the difference between two plans' ground velocities (north, east)."""
+    return math.hypot(plan.velocity_ne[0] - other.velocity_ne[0], plan.velocity_ne[1] - other.velocity_ne[1])
 
 
 def decay(elapsed_s: float, coast_s: float) -> float:

@@ -23,6 +23,13 @@
 #define HOT_LOOP_CLONES
 #endif
 
+/* Helpers of a cloned hot loop must be inlined into it to be compiled for its target. */
+#if defined(__GNUC__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
+
 static int host_is_little_endian(void)
 {
     const uint16_t one = 1;
@@ -285,6 +292,7 @@ static PyObject *resample(PyObject *self, PyObject *args)
 #define TWO_PI 6.28318530717958647692f
 #define HALF_PI 1.57079632679489661923f
 #define PI_F 3.14159265358979323846f
+#define FHOG_CHUNK_PIXELS 2048
 
 /* atan(z) for z in [0, 1]: odd polynomial fitted on Chebyshev nodes, max error 4e-8 rad. */
 static inline float atan_unit(float z)
@@ -336,14 +344,21 @@ typedef struct {
     float *wx_lo, *wx_hi;
     Py_ssize_t *cy0;
     float *wy_lo, *wy_hi;
+    /* fhog_one only: per-pixel values of a chunk of chunk_rows rows (gradients, the lower bin and the
+     * magnitude's shares of it and the next), and each column's cell offset (cx0 + 1) * 18 in row_hist */
+    float *chunk_gx, *chunk_gy, *chunk_pos, *chunk_mag, *chunk_lo, *chunk_hi;
+    int *chunk_bin;
+    Py_ssize_t *col;
+    Py_ssize_t chunk_rows;
 } FhogScratch;
 
 /* One image: hist (hc, wc, 18) -> out (hc, wc, 31). The per-pixel work is split into loops the
  * compiler vectorises (gradient, magnitude, angle) and one scalar scatter into a row histogram,
- * which is then spread over the two cell rows it belongs to. */
+ * which is then spread over the two cell rows it belongs to. The loops of abi 5, kept as the
+ * specification of fhog_one's numbers (it must equal them to the bit; `fhog_reference` runs them). */
 HOT_LOOP_CLONES
-static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
-                     FhogScratch *sc, float *hist, float *energy, float *out)
+static void fhog_one_reference(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
+                               FhogScratch *sc, float *hist, float *energy, float *out)
 {
     const Py_ssize_t hc = H / cell, wc = W / cell;
     const Py_ssize_t hv = hc * cell, wv = wc * cell;
@@ -495,10 +510,267 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
 #undef ENERGY
 }
 
-/* fhog(src, n, h, w, c, is_uint8, cell, out): src (N, H, W, C) uint8 or float32 -> out float32 (N, H//cell, W//cell, 31). */
-static PyObject *fhog(PyObject *self, PyObject *args)
+/* ---- fhog_one: the same numbers as fhog_one_reference with fewer instructions ----
+ * Gradient of pixel p of a uint8 image from the byte offsets (in pixels) of its neighbours: right r, left l,
+ * down d, up u. Every value is a difference of two integers 0..255, exact in float (and so are the squared
+ * magnitudes that pick the channel), so this equals the reference's float rows bit for bit whatever the
+ * compiler contracts. Colour: the channel with the largest magnitude, ties keep the first. */
+static ALWAYS_INLINE void gradient_u8(const uint8_t *img, Py_ssize_t C, Py_ssize_t r, Py_ssize_t l, Py_ssize_t d,
+                                      Py_ssize_t u, float *gx, float *gy)
 {
-    (void)self;
+    if (C == 1) {
+        *gx = (float)((int)img[r] - (int)img[l]);
+        *gy = (float)((int)img[d] - (int)img[u]);
+        return;
+    }
+    float bx = (float)((int)img[r * C] - (int)img[l * C]), by = (float)((int)img[d * C] - (int)img[u * C]);
+    float bm = bx * bx + by * by;
+    for (Py_ssize_t c = 1; c < C; c++) {
+        const float gxc = (float)((int)img[r * C + c] - (int)img[l * C + c]);
+        const float gyc = (float)((int)img[d * C + c] - (int)img[u * C + c]);
+        const float m2 = gxc * gxc + gyc * gyc;
+        const int better = m2 > bm;
+        bx = better ? gxc : bx;
+        by = better ? gyc : by;
+        bm = better ? m2 : bm;
+    }
+    *gx = bx;
+    *gy = by;
+}
+
+/* gradient_u8 of pixel (y, x) with its neighbours clamped into the image (the border replicated). */
+static ALWAYS_INLINE void gradient_clamped_u8(const uint8_t *img, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C,
+                                              Py_ssize_t y, Py_ssize_t x, float *gx, float *gy)
+{
+    const Py_ssize_t r = y * W + (x + 1 < W ? x + 1 : W - 1), l = y * W + (x > 0 ? x - 1 : 0);
+    const Py_ssize_t d = (y + 1 < H ? y + 1 : H - 1) * W + x, u = (y > 0 ? y - 1 : 0) * W + x;
+    gradient_u8(img, C, r, l, d, u, gx, gy);
+}
+
+/* Gradients of rows y0..y1-1 of a uint8 image (H, W, C) into gx, gy ((y1 - y0) * W, row-major): the rows with
+ * both vertical neighbours in one loop over their pixels (its columns 0 and W - 1 read across a row end and
+ * are redone), the first and last image rows and the two border columns with clamped (replicated)
+ * neighbours. The loops run over whole rows of pixels, not one short row at a time. */
+static ALWAYS_INLINE void chunk_gradients_u8(const uint8_t *restrict img, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C,
+                                             Py_ssize_t y0, Py_ssize_t y1, float *restrict gx, float *restrict gy)
+{
+    const Py_ssize_t base = y0 * W;
+    const Py_ssize_t ya = y0 > 1 ? y0 : 1, yb = y1 < H - 1 ? y1 : H - 1;
+    if (C == 1) {
+        for (Py_ssize_t p = ya * W; p < yb * W; p++)
+            gradient_u8(img, 1, p + 1, p - 1, p + W, p - W, gx + p - base, gy + p - base);
+    } else if (C == 3) {
+        for (Py_ssize_t p = ya * W; p < yb * W; p++)
+            gradient_u8(img, 3, p + 1, p - 1, p + W, p - W, gx + p - base, gy + p - base);
+    } else {
+        for (Py_ssize_t p = ya * W; p < yb * W; p++)
+            gradient_u8(img, C, p + 1, p - 1, p + W, p - W, gx + p - base, gy + p - base);
+    }
+    for (Py_ssize_t y = y0; y < y1; y++) {
+        if (y == 0 || y == H - 1) {
+            for (Py_ssize_t x = 0; x < W; x++)
+                gradient_clamped_u8(img, H, W, C, y, x, gx + y * W + x - base, gy + y * W + x - base);
+        } else {
+            gradient_clamped_u8(img, H, W, C, y, 0, gx + y * W - base, gy + y * W - base);
+            if (W > 1)
+                gradient_clamped_u8(img, H, W, C, y, W - 1, gx + y * W + W - 1 - base, gy + y * W + W - 1 - base);
+        }
+    }
+}
+
+/* Float images: the reference's gradient loops, row by row into the chunk (inlined: compiled for the clone's
+ * target like the reference, so that the magnitudes that pick the channel round as there). */
+static ALWAYS_INLINE void row_gradients_f32(const float *img, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t wv,
+                                            Py_ssize_t y, FhogScratch *sc, float *gxr, float *gyr)
+{
+    const Py_ssize_t yu = y > 0 ? y - 1 : 0, yd = y + 1 < H ? y + 1 : H - 1;
+    float *up = sc->up, *dn = sc->dn, *mid = sc->mid;
+    load_row(img, 0, y * W * C, W * C, mid + C);
+    load_row(img, 0, yu * W * C, W * C, up);
+    load_row(img, 0, yd * W * C, W * C, dn);
+    for (Py_ssize_t c = 0; c < C; c++) {
+        mid[c] = mid[C + c];
+        mid[(W + 1) * C + c] = mid[W * C + c];
+    }
+    if (C == 1) {
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            gxr[x] = mid[x + 2] - mid[x];
+            gyr[x] = dn[x] - up[x];
+        }
+    } else if (C == 3) {
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            const float gx0 = mid[3 * x + 6] - mid[3 * x], gy0 = dn[3 * x] - up[3 * x];
+            const float gx1 = mid[3 * x + 7] - mid[3 * x + 1], gy1 = dn[3 * x + 1] - up[3 * x + 1];
+            const float gx2 = mid[3 * x + 8] - mid[3 * x + 2], gy2 = dn[3 * x + 2] - up[3 * x + 2];
+            const float m0 = gx0 * gx0 + gy0 * gy0, m1 = gx1 * gx1 + gy1 * gy1, m2 = gx2 * gx2 + gy2 * gy2;
+            const int one = m1 > m0;
+            float bx = one ? gx1 : gx0, by = one ? gy1 : gy0;
+            const float bm = one ? m1 : m0;
+            const int two = m2 > bm;
+            gxr[x] = two ? gx2 : bx;
+            gyr[x] = two ? gy2 : by;
+        }
+    } else {
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            float bx = mid[(x + 2) * C] - mid[x * C], by = dn[x * C] - up[x * C];
+            float bm = bx * bx + by * by;
+            for (Py_ssize_t c = 1; c < C; c++) {
+                const float gx = mid[(x + 2) * C + c] - mid[x * C + c];
+                const float gy = dn[x * C + c] - up[x * C + c];
+                const float m2 = gx * gx + gy * gy;
+                const int better = m2 > bm;
+                bx = better ? gx : bx;
+                by = better ? gy : by;
+                bm = better ? m2 : bm;
+            }
+            gxr[x] = bx;
+            gyr[x] = by;
+        }
+    }
+}
+
+/* fhog_one_reference's numbers to the bit (tests/test_features_fhog.py compares the two on real frames and
+ * random images) with fewer instructions: the image is processed in chunks of rows, and the per-pixel loops
+ * (gradients, orientation and magnitude, now also the bin and the two bins' shares) run over a whole chunk,
+ * not one short row at a time; the scatter into the row histogram, the spread over cell rows and every
+ * sum add the same terms in the same order as the reference. Each 2x2 block's factor 1 / sqrt(energy + eps)
+ * is computed once (`norms`, (hc + 1) x (wc + 1) blocks), not once per cell that uses it, and the per-cell
+ * clipping runs over the orientations so that it vectorises. */
+HOT_LOOP_CLONES
+static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
+                     FhogScratch *sc, float *hist, float *energy, float *norms, float *out)
+{
+    const Py_ssize_t hc = H / cell, wc = W / cell;
+    const Py_ssize_t hv = hc * cell, wv = wc * cell;
+    const float bins_per_rad = (float)N_SIGNED / TWO_PI;
+    float *restrict gxc = sc->chunk_gx, *restrict gyc = sc->chunk_gy;
+    float *restrict mlo = sc->chunk_lo, *restrict mhi = sc->chunk_hi;
+    float *restrict pos = sc->chunk_pos, *restrict mag = sc->chunk_mag;
+    int *restrict bin = sc->chunk_bin;
+    memset(hist, 0, sizeof(float) * (size_t)(hc * wc * N_SIGNED));
+
+    for (Py_ssize_t y0 = 0; y0 < hv; y0 += sc->chunk_rows) {
+        const Py_ssize_t y1 = y0 + sc->chunk_rows < hv ? y0 + sc->chunk_rows : hv;
+        const Py_ssize_t n = (y1 - y0) * W;
+        if (u8) {
+            chunk_gradients_u8((const uint8_t *)img, H, W, C, y0, y1, gxc, gyc);
+        } else {
+            for (Py_ssize_t y = y0; y < y1; y++)
+                row_gradients_f32((const float *)img, H, W, C, wv, y, sc, gxc + (y - y0) * W, gyc + (y - y0) * W);
+            for (Py_ssize_t y = y0; y < y1; y++) /* columns past the last whole cell: defined, never used */
+                for (Py_ssize_t x = wv; x < W; x++)
+                    gxc[(y - y0) * W + x] = gyc[(y - y0) * W + x] = 0.0f;
+        }
+        for (Py_ssize_t i = 0; i < n; i++) {
+            const float gx = gxc[i], gy = gyc[i];
+            const float ax = gx < 0.0f ? -gx : gx, ay = gy < 0.0f ? -gy : gy;
+            const float lo = ax < ay ? ax : ay, hi = ax < ay ? ay : ax;
+            const float z = lo / (hi + (float)(hi == 0.0f));
+            float a = atan_unit(z);
+            a = ay > ax ? HALF_PI - a : a;
+            a = gx < 0.0f ? PI_F - a : a;
+            a = gy < 0.0f ? TWO_PI - a : a;
+            float p = a * bins_per_rad;
+            p = p >= (float)N_SIGNED ? 0.0f : p;
+            pos[i] = p;
+            mag[i] = sqrtf(gx * gx + gy * gy);
+        }
+        for (Py_ssize_t i = 0; i < n; i++) { /* the two bins' shares of the magnitude */
+            const float m = mag[i];
+            const int b0 = (int)pos[i];
+            const float fo = pos[i] - (float)b0;
+            const float m1 = m * fo;
+            bin[i] = b0;
+            mhi[i] = m1;
+            mlo[i] = m - m1;
+        }
+        for (Py_ssize_t y = y0; y < y1; y++) {
+            const Py_ssize_t row = (y - y0) * W;
+            float *rh = sc->row_hist;
+            memset(rh, 0, sizeof(float) * (size_t)((wc + 2) * N_SIGNED));
+            /* A zero-magnitude pixel adds +0 to non-negative sums (the reference skips it): same bits. */
+            for (Py_ssize_t x = 0; x < wv; x++) {
+                const int b0 = bin[row + x];
+                const int b1 = b0 + 1 == N_SIGNED ? 0 : b0 + 1;
+                const float m0 = mlo[row + x], m1 = mhi[row + x];
+                float *h0 = rh + sc->col[x], *h1 = h0 + N_SIGNED;
+                const float wl = sc->wx_lo[x], wh = sc->wx_hi[x];
+                h0[b0] += wl * m0;
+                h0[b1] += wl * m1;
+                h1[b0] += wh * m0;
+                h1[b1] += wh * m1;
+            }
+            const Py_ssize_t cy = sc->cy0[y];
+            const float wl = sc->wy_lo[y], wh = sc->wy_hi[y];
+            const float *restrict src_row = rh + N_SIGNED; /* cell 0 */
+            if (wl != 0.0f) {
+                float *restrict dst = hist + cy * wc * N_SIGNED;
+                for (Py_ssize_t t = 0; t < wc * N_SIGNED; t++)
+                    dst[t] += wl * src_row[t];
+            }
+            if (wh != 0.0f) {
+                float *restrict dst = hist + (cy + 1) * wc * N_SIGNED;
+                for (Py_ssize_t t = 0; t < wc * N_SIGNED; t++)
+                    dst[t] += wh * src_row[t];
+            }
+        }
+    }
+
+    for (Py_ssize_t t = 0; t < hc * wc; t++) {
+        const float *h = hist + t * N_SIGNED;
+        float e = 0.0f;
+        for (int o = 0; o < N_UNSIGNED; o++) {
+            const float u = h[o] + h[o + N_UNSIGNED];
+            e += u * u;
+        }
+        energy[t] = e;
+    }
+    /* Block (a, b) covers cells a..a+1, b..b+1 (clamped to the grid), a in -1..hc-1, b in -1..wc-1. */
+#define ENERGY(i, j) energy[((i) < 0 ? 0 : ((i) >= hc ? hc - 1 : (i))) * wc + ((j) < 0 ? 0 : ((j) >= wc ? wc - 1 : (j)))]
+    for (Py_ssize_t a = -1; a < hc; a++)
+        for (Py_ssize_t b = -1; b < wc; b++) {
+            const float block = ENERGY(a, b) + ENERGY(a + 1, b) + ENERGY(a, b + 1) + ENERGY(a + 1, b + 1);
+            norms[(a + 1) * (wc + 1) + (b + 1)] = 1.0f / sqrtf(block + 1e-4f);
+        }
+#undef ENERGY
+    for (Py_ssize_t i = 0; i < hc; i++) {
+        for (Py_ssize_t j = 0; j < wc; j++) {
+            /* The four blocks around cell (i, j), in the reference's order (dy, dx) = 00, 01, 10, 11. */
+            const float *above = norms + i * (wc + 1) + j, *below = above + (wc + 1);
+            const float n0 = above[0], n1 = above[1], n2 = below[0], n3 = below[1];
+            const float *restrict h = hist + (i * wc + j) * N_SIGNED;
+            float *restrict f = out + (i * wc + j) * N_FHOG;
+            for (int o = 0; o < N_SIGNED; o++) {
+                const float v0 = h[o] * n0 < 0.2f ? h[o] * n0 : 0.2f, v1 = h[o] * n1 < 0.2f ? h[o] * n1 : 0.2f;
+                const float v2 = h[o] * n2 < 0.2f ? h[o] * n2 : 0.2f, v3 = h[o] * n3 < 0.2f ? h[o] * n3 : 0.2f;
+                f[o] = 0.5f * ((((0.0f + v0) + v1) + v2) + v3);
+            }
+            for (int o = 0; o < N_UNSIGNED; o++) {
+                const float u = h[o] + h[o + N_UNSIGNED];
+                const float v0 = u * n0 < 0.2f ? u * n0 : 0.2f, v1 = u * n1 < 0.2f ? u * n1 : 0.2f;
+                const float v2 = u * n2 < 0.2f ? u * n2 : 0.2f, v3 = u * n3 < 0.2f ? u * n3 : 0.2f;
+                f[N_SIGNED + o] = 0.5f * ((((0.0f + v0) + v1) + v2) + v3);
+            }
+            /* Texture: per block, the clipped signed orientations summed in orientation order. */
+            float t0 = 0.0f, t1 = 0.0f, t2 = 0.0f, t3 = 0.0f;
+            for (int o = 0; o < N_SIGNED; o++) {
+                t0 += h[o] * n0 < 0.2f ? h[o] * n0 : 0.2f;
+                t1 += h[o] * n1 < 0.2f ? h[o] * n1 : 0.2f;
+                t2 += h[o] * n2 < 0.2f ? h[o] * n2 : 0.2f;
+                t3 += h[o] * n3 < 0.2f ? h[o] * n3 : 0.2f;
+            }
+            f[N_SIGNED + N_UNSIGNED] = 0.2357f * t0;
+            f[N_SIGNED + N_UNSIGNED + 1] = 0.2357f * t1;
+            f[N_SIGNED + N_UNSIGNED + 2] = 0.2357f * t2;
+            f[N_SIGNED + N_UNSIGNED + 3] = 0.2357f * t3;
+        }
+    }
+}
+
+/* fhog(src, n, h, w, c, is_uint8, cell, out): src (N, H, W, C) uint8 or float32 -> out float32 (N, H//cell, W//cell, 31);
+ * fhog_reference: the same through fhog_one_reference (for the tests). */
+static PyObject *fhog_run(PyObject *args, int reference)
+{
     PyObject *o_src, *o_out;
     Py_ssize_t N, H, W, C, cell;
     int u8;
@@ -517,10 +789,15 @@ static PyObject *fhog(PyObject *self, PyObject *args)
         return NULL;
     }
     /* One block of scratch memory: floats first, then the index arrays. */
-    const size_t n_float = (size_t)(hc * wc * (N_SIGNED + 1) + 4 * W + (wc + 2) * N_SIGNED + 2 * W + 2 * H
-                                    + (3 * W + 2) * C);
-    const size_t n_index = (size_t)(W + H);
-    char *block = (char *)malloc(sizeof(float) * n_float + sizeof(Py_ssize_t) * n_index);
+    /* fhog_one's chunks: whole rows, about FHOG_CHUNK_PIXELS pixels (cache-sized), at least one row. */
+    const Py_ssize_t chunk_rows = W >= FHOG_CHUNK_PIXELS ? 1 : FHOG_CHUNK_PIXELS / W;
+    const Py_ssize_t chunk = chunk_rows * W;
+    const size_t floats = (size_t)(hc * wc * (N_SIGNED + 1) + (hc + 1) * (wc + 1) + 4 * W + (wc + 2) * N_SIGNED
+                                   + 2 * W + 2 * H + (3 * W + 2) * C + 6 * chunk);
+    const size_t n_float = floats + (floats & 1); /* even: the index arrays after them stay 8-byte aligned */
+    const size_t n_index = (size_t)(2 * W + H);
+    const size_t n_int = (size_t)chunk;
+    char *block = (char *)malloc(sizeof(float) * n_float + sizeof(Py_ssize_t) * n_index + sizeof(int) * n_int);
     if (!block) {
         PyBuffer_Release(&out);
         PyBuffer_Release(&src);
@@ -531,6 +808,8 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     f += hc * wc * N_SIGNED;
     float *energy = f;
     f += hc * wc;
+    float *norms = f;
+    f += (hc + 1) * (wc + 1);
     FhogScratch sc;
     sc.gx = f; f += W;
     sc.gy = f; f += W;
@@ -544,16 +823,31 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     sc.up = f; f += W * C;
     sc.dn = f; f += W * C;
     sc.mid = f; f += (W + 2) * C;
+    sc.chunk_gx = f; f += chunk;
+    sc.chunk_gy = f; f += chunk;
+    sc.chunk_lo = f; f += chunk;
+    sc.chunk_hi = f; f += chunk;
+    sc.chunk_pos = f; f += chunk;
+    sc.chunk_mag = f; f += chunk;
     Py_ssize_t *idx = (Py_ssize_t *)(block + sizeof(float) * n_float);
     sc.cx0 = idx;
     sc.cy0 = idx + W;
+    sc.col = idx + W + H;
+    sc.chunk_bin = (int *)(idx + n_index);
+    sc.chunk_rows = chunk_rows;
     axis_cells(W, cell, wc, sc.cx0, sc.wx_lo, sc.wx_hi);
     axis_cells(H, cell, hc, sc.cy0, sc.wy_lo, sc.wy_hi);
+    for (Py_ssize_t x = 0; x < W; x++)
+        sc.col[x] = (sc.cx0[x] + 1) * N_SIGNED;
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t n = 0; n < N; n++) {
         const void *img = u8 ? (const void *)((const uint8_t *)src.buf + n * H * W * C)
                              : (const void *)((const float *)src.buf + n * H * W * C);
-        fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, (float *)out.buf + n * hc * wc * N_FHOG);
+        float *dst = (float *)out.buf + n * hc * wc * N_FHOG;
+        if (reference)
+            fhog_one_reference(img, u8, H, W, C, cell, &sc, hist, energy, dst);
+        else
+            fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, norms, dst);
     }
     Py_END_ALLOW_THREADS
     free(block);
@@ -562,9 +856,23 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+static PyObject *fhog(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return fhog_run(args, 0);
+}
+
+static PyObject *fhog_reference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return fhog_run(args, 1);
+}
+
+/* The loops of abi 5 (row by row, the cells' sums in `o`), kept as the specification of colour_cells_one's
+ * numbers (it must equal them to the bit; `colour_cells_reference` runs them). */
 HOT_LOOP_CLONES
-static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
-                             Py_ssize_t hc, Py_ssize_t wc, float *o)
+static void colour_cells_one_reference(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
+                                       Py_ssize_t hc, Py_ssize_t wc, float *o)
 {
     memset(o, 0, sizeof(float) * (size_t)(hc * wc * K));
     for (Py_ssize_t y = 0; y < hc * cell; y++) {
@@ -589,13 +897,62 @@ static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, P
         o[t] *= inv;
 }
 
+/* Cell by cell with the sums in registers: each cell adds its pixels' table rows in the reference's order
+ * (rows top to bottom, pixels left to right), from 0, then scales by 1 / cell^2: the same numbers. A pixel's
+ * table offset (r//8 + 32 (g//8) + 1024 (b//8)) K is the sum of three looked-up terms, one per channel. */
+HOT_LOOP_CLONES
+static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
+                             Py_ssize_t hc, Py_ssize_t wc, float *o)
+{
+    const float inv = 1.0f / (float)(cell * cell);
+    Py_ssize_t term_b[256], term_g[256], term_r[256];
+    for (int v = 0; v < 256; v++) {
+        term_b[v] = (Py_ssize_t)(1024 * (v >> 3)) * K;
+        term_g[v] = (Py_ssize_t)(32 * (v >> 3)) * K;
+        term_r[v] = (Py_ssize_t)(v >> 3) * K;
+    }
+#define COLOUR_ROW(p) (term_b[(p)[0]] + term_g[(p)[1]] + term_r[(p)[2]])
+    for (Py_ssize_t cy = 0; cy < hc; cy++)
+        for (Py_ssize_t cx = 0; cx < wc; cx++) {
+            const uint8_t *corner = s + (cy * cell * W + cx * cell) * 3;
+            float *dst = o + (cy * wc + cx) * K;
+            if (K == 10) { /* the derived and the original tables: a fixed count the compiler unrolls */
+                float acc[10] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+                for (Py_ssize_t dy = 0; dy < cell; dy++) {
+                    const uint8_t *p = corner + dy * W * 3;
+                    for (Py_ssize_t dx = 0; dx < cell; dx++, p += 3) {
+                        const float *entry = tab + COLOUR_ROW(p);
+                        for (int k = 0; k < 10; k++)
+                            acc[k] += entry[k];
+                    }
+                }
+                for (int k = 0; k < 10; k++)
+                    dst[k] = acc[k] * inv;
+            } else {
+                for (Py_ssize_t k = 0; k < K; k++)
+                    dst[k] = 0.0f;
+                for (Py_ssize_t dy = 0; dy < cell; dy++) {
+                    const uint8_t *p = corner + dy * W * 3;
+                    for (Py_ssize_t dx = 0; dx < cell; dx++, p += 3) {
+                        const float *entry = tab + COLOUR_ROW(p);
+                        for (Py_ssize_t k = 0; k < K; k++)
+                            dst[k] += entry[k];
+                    }
+                }
+                for (Py_ssize_t k = 0; k < K; k++)
+                    dst[k] *= inv;
+            }
+        }
+#undef COLOUR_ROW
+}
+
 /* ---------------------------------------------------------------------------------------------
  * colour_cells(src, h, w, table, channels, cell, out): mean over each cell of table[row(pixel)],
- * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels).
+ * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels);
+ * colour_cells_reference: the same through colour_cells_one_reference (for the tests).
  */
-static PyObject *colour_cells(PyObject *self, PyObject *args)
+static PyObject *colour_cells_run(PyObject *args, int reference)
 {
-    (void)self;
     PyObject *o_src, *o_table, *o_out;
     Py_ssize_t H, W, K, cell;
     if (!PyArg_ParseTuple(args, "OnnOnnO", &o_src, &H, &W, &o_table, &K, &cell, &o_out))
@@ -618,12 +975,28 @@ static PyObject *colour_cells(PyObject *self, PyObject *args)
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
-    colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf);
+    if (reference)
+        colour_cells_one_reference((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc,
+                                   (float *)out.buf);
+    else
+        colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&out);
     PyBuffer_Release(&table);
     PyBuffer_Release(&src);
     Py_RETURN_NONE;
+}
+
+static PyObject *colour_cells(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return colour_cells_run(args, 0);
+}
+
+static PyObject *colour_cells_reference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return colour_cells_run(args, 1);
 }
 
 /* ---------------------------------------------------------------------------------------------
@@ -837,7 +1210,10 @@ static PyObject *strcf_f_step(PyObject *self, PyObject *args)
 static PyMethodDef methods[] = {
     {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
     {"fhog", fhog, METH_VARARGS, "fHOG, 31 channels per cell (see fhog.py)."},
+    {"fhog_reference", fhog_reference, METH_VARARGS, "fhog through abi 5's loops, the bit-exact specification of fhog."},
     {"colour_cells", colour_cells, METH_VARARGS, "Cell means of colour-table rows of BGR pixels (see colour.py)."},
+    {"colour_cells_reference", colour_cells_reference, METH_VARARGS,
+     "colour_cells through abi 5's loops, the bit-exact specification of colour_cells."},
     {"strcf_f_step", strcf_f_step, METH_VARARGS, "One STRCF ADMM iteration's element-wise work (see dcf.admm_solve)."},
     {NULL, NULL, 0, NULL},
 };
@@ -846,7 +1222,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 5
+#define KERNELS_ABI 6
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

@@ -7,7 +7,8 @@ linearly between the two nearest; each pixel split bilinearly between the four n
 ((c + 0.5) * cell px), output (H // cell, W // cell). Every cell normalised by its four 2x2-cell blocks
 (1 / sqrt(block energy + EPS)) and clipped at 0.2; EPS is on this unscaled histogram scale, so it matters only
 on flat regions. The compiled kernel (jsar/features/_kernels.c) runs `fhog` / `fhog_batch`; the numpy functions
-below are the specification it is tested against (agreement to 2e-5).
+below are the specification it is tested against (agreement to 2e-5), and `fhog_batch_reference_loops` (the
+kernel's earlier loops) the numbers it must give to the bit.
 """
 from __future__ import annotations
 
@@ -147,6 +148,17 @@ def fhog_batch(images: np.ndarray, cell: int = 4) -> np.ndarray:
     channels = 1 if src.ndim == 3 else 3
     out = np.empty((n, h // cell, w // cell, N_CHANNELS), np.float32)
     _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), out)
+    return out
+
+
+def fhog_batch_reference_loops(images: np.ndarray, cell: int = 4) -> np.ndarray:
+    """`fhog_batch` through the compiled kernel's loops of abi 5 (`fhog_reference`): the numbers `fhog_batch` must
+    give to the bit (its faster loops are tested against these)."""
+    _check_images(images, True, cell)
+    src = np.ascontiguousarray(images) if images.dtype == np.uint8 else np.ascontiguousarray(images, dtype=np.float32)
+    n, h, w = src.shape[:3]
+    out = np.empty((n, h // cell, w // cell, N_CHANNELS), np.float32)
+    _kernels.fhog_reference(src, n, h, w, 1 if src.ndim == 3 else 3, src.dtype == np.uint8, int(cell), out)
     return out
 
 

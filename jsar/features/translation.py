@@ -67,3 +67,13 @@ def extract_features(patch: np.ndarray, cell: int = 4, colour_table: np.ndarray 
 def colour_cells_reference(patch: np.ndarray, cell: int, colour_table: np.ndarray) -> np.ndarray:
     """numpy reference of the colour channels: per-pixel table rows averaged over each cell."""
     return cell_mean(colour_attributes(patch, colour_table), cell)
+
+
+def colour_cells_reference_loops(patch: np.ndarray, cell: int, colour_table: np.ndarray) -> np.ndarray:
+    """The colour channels through the compiled kernel's loops of abi 5 (`colour_cells_reference`): the numbers
+    `extract_features` must give to the bit (its faster loops are tested against these)."""
+    _check_patch(patch, cell, colour_table)
+    out = np.empty((patch.shape[0] // cell, patch.shape[1] // cell, colour_table.shape[1]), np.float32)
+    _kernels.colour_cells_reference(np.ascontiguousarray(patch), patch.shape[0], patch.shape[1], colour_table,
+                                    colour_table.shape[1], int(cell), out)
+    return out

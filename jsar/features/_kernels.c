@@ -135,12 +135,58 @@ static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_s
     return 0;
 }
 
+/* axis_taps into buffers kept across regions (no allocation per region): first and count hold n_out entries,
+ * the weights grow when a region needs more (*capacity floats). The same arithmetic as axis_taps. */
+HOT_LOOP_CLONES
+static int axis_taps_reusing(double start, double size, Py_ssize_t n_out, Py_ssize_t n_src, AxisTaps *a,
+                             Py_ssize_t *capacity)
+{
+    const double step = size / (double)n_out;
+    const double width = step > 1.0 ? step : 1.0;
+    a->n_out = n_out;
+    a->max_taps = 1;
+    for (Py_ssize_t j = 0; j < n_out; j++) {
+        const double lo = start + ((double)j + 0.5) * step - 0.5 * width;
+        const double hi = lo + width;
+        double f = floor(lo), l = ceil(hi) - 1.0;
+        f = f < 0.0 ? 0.0 : (f > (double)(n_src - 1) ? (double)(n_src - 1) : f);
+        l = l < 0.0 ? 0.0 : (l > (double)(n_src - 1) ? (double)(n_src - 1) : l);
+        a->first[j] = (Py_ssize_t)f;
+        a->count[j] = (Py_ssize_t)l - (Py_ssize_t)f + 1;
+        if (a->count[j] > a->max_taps)
+            a->max_taps = a->count[j];
+    }
+    if (n_out * a->max_taps > *capacity) {
+        float *grown = (float *)realloc(a->weight, sizeof(float) * (size_t)(n_out * a->max_taps));
+        if (!grown)
+            return -1;
+        a->weight = grown;
+        *capacity = n_out * a->max_taps;
+    }
+    for (Py_ssize_t t = 0; t < n_out * a->max_taps; t++)
+        a->weight[t] = 0.0f; /* unused taps: weight 0 */
+    for (Py_ssize_t j = 0; j < n_out; j++) {
+        const double lo = start + ((double)j + 0.5) * step - 0.5 * width;
+        const double hi = lo + width;
+        for (Py_ssize_t t = 0; t < a->count[j]; t++) {
+            const Py_ssize_t q = a->first[j] + t;
+            const double cell_lo = q <= 0 ? -INFINITY : (double)q;
+            const double cell_hi = q >= n_src - 1 ? INFINITY : (double)q + 1.0;
+            const double overlap = (hi < cell_hi ? hi : cell_hi) - (lo > cell_lo ? lo : cell_lo);
+            a->weight[j * a->max_taps + t] = (float)((overlap > 0.0 ? overlap : 0.0) / width);
+        }
+    }
+    return 0;
+}
+
 /* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
  * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
- * columns the region reads, then each output pixel a weighted sum of entries of that row. */
+ * columns the region reads, then each output pixel a weighted sum of entries of that row. The loops of abi 5,
+ * kept as the specification of resample_one's numbers (it must equal them to the bit; `resample_reference`
+ * runs them). */
 HOT_LOOP_CLONES
-static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
-                         float *row, void *out, int out_u8)
+static void resample_one_reference(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty,
+                                   const AxisTaps *tx, float *row, void *out, int out_u8)
 {
     const Py_ssize_t xmin = tx->first[0];
     const Py_ssize_t xmax = tx->first[tx->n_out - 1] + tx->count[tx->n_out - 1] - 1;
@@ -224,12 +270,142 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
     }
 }
 
+/* values >= 0 (non-negative weights and pixels) rounded half up (adding 0.5 and truncating), at most 255, as
+ * resample_one_reference does; through int (the same truncation of a value in [0.5, 255]) so that it vectorises. */
+static ALWAYS_INLINE void round_to_u8(const float *restrict values, uint8_t *restrict out, Py_ssize_t n)
+{
+    for (Py_ssize_t t = 0; t < n; t++) {
+        const float r = values[t] + 0.5f;
+        out[t] = (uint8_t)(int)(r >= 255.0f ? 255.0f : r);
+    }
+}
+
+/* Images of at most this many values are resampled from a float copy (256 KiB, cache-sized). */
+#define RESAMPLE_SOURCE_FLOATS 65536
+
+static ALWAYS_INLINE void widen_u8(const uint8_t *restrict line, float *restrict out, Py_ssize_t n)
+{
+    for (Py_ssize_t t = 0; t < n; t++)
+        out[t] = (float)line[t];
+}
+
+/* row = w line (first: the row's first term) or row += w line, as resample_one_reference adds to a zeroed row:
+ * 0 + w p (or fma(w, p, 0)) is w p for w, p >= 0. */
+static ALWAYS_INLINE void weigh_row(const float *restrict line, float w, float *restrict row, Py_ssize_t n, int add)
+{
+    if (add)
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] += w * line[t];
+    else
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] = w * line[t];
+}
+
+static ALWAYS_INLINE void weigh_row_u8(const uint8_t *restrict line, float w, float *restrict row, Py_ssize_t n,
+                                       int add)
+{
+    if (add)
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] += w * (float)line[t];
+    else
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] = w * (float)line[t];
+}
+
+/* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
+ * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
+ * columns the region reads, then each output pixel a weighted sum of entries of that row. The numbers of
+ * resample_one_reference to the bit (the first weighted source row is written rather than added to a zeroed
+ * row: weigh_row). */
+HOT_LOOP_CLONES
+static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
+                         const float *source, float *row, float *region, void *out, int out_u8)
+{
+    const Py_ssize_t xmin = tx->first[0];
+    const Py_ssize_t xmax = tx->first[tx->n_out - 1] + tx->count[tx->n_out - 1] - 1;
+    const Py_ssize_t span = (xmax - xmin + 1) * C;
+    const Py_ssize_t OW = tx->n_out;
+    memset(row + span, 0, sizeof(float) * (size_t)(tx->max_taps * C));
+    for (Py_ssize_t i = 0; i < ty->n_out; i++) {
+        int written = 0;
+        for (Py_ssize_t k = 0; k < ty->count[i]; k++) {
+            const float w = ty->weight[i * ty->max_taps + k];
+            if (w == 0.0f)
+                continue;
+            if (source) /* the image as float (exact): the sums run on floats only, short uint8 rows do not vectorise */
+                weigh_row(source + ((ty->first[i] + k) * W + xmin) * C, w, row, span, written);
+            else
+                weigh_row_u8(src + ((ty->first[i] + k) * W + xmin) * C, w, row, span, written);
+            written = 1;
+        }
+        if (!written)
+            memset(row, 0, sizeof(float) * (size_t)span);
+        /* Every output uses T taps (unused ones have zero weight and read zeros past the span),
+         * so the inner loops have one trip count and the channel loop is unrolled for C = 1, 3. */
+        const Py_ssize_t T = tx->max_taps;
+        /* The output row (float output) or its row of the region's sums (uint8: converted at the end, in one
+         * loop long enough to vectorise). */
+        float *acc = (out_u8 ? region : (float *)out) + i * OW * C;
+        if (C == 1 && T == 2) { /* enlarging: bilinear */
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 2 * j, *rj = row + (tx->first[j] - xmin);
+                acc[j] = wj[0] * rj[0] + wj[1] * rj[1];
+            }
+        } else if (C == 1 && T == 3) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 3 * j, *rj = row + (tx->first[j] - xmin);
+                acc[j] = wj[0] * rj[0] + wj[1] * rj[1] + wj[2] * rj[2];
+            }
+        } else if (C == 1) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin);
+                float a = 0.0f;
+                for (Py_ssize_t k = 0; k < T; k++)
+                    a += wj[k] * rj[k];
+                acc[j] = a;
+            }
+        } else if (C == 3 && T == 2) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 2 * j, *rj = row + (tx->first[j] - xmin) * 3;
+                acc[3 * j] = wj[0] * rj[0] + wj[1] * rj[3];
+                acc[3 * j + 1] = wj[0] * rj[1] + wj[1] * rj[4];
+                acc[3 * j + 2] = wj[0] * rj[2] + wj[1] * rj[5];
+            }
+        } else if (C == 3) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * 3;
+                float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f;
+                for (Py_ssize_t k = 0; k < T; k++) {
+                    a0 += wj[k] * rj[3 * k];
+                    a1 += wj[k] * rj[3 * k + 1];
+                    a2 += wj[k] * rj[3 * k + 2];
+                }
+                acc[3 * j] = a0;
+                acc[3 * j + 1] = a1;
+                acc[3 * j + 2] = a2;
+            }
+        } else {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * C;
+                for (Py_ssize_t c = 0; c < C; c++) {
+                    float a = 0.0f;
+                    for (Py_ssize_t k = 0; k < T; k++)
+                        a += wj[k] * rj[k * C + c];
+                    acc[j * C + c] = a;
+                }
+            }
+        }
+    }
+    if (out_u8)
+        round_to_u8(region, (uint8_t *)out, ty->n_out * OW * C);
+}
+
 /* resample(src, H, W, C, cx, cy, sizes, N, OW, OH, out, out_u8): N regions of sizes (N, 2) float64
  * (w, h) pixels centred at (cx, cy) -> out (N, OH, OW, C). Taps stay in [first, first + count),
- * always inside the image, so no index can leave the source buffer. */
-static PyObject *resample(PyObject *self, PyObject *args)
+ * always inside the image, so no index can leave the source buffer. resample_reference: the same through
+ * axis_taps and resample_one_reference (for the tests). */
+static PyObject *resample_run(PyObject *args, int reference)
 {
-    (void)self;
     PyObject *o_src, *o_sizes, *o_out;
     Py_ssize_t H, W, C, N, OW, OH;
     double cx, cy;
@@ -256,8 +432,43 @@ static PyObject *resample(PyObject *self, PyObject *args)
     /* Row buffer: the span (<= W pixels), a zero tail of up to W taps, then OW accumulators. */
     float *row = (float *)malloc(sizeof(float) * (size_t)((2 * W + OW) * C));
     int failed = row == NULL;
+    if (!reference && !failed) {
+        /* The taps of every region in buffers allocated once. */
+        AxisTaps tx = {0}, ty = {0};
+        Py_ssize_t x_capacity = 0, y_capacity = 0;
+        tx.first = (Py_ssize_t *)malloc(sizeof(Py_ssize_t) * (size_t)(2 * OW));
+        ty.first = (Py_ssize_t *)malloc(sizeof(Py_ssize_t) * (size_t)(2 * OH));
+        float *region = out_u8 ? (float *)malloc(sizeof(float) * (size_t)(OH * OW * C)) : NULL;
+        /* A small image (the size filter's grey crop) as float, once for all its regions. */
+        float *source = H * W * C <= RESAMPLE_SOURCE_FLOATS ? (float *)malloc(sizeof(float) * (size_t)(H * W * C)) : NULL;
+        failed = !tx.first || !ty.first || (out_u8 && !region) || (H * W * C <= RESAMPLE_SOURCE_FLOATS && !source);
+        if (!failed && source)
+            widen_u8((const uint8_t *)src.buf, source, H * W * C);
+        if (!failed) {
+            tx.count = tx.first + OW;
+            ty.count = ty.first + OH;
+        }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t n = 0; n < N && !failed; n++) {
+            if (axis_taps_reusing(cx - 0.5 * sz[2 * n], sz[2 * n], OW, W, &tx, &x_capacity) < 0
+                || axis_taps_reusing(cy - 0.5 * sz[2 * n + 1], sz[2 * n + 1], OH, H, &ty, &y_capacity) < 0) {
+                failed = 1;
+                break;
+            }
+            void *dst = out_u8 ? (void *)((uint8_t *)out.buf + n * OH * OW * C)
+                               : (void *)((float *)out.buf + n * OH * OW * C);
+            resample_one((const uint8_t *)src.buf, W, C, &ty, &tx, source, row, region, dst, out_u8);
+        }
+        Py_END_ALLOW_THREADS
+        free(tx.first);
+        free(ty.first);
+        free(tx.weight);
+        free(ty.weight);
+        free(region);
+        free(source);
+    }
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t n = 0; n < N && !failed; n++) {
+    for (Py_ssize_t n = 0; reference && n < N && !failed; n++) {
         AxisTaps ty, tx;
         if (axis_taps(cx - 0.5 * sz[2 * n], sz[2 * n], OW, W, &tx) < 0) {
             failed = 1;
@@ -269,7 +480,7 @@ static PyObject *resample(PyObject *self, PyObject *args)
             break;
         }
         void *dst = out_u8 ? (void *)((uint8_t *)out.buf + n * OH * OW * C) : (void *)((float *)out.buf + n * OH * OW * C);
-        resample_one((const uint8_t *)src.buf, W, C, &ty, &tx, row, dst, out_u8);
+        resample_one_reference((const uint8_t *)src.buf, W, C, &ty, &tx, row, dst, out_u8);
         axis_taps_free(&tx);
         axis_taps_free(&ty);
     }
@@ -281,6 +492,18 @@ static PyObject *resample(PyObject *self, PyObject *args)
     if (failed)
         return PyErr_NoMemory();
     Py_RETURN_NONE;
+}
+
+static PyObject *resample(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return resample_run(args, 0);
+}
+
+static PyObject *resample_reference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return resample_run(args, 1);
 }
 
 /* ---------------------------------------------------------------------------------------------
@@ -1209,6 +1432,8 @@ static PyObject *strcf_f_step(PyObject *self, PyObject *args)
 
 static PyMethodDef methods[] = {
     {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
+    {"resample_reference", resample_reference, METH_VARARGS,
+     "resample through abi 5's loops, the bit-exact specification of resample."},
     {"fhog", fhog, METH_VARARGS, "fHOG, 31 channels per cell (see fhog.py)."},
     {"fhog_reference", fhog_reference, METH_VARARGS, "fhog through abi 5's loops, the bit-exact specification of fhog."},
     {"colour_cells", colour_cells, METH_VARARGS, "Cell means of colour-table rows of BGR pixels (see colour.py)."},

@@ -567,11 +567,12 @@ typedef struct {
     float *wx_lo, *wx_hi;
     Py_ssize_t *cy0;
     float *wy_lo, *wy_hi;
-    /* fhog_one only: per-pixel values of a chunk of chunk_rows rows (gradients, the lower bin and the
-     * magnitude's shares of it and the next), and each column's cell offset (cx0 + 1) * 18 in row_hist */
+    /* fhog_one only: per-pixel values of a chunk of chunk_rows rows (gradients, orientation, magnitude, its
+     * shares of the lower bin and the next, and the two bins' places in row_hist), and each chunk pixel's cell
+     * offset (cx0 + 1) * 18 in row_hist */
     float *chunk_gx, *chunk_gy, *chunk_pos, *chunk_mag, *chunk_lo, *chunk_hi;
-    int *chunk_bin;
-    Py_ssize_t *col;
+    int *chunk_k0, *chunk_k1, *chunk_col;
+    int *started; /* per cell row: has the histogram row got its first term */
     Py_ssize_t chunk_rows;
 } FhogScratch;
 
@@ -852,6 +853,18 @@ static ALWAYS_INLINE void row_gradients_f32(const float *img, Py_ssize_t H, Py_s
     }
 }
 
+/* dst += w src, or dst = w src for a cell row's first term (add = 0): the reference adds it to a zeroed
+ * histogram, and 0 + w s (or fma(w, s, 0)) is w s for w > 0, s >= 0. */
+static ALWAYS_INLINE void spread_row(const float *restrict src, float w, float *restrict dst, Py_ssize_t n, int add)
+{
+    if (add)
+        for (Py_ssize_t t = 0; t < n; t++)
+            dst[t] += w * src[t];
+    else
+        for (Py_ssize_t t = 0; t < n; t++)
+            dst[t] = w * src[t];
+}
+
 /* fhog_one_reference's numbers to the bit (tests/test_features_fhog.py compares the two on real frames and
  * random images) with fewer instructions: the image is processed in chunks of rows, and the per-pixel loops
  * (gradients, orientation and magnitude, now also the bin and the two bins' shares) run over a whole chunk,
@@ -869,8 +882,12 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
     float *restrict gxc = sc->chunk_gx, *restrict gyc = sc->chunk_gy;
     float *restrict mlo = sc->chunk_lo, *restrict mhi = sc->chunk_hi;
     float *restrict pos = sc->chunk_pos, *restrict mag = sc->chunk_mag;
-    int *restrict bin = sc->chunk_bin;
-    memset(hist, 0, sizeof(float) * (size_t)(hc * wc * N_SIGNED));
+    int *restrict k0 = sc->chunk_k0, *restrict k1 = sc->chunk_k1;
+    const int *restrict col = sc->chunk_col;
+    /* No zeroed histogram: a cell row's first term is written (spread_row), rows never reached zeroed at the end. */
+    int *started = sc->started;
+    for (Py_ssize_t r = 0; r < hc; r++)
+        started[r] = 0;
 
     for (Py_ssize_t y0 = 0; y0 < hv; y0 += sc->chunk_rows) {
         const Py_ssize_t y1 = y0 + sc->chunk_rows < hv ? y0 + sc->chunk_rows : hv;
@@ -898,46 +915,50 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
             pos[i] = p;
             mag[i] = sqrtf(gx * gx + gy * gy);
         }
-        for (Py_ssize_t i = 0; i < n; i++) { /* the two bins' shares of the magnitude */
+        for (Py_ssize_t i = 0; i < n; i++) { /* the lower bin b0 and the magnitude's shares of b0 and b0 + 1 */
             const float m = mag[i];
             const int b0 = (int)pos[i];
             const float fo = pos[i] - (float)b0;
             const float m1 = m * fo;
-            bin[i] = b0;
+            k0[i] = b0;
             mhi[i] = m1;
             mlo[i] = m - m1;
+        }
+        for (Py_ssize_t i = 0; i < n; i++) { /* the two bins' places in row_hist (bin 17's next is bin 0) */
+            const int b0 = k0[i];
+            k0[i] = col[i] + b0;
+            k1[i] = col[i] + b0 + 1 - (b0 == N_SIGNED - 1) * N_SIGNED;
         }
         for (Py_ssize_t y = y0; y < y1; y++) {
             const Py_ssize_t row = (y - y0) * W;
             float *rh = sc->row_hist;
             memset(rh, 0, sizeof(float) * (size_t)((wc + 2) * N_SIGNED));
             /* A zero-magnitude pixel adds +0 to non-negative sums (the reference skips it): same bits. */
-            for (Py_ssize_t x = 0; x < wv; x++) {
-                const int b0 = bin[row + x];
-                const int b1 = b0 + 1 == N_SIGNED ? 0 : b0 + 1;
+            for (Py_ssize_t x = 0; x < wv; x++) { /* cell cx0 (h0) and the next (h1), bins b0 and b1 */
+                const Py_ssize_t i0 = k0[row + x], i1 = k1[row + x];
                 const float m0 = mlo[row + x], m1 = mhi[row + x];
-                float *h0 = rh + sc->col[x], *h1 = h0 + N_SIGNED;
                 const float wl = sc->wx_lo[x], wh = sc->wx_hi[x];
-                h0[b0] += wl * m0;
-                h0[b1] += wl * m1;
-                h1[b0] += wh * m0;
-                h1[b1] += wh * m1;
+                rh[i0] += wl * m0;
+                rh[i1] += wl * m1;
+                rh[i0 + N_SIGNED] += wh * m0;
+                rh[i1 + N_SIGNED] += wh * m1;
             }
             const Py_ssize_t cy = sc->cy0[y];
             const float wl = sc->wy_lo[y], wh = sc->wy_hi[y];
-            const float *restrict src_row = rh + N_SIGNED; /* cell 0 */
+            const float *src_row = rh + N_SIGNED; /* cell 0 */
             if (wl != 0.0f) {
-                float *restrict dst = hist + cy * wc * N_SIGNED;
-                for (Py_ssize_t t = 0; t < wc * N_SIGNED; t++)
-                    dst[t] += wl * src_row[t];
+                spread_row(src_row, wl, hist + cy * wc * N_SIGNED, wc * N_SIGNED, started[cy]);
+                started[cy] = 1;
             }
             if (wh != 0.0f) {
-                float *restrict dst = hist + (cy + 1) * wc * N_SIGNED;
-                for (Py_ssize_t t = 0; t < wc * N_SIGNED; t++)
-                    dst[t] += wh * src_row[t];
+                spread_row(src_row, wh, hist + (cy + 1) * wc * N_SIGNED, wc * N_SIGNED, started[cy + 1]);
+                started[cy + 1] = 1;
             }
         }
     }
+    for (Py_ssize_t r = 0; r < hc; r++)
+        if (!started[r])
+            memset(hist + r * wc * N_SIGNED, 0, sizeof(float) * (size_t)(wc * N_SIGNED));
 
     for (Py_ssize_t t = 0; t < hc * wc; t++) {
         const float *h = hist + t * N_SIGNED;
@@ -975,6 +996,19 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
                 f[N_SIGNED + o] = 0.5f * ((((0.0f + v0) + v1) + v2) + v3);
             }
             /* Texture: per block, the clipped signed orientations summed in orientation order. */
+#if defined(__GNUC__)
+            /* The four blocks as the lanes of one vector (each lane's operations are the scalar ones). */
+            typedef float lanes4 __attribute__((vector_size(16)));
+            typedef int32_t masks4 __attribute__((vector_size(16)));
+            const lanes4 factors = {n0, n1, n2, n3}, clip = {0.2f, 0.2f, 0.2f, 0.2f};
+            lanes4 texture = {0.0f, 0.0f, 0.0f, 0.0f};
+            for (int o = 0; o < N_SIGNED; o++) {
+                const lanes4 v = h[o] * factors;
+                const masks4 below = v < clip;
+                texture += (lanes4)(((masks4)v & below) | ((masks4)clip & ~below));
+            }
+            const float t0 = texture[0], t1 = texture[1], t2 = texture[2], t3 = texture[3];
+#else
             float t0 = 0.0f, t1 = 0.0f, t2 = 0.0f, t3 = 0.0f;
             for (int o = 0; o < N_SIGNED; o++) {
                 t0 += h[o] * n0 < 0.2f ? h[o] * n0 : 0.2f;
@@ -982,6 +1016,7 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
                 t2 += h[o] * n2 < 0.2f ? h[o] * n2 : 0.2f;
                 t3 += h[o] * n3 < 0.2f ? h[o] * n3 : 0.2f;
             }
+#endif
             f[N_SIGNED + N_UNSIGNED] = 0.2357f * t0;
             f[N_SIGNED + N_UNSIGNED + 1] = 0.2357f * t1;
             f[N_SIGNED + N_UNSIGNED + 2] = 0.2357f * t2;
@@ -1018,8 +1053,8 @@ static PyObject *fhog_run(PyObject *args, int reference)
     const size_t floats = (size_t)(hc * wc * (N_SIGNED + 1) + (hc + 1) * (wc + 1) + 4 * W + (wc + 2) * N_SIGNED
                                    + 2 * W + 2 * H + (3 * W + 2) * C + 6 * chunk);
     const size_t n_float = floats + (floats & 1); /* even: the index arrays after them stay 8-byte aligned */
-    const size_t n_index = (size_t)(2 * W + H);
-    const size_t n_int = (size_t)chunk;
+    const size_t n_index = (size_t)(W + H);
+    const size_t n_int = (size_t)(3 * chunk + hc);
     char *block = (char *)malloc(sizeof(float) * n_float + sizeof(Py_ssize_t) * n_index + sizeof(int) * n_int);
     if (!block) {
         PyBuffer_Release(&out);
@@ -1055,13 +1090,15 @@ static PyObject *fhog_run(PyObject *args, int reference)
     Py_ssize_t *idx = (Py_ssize_t *)(block + sizeof(float) * n_float);
     sc.cx0 = idx;
     sc.cy0 = idx + W;
-    sc.col = idx + W + H;
-    sc.chunk_bin = (int *)(idx + n_index);
+    sc.chunk_k0 = (int *)(idx + n_index);
+    sc.chunk_k1 = sc.chunk_k0 + chunk;
+    sc.chunk_col = sc.chunk_k1 + chunk;
+    sc.started = sc.chunk_col + chunk;
     sc.chunk_rows = chunk_rows;
     axis_cells(W, cell, wc, sc.cx0, sc.wx_lo, sc.wx_hi);
     axis_cells(H, cell, hc, sc.cy0, sc.wy_lo, sc.wy_hi);
-    for (Py_ssize_t x = 0; x < W; x++)
-        sc.col[x] = (sc.cx0[x] + 1) * N_SIGNED;
+    for (Py_ssize_t i = 0; i < chunk; i++)
+        sc.chunk_col[i] = (int)((sc.cx0[i % W] + 1) * N_SIGNED);
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t n = 0; n < N; n++) {
         const void *img = u8 ? (const void *)((const uint8_t *)src.buf + n * H * W * C)

@@ -150,3 +150,26 @@ def test_colour_cells_give_the_reference_loops_numbers_to_the_bit(table, data_ro
             kernels.colour_cells(patch, patch.shape[0], patch.shape[1], narrow, 7, 4, outs[0])
             kernels.colour_cells_reference(patch, patch.shape[0], patch.shape[1], narrow, 7, 4, outs[1])
             assert np.array_equal(outs[0].view(np.uint32), outs[1].view(np.uint32))
+
+
+def test_feature_stack_holds_the_reference_loops_numbers_to_the_bit(table, data_root):
+    """extract_features' kernels write into the stack: channels 1..31 are fHOG's, 32..41 the colour cells', bit for bit."""
+    import cv2
+
+    from jsar.features.fhog import fhog_batch_reference_loops
+    from jsar.features.translation import colour_cells_reference_loops
+
+    rng = np.random.default_rng(45)
+    patches = [rng.integers(0, 256, shape, dtype=np.uint8) for shape in [(40, 12, 3), (13, 17, 3), (5, 4, 3), (23, 9)]]
+    for path in sorted(data_root.glob("*/img/*.jpg"))[::61]:
+        frame = cv2.imread(str(path))
+        patches += [np.ascontiguousarray(frame[:200, :200]), np.ascontiguousarray(frame[7:104, 3:134])]
+    for patch in patches:
+        for cell in (4, 3):
+            colour_table = table if patch.ndim == 3 else None
+            stack = extract_features(patch, cell, colour_table)
+            assert np.array_equal(stack[..., 1:32].view(np.uint32),
+                                  fhog_batch_reference_loops(patch[None], cell)[0].view(np.uint32))
+            if colour_table is not None:
+                assert np.array_equal(stack[..., 32:].view(np.uint32),
+                                      colour_cells_reference_loops(patch, cell, colour_table).view(np.uint32))

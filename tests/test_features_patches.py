@@ -150,9 +150,9 @@ def test_kernel_gives_the_reference_loops_numbers_to_the_bit(data_root):
     images += [rng.integers(0, 256, (1, 7, 3), dtype=np.uint8), rng.integers(0, 256, (37, 53), dtype=np.uint8)]
     for image in images:
         height, width = image.shape[:2]
-        for _ in range(4):
+        for _ in range(3):
             centre = rng.uniform(-40, max(height, width) + 40, 2)
-            sizes = rng.uniform(0.5, 250, 2) * rng.uniform(0.7, 1.4, (int(rng.integers(1, 20)), 2))
+            sizes = rng.uniform(0.5, 250, 2) * rng.uniform(0.7, 1.4, (int(rng.integers(1, 8)), 2))
             for out_wh in [(12, 40), (200, 200), (7, 3), (1, 1)]:
                 assert np.array_equal(sample_patches(image, centre, sizes, out_wh),
                                       resample_reference_loops(image, centre, sizes, out_wh))

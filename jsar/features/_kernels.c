@@ -874,7 +874,7 @@ static ALWAYS_INLINE void spread_row(const float *restrict src, float w, float *
  * clipping runs over the orientations so that it vectorises. */
 HOT_LOOP_CLONES
 static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
-                     FhogScratch *sc, float *hist, float *energy, float *norms, float *out)
+                     FhogScratch *sc, float *hist, float *energy, float *norms, float *out, Py_ssize_t step)
 {
     const Py_ssize_t hc = H / cell, wc = W / cell;
     const Py_ssize_t hv = hc * cell, wv = wc * cell;
@@ -983,7 +983,7 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
             const float *above = norms + i * (wc + 1) + j, *below = above + (wc + 1);
             const float n0 = above[0], n1 = above[1], n2 = below[0], n3 = below[1];
             const float *restrict h = hist + (i * wc + j) * N_SIGNED;
-            float *restrict f = out + (i * wc + j) * N_FHOG;
+            float *restrict f = out + (i * wc + j) * step;
             for (int o = 0; o < N_SIGNED; o++) {
                 const float v0 = h[o] * n0 < 0.2f ? h[o] * n0 : 0.2f, v1 = h[o] * n1 < 0.2f ? h[o] * n1 : 0.2f;
                 const float v2 = h[o] * n2 < 0.2f ? h[o] * n2 : 0.2f, v3 = h[o] * n3 < 0.2f ? h[o] * n3 : 0.2f;
@@ -1025,16 +1025,17 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
     }
 }
 
-/* fhog(src, n, h, w, c, is_uint8, cell, out): src (N, H, W, C) uint8 or float32 -> out float32 (N, H//cell, W//cell, 31);
- * fhog_reference: the same through fhog_one_reference (for the tests). */
+/* fhog(src, n, h, w, c, is_uint8, cell, out[, step]): src (N, H, W, C) uint8 or float32 -> out float32
+ * (N, H//cell, W//cell, 31), or each cell's 31 values `step` floats after the previous cell's (e.g. into channels
+ * 1..31 of a 42-channel stack); fhog_reference: the same through fhog_one_reference (step 31, for the tests). */
 static PyObject *fhog_run(PyObject *args, int reference)
 {
     PyObject *o_src, *o_out;
-    Py_ssize_t N, H, W, C, cell;
+    Py_ssize_t N, H, W, C, cell, step = N_FHOG;
     int u8;
-    if (!PyArg_ParseTuple(args, "OnnnnpnO", &o_src, &N, &H, &W, &C, &u8, &cell, &o_out))
+    if (!PyArg_ParseTuple(args, "OnnnnpnO|n", &o_src, &N, &H, &W, &C, &u8, &cell, &o_out, &step))
         return NULL;
-    if (N < 1 || C < 1 || cell < 1 || H < cell || W < cell) {
+    if (N < 1 || C < 1 || cell < 1 || H < cell || W < cell || step < N_FHOG || (reference && step != N_FHOG)) {
         PyErr_SetString(PyExc_ValueError, "fhog: invalid sizes");
         return NULL;
     }
@@ -1042,7 +1043,7 @@ static PyObject *fhog_run(PyObject *args, int reference)
     Py_buffer src, out;
     if (get_buffer(o_src, &src, 0, N * H * W * C * (u8 ? 1 : 4), "src") < 0)
         return NULL;
-    if (get_buffer(o_out, &out, 1, N * hc * wc * N_FHOG * 4, "out") < 0) {
+    if (get_buffer(o_out, &out, 1, ((N * hc * wc - 1) * step + N_FHOG) * 4, "out") < 0) {
         PyBuffer_Release(&src);
         return NULL;
     }
@@ -1103,11 +1104,11 @@ static PyObject *fhog_run(PyObject *args, int reference)
     for (Py_ssize_t n = 0; n < N; n++) {
         const void *img = u8 ? (const void *)((const uint8_t *)src.buf + n * H * W * C)
                              : (const void *)((const float *)src.buf + n * H * W * C);
-        float *dst = (float *)out.buf + n * hc * wc * N_FHOG;
+        float *dst = (float *)out.buf + n * hc * wc * step;
         if (reference)
             fhog_one_reference(img, u8, H, W, C, cell, &sc, hist, energy, dst);
         else
-            fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, norms, dst);
+            fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, norms, dst, step);
     }
     Py_END_ALLOW_THREADS
     free(block);
@@ -1162,7 +1163,7 @@ static void colour_cells_one_reference(const uint8_t *s, Py_ssize_t W, const flo
  * table offset (r//8 + 32 (g//8) + 1024 (b//8)) K is the sum of three looked-up terms, one per channel. */
 HOT_LOOP_CLONES
 static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
-                             Py_ssize_t hc, Py_ssize_t wc, float *o)
+                             Py_ssize_t hc, Py_ssize_t wc, float *o, Py_ssize_t step)
 {
     const float inv = 1.0f / (float)(cell * cell);
     Py_ssize_t term_b[256], term_g[256], term_r[256];
@@ -1175,7 +1176,7 @@ static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, P
     for (Py_ssize_t cy = 0; cy < hc; cy++)
         for (Py_ssize_t cx = 0; cx < wc; cx++) {
             const uint8_t *corner = s + (cy * cell * W + cx * cell) * 3;
-            float *dst = o + (cy * wc + cx) * K;
+            float *dst = o + (cy * wc + cx) * step;
             if (K == 10) { /* the derived and the original tables: a fixed count the compiler unrolls */
                 float acc[10] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
                 for (Py_ssize_t dy = 0; dy < cell; dy++) {
@@ -1207,17 +1208,20 @@ static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, P
 }
 
 /* ---------------------------------------------------------------------------------------------
- * colour_cells(src, h, w, table, channels, cell, out): mean over each cell of table[row(pixel)],
- * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels);
- * colour_cells_reference: the same through colour_cells_one_reference (for the tests).
+ * colour_cells(src, h, w, table, channels, cell, out[, step]): mean over each cell of table[row(pixel)],
+ * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels), or each
+ * cell's values `step` floats after the previous cell's (into a channel stack); colour_cells_reference: the same
+ * through colour_cells_one_reference (step = channels, for the tests).
  */
 static PyObject *colour_cells_run(PyObject *args, int reference)
 {
     PyObject *o_src, *o_table, *o_out;
-    Py_ssize_t H, W, K, cell;
-    if (!PyArg_ParseTuple(args, "OnnOnnO", &o_src, &H, &W, &o_table, &K, &cell, &o_out))
+    Py_ssize_t H, W, K, cell, step = -1;
+    if (!PyArg_ParseTuple(args, "OnnOnnO|n", &o_src, &H, &W, &o_table, &K, &cell, &o_out, &step))
         return NULL;
-    if (K < 1 || cell < 1 || H < cell || W < cell) {
+    if (step == -1)
+        step = K;
+    if (K < 1 || cell < 1 || H < cell || W < cell || step < K || (reference && step != K)) {
         PyErr_SetString(PyExc_ValueError, "colour_cells: invalid sizes");
         return NULL;
     }
@@ -1229,7 +1233,7 @@ static PyObject *colour_cells_run(PyObject *args, int reference)
         PyBuffer_Release(&src);
         return NULL;
     }
-    if (get_buffer(o_out, &out, 1, hc * wc * K * 4, "out") < 0) {
+    if (get_buffer(o_out, &out, 1, ((hc * wc - 1) * step + K) * 4, "out") < 0) {
         PyBuffer_Release(&table);
         PyBuffer_Release(&src);
         return NULL;
@@ -1239,7 +1243,8 @@ static PyObject *colour_cells_run(PyObject *args, int reference)
         colour_cells_one_reference((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc,
                                    (float *)out.buf);
     else
-        colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf);
+        colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf,
+                         step);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&out);
     PyBuffer_Release(&table);

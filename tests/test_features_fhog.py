@@ -146,3 +146,16 @@ def test_kernel_gives_the_reference_loops_numbers_to_the_bit_on_real_frames(data
         assert_same_bits_as_reference_loops(np.ascontiguousarray(frame[None, y:y + 200, x:x + 200]), 4)
         assert_same_bits_as_reference_loops(np.ascontiguousarray(frame[None, y:y + 97, x:x + 131]), 4)
         assert_same_bits_as_reference_loops(grey[None, y:y + 61, x:x + 203].astype(np.float32), 4)
+
+
+def test_batch_writes_into_a_feature_stack():
+    rng = np.random.default_rng(5)
+    images = rng.integers(0, 256, (2, 16, 24), dtype=np.uint8)
+    stack = np.full((2, 4, 6, 40), 7.0, np.float32)
+    view = fh.fhog_batch(images, 4, stack=stack, channel=3)
+    assert np.array_equal(view, fh.fhog_batch(images, 4)) and np.shares_memory(view, stack)
+    assert np.all(stack[..., :3] == 7.0) and np.all(stack[..., 34:] == 7.0)  # the other channels are untouched
+    for wrong, channel in [(np.zeros((2, 4, 6, 40)), 0), (np.zeros((2, 4, 6, 30), np.float32), 0),
+                           (np.zeros((2, 4, 6, 40), np.float32), 10), (np.zeros((2, 4, 6, 80), np.float32)[..., ::2], 0)]:
+        with pytest.raises(ValueError):
+            fh.fhog_batch(images, 4, stack=wrong, channel=channel)

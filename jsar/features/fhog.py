@@ -137,8 +137,12 @@ def fhog_batch_reference(images: np.ndarray, cell: int = 4) -> np.ndarray:
     return features_from_histograms(orientation_histograms(gx, gy, cell))
 
 
-def fhog_batch(images: np.ndarray, cell: int = 4) -> np.ndarray:
-    """float32 (N, H//cell, W//cell, 31) fHOG of N equal-size images (N, H, W[, 3]) on a 0..255 scale."""
+def fhog_batch(images: np.ndarray, cell: int = 4, stack: np.ndarray | None = None, channel: int = 0) -> np.ndarray:
+    """float32 (N, H//cell, W//cell, 31) fHOG of N equal-size images (N, H, W[, 3]) on a 0..255 scale.
+
+    With `stack`, a C-contiguous float32 (N, H//cell, W//cell, C) array, the 31 channels are written into
+    stack[..., channel:channel + 31] (a feature stack, without a copy) and that view is returned.
+    """
     _check_images(images, True, cell)
     if images.dtype == np.uint8:
         src = np.ascontiguousarray(images)
@@ -146,9 +150,16 @@ def fhog_batch(images: np.ndarray, cell: int = 4) -> np.ndarray:
         src = np.ascontiguousarray(images, dtype=np.float32)
     n, h, w = src.shape[:3]
     channels = 1 if src.ndim == 3 else 3
-    out = np.empty((n, h // cell, w // cell, N_CHANNELS), np.float32)
-    _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), out)
-    return out
+    if stack is None:
+        out = np.empty((n, h // cell, w // cell, N_CHANNELS), np.float32)
+        _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), out)
+        return out
+    if (stack.dtype != np.float32 or not stack.flags.c_contiguous or stack.shape[:3] != (n, h // cell, w // cell)
+            or not 0 <= channel <= stack.shape[3] - N_CHANNELS):
+        raise ValueError(f"stack must be C-contiguous float32 ({n}, {h // cell}, {w // cell}, >= channel + 31), "
+                         f"got {stack.dtype} {stack.shape} for channel {channel}")
+    _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), stack.reshape(-1)[channel:], stack.shape[3])
+    return stack[..., channel:channel + N_CHANNELS]
 
 
 def fhog_batch_reference_loops(images: np.ndarray, cell: int = 4) -> np.ndarray:

@@ -1002,6 +1002,9 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
             typedef int32_t masks4 __attribute__((vector_size(16)));
             const lanes4 factors = {n0, n1, n2, n3}, clip = {0.2f, 0.2f, 0.2f, 0.2f};
             lanes4 texture = {0.0f, 0.0f, 0.0f, 0.0f};
+#if !defined(__clang__)
+#pragma GCC unroll 18
+#endif
             for (int o = 0; o < N_SIGNED; o++) {
                 const lanes4 v = h[o] * factors;
                 const masks4 below = v < clip;

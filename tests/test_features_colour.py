@@ -119,3 +119,57 @@ def test_extract_features_bad_input(patch, table):
     table_value = col.derived_colour_table() if isinstance(table, str) else table
     with pytest.raises(ValueError):
         extract_features(patch, 4, table_value)
+
+
+def test_colour_cells_give_the_reference_loops_numbers_to_the_bit(table, data_root):
+    import cv2
+
+    from jsar.features._native import kernels
+    from jsar.features.translation import colour_cells_reference_loops
+
+    rng = np.random.default_rng(44)
+    tables = [table, rng.uniform(0, 1, (32768, 10)).astype(np.float32)]
+    patches = [rng.integers(0, 256, shape, dtype=np.uint8) for shape in [(40, 12, 3), (13, 17, 3), (1, 9, 3), (5, 5, 3)]]
+    for path in sorted(data_root.glob("*/img/*.jpg"))[::61]:
+        frame = cv2.imread(str(path))
+        y, x = rng.integers(0, 30, 2)
+        patches += [np.ascontiguousarray(frame[y:y + 200, x:x + 200]), np.ascontiguousarray(frame[y:y + 97, x:x + 131])]
+    for patch in patches:
+        for colour_table in tables:
+            for cell in (4, 1, 3):
+                if min(patch.shape[:2]) < cell:
+                    continue
+                fast = extract_features(patch, cell, colour_table)[..., 32:]
+                assert np.array_equal(fast.view(np.uint32),
+                                      colour_cells_reference_loops(patch, cell, colour_table).view(np.uint32))
+        # Tables of other widths take the kernel's general path.
+        narrow = rng.uniform(0, 1, (32768, 7)).astype(np.float32)
+        hc, wc = patch.shape[0] // 4, patch.shape[1] // 4
+        if hc and wc:
+            outs = [np.empty((hc, wc, 7), np.float32) for _ in range(2)]
+            kernels.colour_cells(patch, patch.shape[0], patch.shape[1], narrow, 7, 4, outs[0])
+            kernels.colour_cells_reference(patch, patch.shape[0], patch.shape[1], narrow, 7, 4, outs[1])
+            assert np.array_equal(outs[0].view(np.uint32), outs[1].view(np.uint32))
+
+
+def test_feature_stack_holds_the_reference_loops_numbers_to_the_bit(table, data_root):
+    """extract_features' kernels write into the stack: channels 1..31 are fHOG's, 32..41 the colour cells', bit for bit."""
+    import cv2
+
+    from jsar.features.fhog import fhog_batch_reference_loops
+    from jsar.features.translation import colour_cells_reference_loops
+
+    rng = np.random.default_rng(45)
+    patches = [rng.integers(0, 256, shape, dtype=np.uint8) for shape in [(40, 12, 3), (13, 17, 3), (5, 4, 3), (23, 9)]]
+    for path in sorted(data_root.glob("*/img/*.jpg"))[::61]:
+        frame = cv2.imread(str(path))
+        patches += [np.ascontiguousarray(frame[:200, :200]), np.ascontiguousarray(frame[7:104, 3:134])]
+    for patch in patches:
+        for cell in (4, 3):
+            colour_table = table if patch.ndim == 3 else None
+            stack = extract_features(patch, cell, colour_table)
+            assert np.array_equal(stack[..., 1:32].view(np.uint32),
+                                  fhog_batch_reference_loops(patch[None], cell)[0].view(np.uint32))
+            if colour_table is not None:
+                assert np.array_equal(stack[..., 32:].view(np.uint32),
+                                      colour_cells_reference_loops(patch, cell, colour_table).view(np.uint32))

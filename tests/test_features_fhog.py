@@ -103,3 +103,59 @@ def test_compiled_kernel_matches_numpy_reference(shape):
 def test_bad_input_raises_value_error(image, cell):
     with pytest.raises(ValueError):
         fh.fhog(image, cell)
+
+
+def bits(values: np.ndarray) -> np.ndarray:
+    """The float32 array's bit patterns: equal bits, equal numbers (signed zeros included)."""
+    return np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
+
+
+def assert_same_bits_as_reference_loops(images: np.ndarray, cell: int) -> None:
+    assert np.array_equal(bits(fh.fhog_batch(images, cell)), bits(fh.fhog_batch_reference_loops(images, cell)))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+@pytest.mark.parametrize("shape", [(3, 40, 12), (2, 37, 23), (2, 23, 18, 3), (4, 5, 5), (3, 1, 9), (3, 9, 1), (2, 4, 4, 3),
+                                   (1, 300, 8), (1, 33, 64, 3), (2, 7, 6)])
+@pytest.mark.parametrize("cell", [4, 1, 3])
+def test_kernel_gives_the_reference_loops_numbers_to_the_bit_on_random_images(shape, dtype, cell):
+    if shape[1] < cell or shape[2] < cell:
+        pytest.skip("smaller than a cell")
+    rng = np.random.default_rng(sum(shape) + cell)
+    images = rng.integers(0, 256, shape).astype(dtype)
+    assert_same_bits_as_reference_loops(images, cell)
+    if dtype == np.float32:
+        assert_same_bits_as_reference_loops(rng.uniform(0, 255, shape).astype(np.float32), cell)
+    flat = np.zeros(shape, dtype)
+    flat[..., : shape[2] // 2] = 9  # flat regions (zero gradients) next to one edge
+    assert_same_bits_as_reference_loops(flat, cell)
+
+
+def test_kernel_gives_the_reference_loops_numbers_to_the_bit_on_real_frames(data_root):
+    rng = np.random.default_rng(44)
+    frames = sorted(data_root.glob("*/img/*.jpg"))[::61]
+    assert frames
+    for path in frames:
+        frame = cv2.imread(str(path))
+        grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        # The size filter's grid (169 grey patches of one model size) and the translation patch (200 x 200 BGR).
+        size_batch = np.stack([cv2.resize(grey[y:y + 60, x:x + 20], (12, 40), interpolation=cv2.INTER_AREA)
+                               for y, x in rng.integers(0, 100, (169, 2))])
+        assert_same_bits_as_reference_loops(size_batch, 4)
+        y, x = rng.integers(0, 30, 2)
+        assert_same_bits_as_reference_loops(np.ascontiguousarray(frame[None, y:y + 200, x:x + 200]), 4)
+        assert_same_bits_as_reference_loops(np.ascontiguousarray(frame[None, y:y + 97, x:x + 131]), 4)
+        assert_same_bits_as_reference_loops(grey[None, y:y + 61, x:x + 203].astype(np.float32), 4)
+
+
+def test_batch_writes_into_a_feature_stack():
+    rng = np.random.default_rng(5)
+    images = rng.integers(0, 256, (2, 16, 24), dtype=np.uint8)
+    stack = np.full((2, 4, 6, 40), 7.0, np.float32)
+    view = fh.fhog_batch(images, 4, stack=stack, channel=3)
+    assert np.array_equal(view, fh.fhog_batch(images, 4)) and np.shares_memory(view, stack)
+    assert np.all(stack[..., :3] == 7.0) and np.all(stack[..., 34:] == 7.0)  # the other channels are untouched
+    for wrong, channel in [(np.zeros((2, 4, 6, 40)), 0), (np.zeros((2, 4, 6, 30), np.float32), 0),
+                           (np.zeros((2, 4, 6, 40), np.float32), 10), (np.zeros((2, 4, 6, 80), np.float32)[..., ::2], 0)]:
+        with pytest.raises(ValueError):
+            fh.fhog_batch(images, 4, stack=wrong, channel=channel)

@@ -135,3 +135,26 @@ def test_compiled_kernels_reject_undersized_buffers_instead_of_reading_past_them
     with pytest.raises(ValueError):
         kernels.colour_cells(image, 10, 10, np.zeros((32768, 10), np.float32), 10, 4,
                              np.empty((2, 2, 10), np.float32))  # a grey image is not H x W x 3
+
+
+def test_kernel_gives_the_reference_loops_numbers_to_the_bit(data_root):
+    from jsar.features.patches import resample_reference_loops
+
+    rng = np.random.default_rng(44)
+    images = []
+    for path in sorted(data_root.glob("*/img/*.jpg"))[::61]:
+        bgr = cv2.imread(str(path))
+        grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        # Whole frames, and crops small enough for the kernel's float copy of the image (the size filter's grey region).
+        images += [bgr, grey, np.ascontiguousarray(grey[40:112, 30:61]), np.ascontiguousarray(bgr[10:90, 20:150])]
+    images += [rng.integers(0, 256, (1, 7, 3), dtype=np.uint8), rng.integers(0, 256, (37, 53), dtype=np.uint8)]
+    for image in images:
+        height, width = image.shape[:2]
+        for _ in range(3):
+            centre = rng.uniform(-40, max(height, width) + 40, 2)
+            sizes = rng.uniform(0.5, 250, 2) * rng.uniform(0.7, 1.4, (int(rng.integers(1, 8)), 2))
+            for out_wh in [(12, 40), (200, 200), (7, 3), (1, 1)]:
+                assert np.array_equal(sample_patches(image, centre, sizes, out_wh),
+                                      resample_reference_loops(image, centre, sizes, out_wh))
+                assert np.array_equal(resample_regions(image, centre, sizes, out_wh).view(np.uint32),
+                                      resample_reference_loops(image, centre, sizes, out_wh, np.float32).view(np.uint32))

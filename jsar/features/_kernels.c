@@ -23,6 +23,13 @@
 #define HOT_LOOP_CLONES
 #endif
 
+/* Helpers of a cloned hot loop must be inlined into it to be compiled for its target. */
+#if defined(__GNUC__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
+
 static int host_is_little_endian(void)
 {
     const uint16_t one = 1;
@@ -128,12 +135,58 @@ static int axis_taps(double start, double size, Py_ssize_t n_out, Py_ssize_t n_s
     return 0;
 }
 
+/* axis_taps into buffers kept across regions (no allocation per region): first and count hold n_out entries,
+ * the weights grow when a region needs more (*capacity floats). The same arithmetic as axis_taps. */
+HOT_LOOP_CLONES
+static int axis_taps_reusing(double start, double size, Py_ssize_t n_out, Py_ssize_t n_src, AxisTaps *a,
+                             Py_ssize_t *capacity)
+{
+    const double step = size / (double)n_out;
+    const double width = step > 1.0 ? step : 1.0;
+    a->n_out = n_out;
+    a->max_taps = 1;
+    for (Py_ssize_t j = 0; j < n_out; j++) {
+        const double lo = start + ((double)j + 0.5) * step - 0.5 * width;
+        const double hi = lo + width;
+        double f = floor(lo), l = ceil(hi) - 1.0;
+        f = f < 0.0 ? 0.0 : (f > (double)(n_src - 1) ? (double)(n_src - 1) : f);
+        l = l < 0.0 ? 0.0 : (l > (double)(n_src - 1) ? (double)(n_src - 1) : l);
+        a->first[j] = (Py_ssize_t)f;
+        a->count[j] = (Py_ssize_t)l - (Py_ssize_t)f + 1;
+        if (a->count[j] > a->max_taps)
+            a->max_taps = a->count[j];
+    }
+    if (n_out * a->max_taps > *capacity) {
+        float *grown = (float *)realloc(a->weight, sizeof(float) * (size_t)(n_out * a->max_taps));
+        if (!grown)
+            return -1;
+        a->weight = grown;
+        *capacity = n_out * a->max_taps;
+    }
+    for (Py_ssize_t t = 0; t < n_out * a->max_taps; t++)
+        a->weight[t] = 0.0f; /* unused taps: weight 0 */
+    for (Py_ssize_t j = 0; j < n_out; j++) {
+        const double lo = start + ((double)j + 0.5) * step - 0.5 * width;
+        const double hi = lo + width;
+        for (Py_ssize_t t = 0; t < a->count[j]; t++) {
+            const Py_ssize_t q = a->first[j] + t;
+            const double cell_lo = q <= 0 ? -INFINITY : (double)q;
+            const double cell_hi = q >= n_src - 1 ? INFINITY : (double)q + 1.0;
+            const double overlap = (hi < cell_hi ? hi : cell_hi) - (lo > cell_lo ? lo : cell_lo);
+            a->weight[j * a->max_taps + t] = (float)((overlap > 0.0 ? overlap : 0.0) / width);
+        }
+    }
+    return 0;
+}
+
 /* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
  * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
- * columns the region reads, then each output pixel a weighted sum of entries of that row. */
+ * columns the region reads, then each output pixel a weighted sum of entries of that row. The loops of abi 5,
+ * kept as the specification of resample_one's numbers (it must equal them to the bit; `resample_reference`
+ * runs them). */
 HOT_LOOP_CLONES
-static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
-                         float *row, void *out, int out_u8)
+static void resample_one_reference(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty,
+                                   const AxisTaps *tx, float *row, void *out, int out_u8)
 {
     const Py_ssize_t xmin = tx->first[0];
     const Py_ssize_t xmax = tx->first[tx->n_out - 1] + tx->count[tx->n_out - 1] - 1;
@@ -217,12 +270,142 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
     }
 }
 
+/* values >= 0 (non-negative weights and pixels) rounded half up (adding 0.5 and truncating), at most 255, as
+ * resample_one_reference does; through int (the same truncation of a value in [0.5, 255]) so that it vectorises. */
+static ALWAYS_INLINE void round_to_u8(const float *restrict values, uint8_t *restrict out, Py_ssize_t n)
+{
+    for (Py_ssize_t t = 0; t < n; t++) {
+        const float r = values[t] + 0.5f;
+        out[t] = (uint8_t)(int)(r >= 255.0f ? 255.0f : r);
+    }
+}
+
+/* Images of at most this many values are resampled from a float copy (256 KiB, cache-sized). */
+#define RESAMPLE_SOURCE_FLOATS 65536
+
+static ALWAYS_INLINE void widen_u8(const uint8_t *restrict line, float *restrict out, Py_ssize_t n)
+{
+    for (Py_ssize_t t = 0; t < n; t++)
+        out[t] = (float)line[t];
+}
+
+/* row = w line (first: the row's first term) or row += w line, as resample_one_reference adds to a zeroed row:
+ * 0 + w p (or fma(w, p, 0)) is w p for w, p >= 0. */
+static ALWAYS_INLINE void weigh_row(const float *restrict line, float w, float *restrict row, Py_ssize_t n, int add)
+{
+    if (add)
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] += w * line[t];
+    else
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] = w * line[t];
+}
+
+static ALWAYS_INLINE void weigh_row_u8(const uint8_t *restrict line, float w, float *restrict row, Py_ssize_t n,
+                                       int add)
+{
+    if (add)
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] += w * (float)line[t];
+    else
+        for (Py_ssize_t t = 0; t < n; t++)
+            row[t] = w * (float)line[t];
+}
+
+/* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
+ * src (H, W, C) uint8. Rows first: each output row is a weighted sum of source rows over the
+ * columns the region reads, then each output pixel a weighted sum of entries of that row. The numbers of
+ * resample_one_reference to the bit (the first weighted source row is written rather than added to a zeroed
+ * row: weigh_row). */
+HOT_LOOP_CLONES
+static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const AxisTaps *ty, const AxisTaps *tx,
+                         const float *source, float *row, float *region, void *out, int out_u8)
+{
+    const Py_ssize_t xmin = tx->first[0];
+    const Py_ssize_t xmax = tx->first[tx->n_out - 1] + tx->count[tx->n_out - 1] - 1;
+    const Py_ssize_t span = (xmax - xmin + 1) * C;
+    const Py_ssize_t OW = tx->n_out;
+    memset(row + span, 0, sizeof(float) * (size_t)(tx->max_taps * C));
+    for (Py_ssize_t i = 0; i < ty->n_out; i++) {
+        int written = 0;
+        for (Py_ssize_t k = 0; k < ty->count[i]; k++) {
+            const float w = ty->weight[i * ty->max_taps + k];
+            if (w == 0.0f)
+                continue;
+            if (source) /* the image as float (exact): the sums run on floats only, short uint8 rows do not vectorise */
+                weigh_row(source + ((ty->first[i] + k) * W + xmin) * C, w, row, span, written);
+            else
+                weigh_row_u8(src + ((ty->first[i] + k) * W + xmin) * C, w, row, span, written);
+            written = 1;
+        }
+        if (!written)
+            memset(row, 0, sizeof(float) * (size_t)span);
+        /* Every output uses T taps (unused ones have zero weight and read zeros past the span),
+         * so the inner loops have one trip count and the channel loop is unrolled for C = 1, 3. */
+        const Py_ssize_t T = tx->max_taps;
+        /* The output row (float output) or its row of the region's sums (uint8: converted at the end, in one
+         * loop long enough to vectorise). */
+        float *acc = (out_u8 ? region : (float *)out) + i * OW * C;
+        if (C == 1 && T == 2) { /* enlarging: bilinear */
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 2 * j, *rj = row + (tx->first[j] - xmin);
+                acc[j] = wj[0] * rj[0] + wj[1] * rj[1];
+            }
+        } else if (C == 1 && T == 3) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 3 * j, *rj = row + (tx->first[j] - xmin);
+                acc[j] = wj[0] * rj[0] + wj[1] * rj[1] + wj[2] * rj[2];
+            }
+        } else if (C == 1) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin);
+                float a = 0.0f;
+                for (Py_ssize_t k = 0; k < T; k++)
+                    a += wj[k] * rj[k];
+                acc[j] = a;
+            }
+        } else if (C == 3 && T == 2) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + 2 * j, *rj = row + (tx->first[j] - xmin) * 3;
+                acc[3 * j] = wj[0] * rj[0] + wj[1] * rj[3];
+                acc[3 * j + 1] = wj[0] * rj[1] + wj[1] * rj[4];
+                acc[3 * j + 2] = wj[0] * rj[2] + wj[1] * rj[5];
+            }
+        } else if (C == 3) {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * 3;
+                float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f;
+                for (Py_ssize_t k = 0; k < T; k++) {
+                    a0 += wj[k] * rj[3 * k];
+                    a1 += wj[k] * rj[3 * k + 1];
+                    a2 += wj[k] * rj[3 * k + 2];
+                }
+                acc[3 * j] = a0;
+                acc[3 * j + 1] = a1;
+                acc[3 * j + 2] = a2;
+            }
+        } else {
+            for (Py_ssize_t j = 0; j < OW; j++) {
+                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * C;
+                for (Py_ssize_t c = 0; c < C; c++) {
+                    float a = 0.0f;
+                    for (Py_ssize_t k = 0; k < T; k++)
+                        a += wj[k] * rj[k * C + c];
+                    acc[j * C + c] = a;
+                }
+            }
+        }
+    }
+    if (out_u8)
+        round_to_u8(region, (uint8_t *)out, ty->n_out * OW * C);
+}
+
 /* resample(src, H, W, C, cx, cy, sizes, N, OW, OH, out, out_u8): N regions of sizes (N, 2) float64
  * (w, h) pixels centred at (cx, cy) -> out (N, OH, OW, C). Taps stay in [first, first + count),
- * always inside the image, so no index can leave the source buffer. */
-static PyObject *resample(PyObject *self, PyObject *args)
+ * always inside the image, so no index can leave the source buffer. resample_reference: the same through
+ * axis_taps and resample_one_reference (for the tests). */
+static PyObject *resample_run(PyObject *args, int reference)
 {
-    (void)self;
     PyObject *o_src, *o_sizes, *o_out;
     Py_ssize_t H, W, C, N, OW, OH;
     double cx, cy;
@@ -249,8 +432,43 @@ static PyObject *resample(PyObject *self, PyObject *args)
     /* Row buffer: the span (<= W pixels), a zero tail of up to W taps, then OW accumulators. */
     float *row = (float *)malloc(sizeof(float) * (size_t)((2 * W + OW) * C));
     int failed = row == NULL;
+    if (!reference && !failed) {
+        /* The taps of every region in buffers allocated once. */
+        AxisTaps tx = {0}, ty = {0};
+        Py_ssize_t x_capacity = 0, y_capacity = 0;
+        tx.first = (Py_ssize_t *)malloc(sizeof(Py_ssize_t) * (size_t)(2 * OW));
+        ty.first = (Py_ssize_t *)malloc(sizeof(Py_ssize_t) * (size_t)(2 * OH));
+        float *region = out_u8 ? (float *)malloc(sizeof(float) * (size_t)(OH * OW * C)) : NULL;
+        /* A small image (the size filter's grey crop) as float, once for all its regions. */
+        float *source = H * W * C <= RESAMPLE_SOURCE_FLOATS ? (float *)malloc(sizeof(float) * (size_t)(H * W * C)) : NULL;
+        failed = !tx.first || !ty.first || (out_u8 && !region) || (H * W * C <= RESAMPLE_SOURCE_FLOATS && !source);
+        if (!failed && source)
+            widen_u8((const uint8_t *)src.buf, source, H * W * C);
+        if (!failed) {
+            tx.count = tx.first + OW;
+            ty.count = ty.first + OH;
+        }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t n = 0; n < N && !failed; n++) {
+            if (axis_taps_reusing(cx - 0.5 * sz[2 * n], sz[2 * n], OW, W, &tx, &x_capacity) < 0
+                || axis_taps_reusing(cy - 0.5 * sz[2 * n + 1], sz[2 * n + 1], OH, H, &ty, &y_capacity) < 0) {
+                failed = 1;
+                break;
+            }
+            void *dst = out_u8 ? (void *)((uint8_t *)out.buf + n * OH * OW * C)
+                               : (void *)((float *)out.buf + n * OH * OW * C);
+            resample_one((const uint8_t *)src.buf, W, C, &ty, &tx, source, row, region, dst, out_u8);
+        }
+        Py_END_ALLOW_THREADS
+        free(tx.first);
+        free(ty.first);
+        free(tx.weight);
+        free(ty.weight);
+        free(region);
+        free(source);
+    }
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t n = 0; n < N && !failed; n++) {
+    for (Py_ssize_t n = 0; reference && n < N && !failed; n++) {
         AxisTaps ty, tx;
         if (axis_taps(cx - 0.5 * sz[2 * n], sz[2 * n], OW, W, &tx) < 0) {
             failed = 1;
@@ -262,7 +480,7 @@ static PyObject *resample(PyObject *self, PyObject *args)
             break;
         }
         void *dst = out_u8 ? (void *)((uint8_t *)out.buf + n * OH * OW * C) : (void *)((float *)out.buf + n * OH * OW * C);
-        resample_one((const uint8_t *)src.buf, W, C, &ty, &tx, row, dst, out_u8);
+        resample_one_reference((const uint8_t *)src.buf, W, C, &ty, &tx, row, dst, out_u8);
         axis_taps_free(&tx);
         axis_taps_free(&ty);
     }
@@ -276,6 +494,18 @@ static PyObject *resample(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+static PyObject *resample(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return resample_run(args, 0);
+}
+
+static PyObject *resample_reference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return resample_run(args, 1);
+}
+
 /* ---------------------------------------------------------------------------------------------
  * fHOG, as documented in jsar/features/fhog.py.
  */
@@ -285,6 +515,7 @@ static PyObject *resample(PyObject *self, PyObject *args)
 #define TWO_PI 6.28318530717958647692f
 #define HALF_PI 1.57079632679489661923f
 #define PI_F 3.14159265358979323846f
+#define FHOG_CHUNK_PIXELS 2048
 
 /* atan(z) for z in [0, 1]: odd polynomial fitted on Chebyshev nodes, max error 4e-8 rad. */
 static inline float atan_unit(float z)
@@ -336,14 +567,22 @@ typedef struct {
     float *wx_lo, *wx_hi;
     Py_ssize_t *cy0;
     float *wy_lo, *wy_hi;
+    /* fhog_one only: per-pixel values of a chunk of chunk_rows rows (gradients, orientation, magnitude, its
+     * shares of the lower bin and the next, and the two bins' places in row_hist), and each chunk pixel's cell
+     * offset (cx0 + 1) * 18 in row_hist */
+    float *chunk_gx, *chunk_gy, *chunk_pos, *chunk_mag, *chunk_lo, *chunk_hi;
+    int *chunk_k0, *chunk_k1, *chunk_col;
+    int *started; /* per cell row: has the histogram row got its first term */
+    Py_ssize_t chunk_rows;
 } FhogScratch;
 
 /* One image: hist (hc, wc, 18) -> out (hc, wc, 31). The per-pixel work is split into loops the
  * compiler vectorises (gradient, magnitude, angle) and one scalar scatter into a row histogram,
- * which is then spread over the two cell rows it belongs to. */
+ * which is then spread over the two cell rows it belongs to. The loops of abi 5, kept as the
+ * specification of fhog_one's numbers (it must equal them to the bit; `fhog_reference` runs them). */
 HOT_LOOP_CLONES
-static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
-                     FhogScratch *sc, float *hist, float *energy, float *out)
+static void fhog_one_reference(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
+                               FhogScratch *sc, float *hist, float *energy, float *out)
 {
     const Py_ssize_t hc = H / cell, wc = W / cell;
     const Py_ssize_t hv = hc * cell, wv = wc * cell;
@@ -495,16 +734,311 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
 #undef ENERGY
 }
 
-/* fhog(src, n, h, w, c, is_uint8, cell, out): src (N, H, W, C) uint8 or float32 -> out float32 (N, H//cell, W//cell, 31). */
-static PyObject *fhog(PyObject *self, PyObject *args)
+/* ---- fhog_one: the same numbers as fhog_one_reference with fewer instructions ----
+ * Gradient of pixel p of a uint8 image from the byte offsets (in pixels) of its neighbours: right r, left l,
+ * down d, up u. Every value is a difference of two integers 0..255, exact in float (and so are the squared
+ * magnitudes that pick the channel), so this equals the reference's float rows bit for bit whatever the
+ * compiler contracts. Colour: the channel with the largest magnitude, ties keep the first. */
+static ALWAYS_INLINE void gradient_u8(const uint8_t *img, Py_ssize_t C, Py_ssize_t r, Py_ssize_t l, Py_ssize_t d,
+                                      Py_ssize_t u, float *gx, float *gy)
 {
-    (void)self;
+    if (C == 1) {
+        *gx = (float)((int)img[r] - (int)img[l]);
+        *gy = (float)((int)img[d] - (int)img[u]);
+        return;
+    }
+    float bx = (float)((int)img[r * C] - (int)img[l * C]), by = (float)((int)img[d * C] - (int)img[u * C]);
+    float bm = bx * bx + by * by;
+    for (Py_ssize_t c = 1; c < C; c++) {
+        const float gxc = (float)((int)img[r * C + c] - (int)img[l * C + c]);
+        const float gyc = (float)((int)img[d * C + c] - (int)img[u * C + c]);
+        const float m2 = gxc * gxc + gyc * gyc;
+        const int better = m2 > bm;
+        bx = better ? gxc : bx;
+        by = better ? gyc : by;
+        bm = better ? m2 : bm;
+    }
+    *gx = bx;
+    *gy = by;
+}
+
+/* gradient_u8 of pixel (y, x) with its neighbours clamped into the image (the border replicated). */
+static ALWAYS_INLINE void gradient_clamped_u8(const uint8_t *img, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C,
+                                              Py_ssize_t y, Py_ssize_t x, float *gx, float *gy)
+{
+    const Py_ssize_t r = y * W + (x + 1 < W ? x + 1 : W - 1), l = y * W + (x > 0 ? x - 1 : 0);
+    const Py_ssize_t d = (y + 1 < H ? y + 1 : H - 1) * W + x, u = (y > 0 ? y - 1 : 0) * W + x;
+    gradient_u8(img, C, r, l, d, u, gx, gy);
+}
+
+/* Gradients of rows y0..y1-1 of a uint8 image (H, W, C) into gx, gy ((y1 - y0) * W, row-major): the rows with
+ * both vertical neighbours in one loop over their pixels (its columns 0 and W - 1 read across a row end and
+ * are redone), the first and last image rows and the two border columns with clamped (replicated)
+ * neighbours. The loops run over whole rows of pixels, not one short row at a time. */
+static ALWAYS_INLINE void chunk_gradients_u8(const uint8_t *restrict img, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C,
+                                             Py_ssize_t y0, Py_ssize_t y1, float *restrict gx, float *restrict gy)
+{
+    const Py_ssize_t base = y0 * W;
+    const Py_ssize_t ya = y0 > 1 ? y0 : 1, yb = y1 < H - 1 ? y1 : H - 1;
+    if (C == 1) {
+        for (Py_ssize_t p = ya * W; p < yb * W; p++)
+            gradient_u8(img, 1, p + 1, p - 1, p + W, p - W, gx + p - base, gy + p - base);
+    } else if (C == 3) {
+        for (Py_ssize_t p = ya * W; p < yb * W; p++)
+            gradient_u8(img, 3, p + 1, p - 1, p + W, p - W, gx + p - base, gy + p - base);
+    } else {
+        for (Py_ssize_t p = ya * W; p < yb * W; p++)
+            gradient_u8(img, C, p + 1, p - 1, p + W, p - W, gx + p - base, gy + p - base);
+    }
+    for (Py_ssize_t y = y0; y < y1; y++) {
+        if (y == 0 || y == H - 1) {
+            for (Py_ssize_t x = 0; x < W; x++)
+                gradient_clamped_u8(img, H, W, C, y, x, gx + y * W + x - base, gy + y * W + x - base);
+        } else {
+            gradient_clamped_u8(img, H, W, C, y, 0, gx + y * W - base, gy + y * W - base);
+            if (W > 1)
+                gradient_clamped_u8(img, H, W, C, y, W - 1, gx + y * W + W - 1 - base, gy + y * W + W - 1 - base);
+        }
+    }
+}
+
+/* Float images: the reference's gradient loops, row by row into the chunk (inlined: compiled for the clone's
+ * target like the reference, so that the magnitudes that pick the channel round as there). */
+static ALWAYS_INLINE void row_gradients_f32(const float *img, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t wv,
+                                            Py_ssize_t y, FhogScratch *sc, float *gxr, float *gyr)
+{
+    const Py_ssize_t yu = y > 0 ? y - 1 : 0, yd = y + 1 < H ? y + 1 : H - 1;
+    float *up = sc->up, *dn = sc->dn, *mid = sc->mid;
+    load_row(img, 0, y * W * C, W * C, mid + C);
+    load_row(img, 0, yu * W * C, W * C, up);
+    load_row(img, 0, yd * W * C, W * C, dn);
+    for (Py_ssize_t c = 0; c < C; c++) {
+        mid[c] = mid[C + c];
+        mid[(W + 1) * C + c] = mid[W * C + c];
+    }
+    if (C == 1) {
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            gxr[x] = mid[x + 2] - mid[x];
+            gyr[x] = dn[x] - up[x];
+        }
+    } else if (C == 3) {
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            const float gx0 = mid[3 * x + 6] - mid[3 * x], gy0 = dn[3 * x] - up[3 * x];
+            const float gx1 = mid[3 * x + 7] - mid[3 * x + 1], gy1 = dn[3 * x + 1] - up[3 * x + 1];
+            const float gx2 = mid[3 * x + 8] - mid[3 * x + 2], gy2 = dn[3 * x + 2] - up[3 * x + 2];
+            const float m0 = gx0 * gx0 + gy0 * gy0, m1 = gx1 * gx1 + gy1 * gy1, m2 = gx2 * gx2 + gy2 * gy2;
+            const int one = m1 > m0;
+            float bx = one ? gx1 : gx0, by = one ? gy1 : gy0;
+            const float bm = one ? m1 : m0;
+            const int two = m2 > bm;
+            gxr[x] = two ? gx2 : bx;
+            gyr[x] = two ? gy2 : by;
+        }
+    } else {
+        for (Py_ssize_t x = 0; x < wv; x++) {
+            float bx = mid[(x + 2) * C] - mid[x * C], by = dn[x * C] - up[x * C];
+            float bm = bx * bx + by * by;
+            for (Py_ssize_t c = 1; c < C; c++) {
+                const float gx = mid[(x + 2) * C + c] - mid[x * C + c];
+                const float gy = dn[x * C + c] - up[x * C + c];
+                const float m2 = gx * gx + gy * gy;
+                const int better = m2 > bm;
+                bx = better ? gx : bx;
+                by = better ? gy : by;
+                bm = better ? m2 : bm;
+            }
+            gxr[x] = bx;
+            gyr[x] = by;
+        }
+    }
+}
+
+/* dst += w src, or dst = w src for a cell row's first term (add = 0): the reference adds it to a zeroed
+ * histogram, and 0 + w s (or fma(w, s, 0)) is w s for w > 0, s >= 0. */
+static ALWAYS_INLINE void spread_row(const float *restrict src, float w, float *restrict dst, Py_ssize_t n, int add)
+{
+    if (add)
+        for (Py_ssize_t t = 0; t < n; t++)
+            dst[t] += w * src[t];
+    else
+        for (Py_ssize_t t = 0; t < n; t++)
+            dst[t] = w * src[t];
+}
+
+/* fhog_one_reference's numbers to the bit (tests/test_features_fhog.py compares the two on real frames and
+ * random images) with fewer instructions: the image is processed in chunks of rows, and the per-pixel loops
+ * (gradients, orientation and magnitude, now also the bin and the two bins' shares) run over a whole chunk,
+ * not one short row at a time; the scatter into the row histogram, the spread over cell rows and every
+ * sum add the same terms in the same order as the reference. Each 2x2 block's factor 1 / sqrt(energy + eps)
+ * is computed once (`norms`, (hc + 1) x (wc + 1) blocks), not once per cell that uses it, and the per-cell
+ * clipping runs over the orientations so that it vectorises. */
+HOT_LOOP_CLONES
+static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
+                     FhogScratch *sc, float *hist, float *energy, float *norms, float *out, Py_ssize_t step)
+{
+    const Py_ssize_t hc = H / cell, wc = W / cell;
+    const Py_ssize_t hv = hc * cell, wv = wc * cell;
+    const float bins_per_rad = (float)N_SIGNED / TWO_PI;
+    float *restrict gxc = sc->chunk_gx, *restrict gyc = sc->chunk_gy;
+    float *restrict mlo = sc->chunk_lo, *restrict mhi = sc->chunk_hi;
+    float *restrict pos = sc->chunk_pos, *restrict mag = sc->chunk_mag;
+    int *restrict k0 = sc->chunk_k0, *restrict k1 = sc->chunk_k1;
+    const int *restrict col = sc->chunk_col;
+    /* No zeroed histogram: a cell row's first term is written (spread_row), rows never reached zeroed at the end. */
+    int *started = sc->started;
+    for (Py_ssize_t r = 0; r < hc; r++)
+        started[r] = 0;
+
+    for (Py_ssize_t y0 = 0; y0 < hv; y0 += sc->chunk_rows) {
+        const Py_ssize_t y1 = y0 + sc->chunk_rows < hv ? y0 + sc->chunk_rows : hv;
+        const Py_ssize_t n = (y1 - y0) * W;
+        if (u8) {
+            chunk_gradients_u8((const uint8_t *)img, H, W, C, y0, y1, gxc, gyc);
+        } else {
+            for (Py_ssize_t y = y0; y < y1; y++)
+                row_gradients_f32((const float *)img, H, W, C, wv, y, sc, gxc + (y - y0) * W, gyc + (y - y0) * W);
+            for (Py_ssize_t y = y0; y < y1; y++) /* columns past the last whole cell: defined, never used */
+                for (Py_ssize_t x = wv; x < W; x++)
+                    gxc[(y - y0) * W + x] = gyc[(y - y0) * W + x] = 0.0f;
+        }
+        for (Py_ssize_t i = 0; i < n; i++) {
+            const float gx = gxc[i], gy = gyc[i];
+            const float ax = gx < 0.0f ? -gx : gx, ay = gy < 0.0f ? -gy : gy;
+            const float lo = ax < ay ? ax : ay, hi = ax < ay ? ay : ax;
+            const float z = lo / (hi + (float)(hi == 0.0f));
+            float a = atan_unit(z);
+            a = ay > ax ? HALF_PI - a : a;
+            a = gx < 0.0f ? PI_F - a : a;
+            a = gy < 0.0f ? TWO_PI - a : a;
+            float p = a * bins_per_rad;
+            p = p >= (float)N_SIGNED ? 0.0f : p;
+            pos[i] = p;
+            mag[i] = sqrtf(gx * gx + gy * gy);
+        }
+        for (Py_ssize_t i = 0; i < n; i++) { /* the lower bin b0 and the magnitude's shares of b0 and b0 + 1 */
+            const float m = mag[i];
+            const int b0 = (int)pos[i];
+            const float fo = pos[i] - (float)b0;
+            const float m1 = m * fo;
+            k0[i] = b0;
+            mhi[i] = m1;
+            mlo[i] = m - m1;
+        }
+        for (Py_ssize_t i = 0; i < n; i++) { /* the two bins' places in row_hist (bin 17's next is bin 0) */
+            const int b0 = k0[i];
+            k0[i] = col[i] + b0;
+            k1[i] = col[i] + b0 + 1 - (b0 == N_SIGNED - 1) * N_SIGNED;
+        }
+        for (Py_ssize_t y = y0; y < y1; y++) {
+            const Py_ssize_t row = (y - y0) * W;
+            float *rh = sc->row_hist;
+            memset(rh, 0, sizeof(float) * (size_t)((wc + 2) * N_SIGNED));
+            /* A zero-magnitude pixel adds +0 to non-negative sums (the reference skips it): same bits. */
+            for (Py_ssize_t x = 0; x < wv; x++) { /* cell cx0 (h0) and the next (h1), bins b0 and b1 */
+                const Py_ssize_t i0 = k0[row + x], i1 = k1[row + x];
+                const float m0 = mlo[row + x], m1 = mhi[row + x];
+                const float wl = sc->wx_lo[x], wh = sc->wx_hi[x];
+                rh[i0] += wl * m0;
+                rh[i1] += wl * m1;
+                rh[i0 + N_SIGNED] += wh * m0;
+                rh[i1 + N_SIGNED] += wh * m1;
+            }
+            const Py_ssize_t cy = sc->cy0[y];
+            const float wl = sc->wy_lo[y], wh = sc->wy_hi[y];
+            const float *src_row = rh + N_SIGNED; /* cell 0 */
+            if (wl != 0.0f) {
+                spread_row(src_row, wl, hist + cy * wc * N_SIGNED, wc * N_SIGNED, started[cy]);
+                started[cy] = 1;
+            }
+            if (wh != 0.0f) {
+                spread_row(src_row, wh, hist + (cy + 1) * wc * N_SIGNED, wc * N_SIGNED, started[cy + 1]);
+                started[cy + 1] = 1;
+            }
+        }
+    }
+    for (Py_ssize_t r = 0; r < hc; r++)
+        if (!started[r])
+            memset(hist + r * wc * N_SIGNED, 0, sizeof(float) * (size_t)(wc * N_SIGNED));
+
+    for (Py_ssize_t t = 0; t < hc * wc; t++) {
+        const float *h = hist + t * N_SIGNED;
+        float e = 0.0f;
+        for (int o = 0; o < N_UNSIGNED; o++) {
+            const float u = h[o] + h[o + N_UNSIGNED];
+            e += u * u;
+        }
+        energy[t] = e;
+    }
+    /* Block (a, b) covers cells a..a+1, b..b+1 (clamped to the grid), a in -1..hc-1, b in -1..wc-1. */
+#define ENERGY(i, j) energy[((i) < 0 ? 0 : ((i) >= hc ? hc - 1 : (i))) * wc + ((j) < 0 ? 0 : ((j) >= wc ? wc - 1 : (j)))]
+    for (Py_ssize_t a = -1; a < hc; a++)
+        for (Py_ssize_t b = -1; b < wc; b++) {
+            const float block = ENERGY(a, b) + ENERGY(a + 1, b) + ENERGY(a, b + 1) + ENERGY(a + 1, b + 1);
+            norms[(a + 1) * (wc + 1) + (b + 1)] = 1.0f / sqrtf(block + 1e-4f);
+        }
+#undef ENERGY
+    for (Py_ssize_t i = 0; i < hc; i++) {
+        for (Py_ssize_t j = 0; j < wc; j++) {
+            /* The four blocks around cell (i, j), in the reference's order (dy, dx) = 00, 01, 10, 11. */
+            const float *above = norms + i * (wc + 1) + j, *below = above + (wc + 1);
+            const float n0 = above[0], n1 = above[1], n2 = below[0], n3 = below[1];
+            const float *restrict h = hist + (i * wc + j) * N_SIGNED;
+            float *restrict f = out + (i * wc + j) * step;
+            for (int o = 0; o < N_SIGNED; o++) {
+                const float v0 = h[o] * n0 < 0.2f ? h[o] * n0 : 0.2f, v1 = h[o] * n1 < 0.2f ? h[o] * n1 : 0.2f;
+                const float v2 = h[o] * n2 < 0.2f ? h[o] * n2 : 0.2f, v3 = h[o] * n3 < 0.2f ? h[o] * n3 : 0.2f;
+                f[o] = 0.5f * ((((0.0f + v0) + v1) + v2) + v3);
+            }
+            for (int o = 0; o < N_UNSIGNED; o++) {
+                const float u = h[o] + h[o + N_UNSIGNED];
+                const float v0 = u * n0 < 0.2f ? u * n0 : 0.2f, v1 = u * n1 < 0.2f ? u * n1 : 0.2f;
+                const float v2 = u * n2 < 0.2f ? u * n2 : 0.2f, v3 = u * n3 < 0.2f ? u * n3 : 0.2f;
+                f[N_SIGNED + o] = 0.5f * ((((0.0f + v0) + v1) + v2) + v3);
+            }
+            /* Texture: per block, the clipped signed orientations summed in orientation order. */
+#if defined(__GNUC__)
+            /* The four blocks as the lanes of one vector (each lane's operations are the scalar ones). */
+            typedef float lanes4 __attribute__((vector_size(16)));
+            typedef int32_t masks4 __attribute__((vector_size(16)));
+            const lanes4 factors = {n0, n1, n2, n3}, clip = {0.2f, 0.2f, 0.2f, 0.2f};
+            lanes4 texture = {0.0f, 0.0f, 0.0f, 0.0f};
+#if !defined(__clang__)
+#pragma GCC unroll 18
+#endif
+            for (int o = 0; o < N_SIGNED; o++) {
+                const lanes4 v = h[o] * factors;
+                const masks4 below = v < clip;
+                texture += (lanes4)(((masks4)v & below) | ((masks4)clip & ~below));
+            }
+            const float t0 = texture[0], t1 = texture[1], t2 = texture[2], t3 = texture[3];
+#else
+            float t0 = 0.0f, t1 = 0.0f, t2 = 0.0f, t3 = 0.0f;
+            for (int o = 0; o < N_SIGNED; o++) {
+                t0 += h[o] * n0 < 0.2f ? h[o] * n0 : 0.2f;
+                t1 += h[o] * n1 < 0.2f ? h[o] * n1 : 0.2f;
+                t2 += h[o] * n2 < 0.2f ? h[o] * n2 : 0.2f;
+                t3 += h[o] * n3 < 0.2f ? h[o] * n3 : 0.2f;
+            }
+#endif
+            f[N_SIGNED + N_UNSIGNED] = 0.2357f * t0;
+            f[N_SIGNED + N_UNSIGNED + 1] = 0.2357f * t1;
+            f[N_SIGNED + N_UNSIGNED + 2] = 0.2357f * t2;
+            f[N_SIGNED + N_UNSIGNED + 3] = 0.2357f * t3;
+        }
+    }
+}
+
+/* fhog(src, n, h, w, c, is_uint8, cell, out[, step]): src (N, H, W, C) uint8 or float32 -> out float32
+ * (N, H//cell, W//cell, 31), or each cell's 31 values `step` floats after the previous cell's (e.g. into channels
+ * 1..31 of a 42-channel stack); fhog_reference: the same through fhog_one_reference (step 31, for the tests). */
+static PyObject *fhog_run(PyObject *args, int reference)
+{
     PyObject *o_src, *o_out;
-    Py_ssize_t N, H, W, C, cell;
+    Py_ssize_t N, H, W, C, cell, step = N_FHOG;
     int u8;
-    if (!PyArg_ParseTuple(args, "OnnnnpnO", &o_src, &N, &H, &W, &C, &u8, &cell, &o_out))
+    if (!PyArg_ParseTuple(args, "OnnnnpnO|n", &o_src, &N, &H, &W, &C, &u8, &cell, &o_out, &step))
         return NULL;
-    if (N < 1 || C < 1 || cell < 1 || H < cell || W < cell) {
+    if (N < 1 || C < 1 || cell < 1 || H < cell || W < cell || step < N_FHOG || (reference && step != N_FHOG)) {
         PyErr_SetString(PyExc_ValueError, "fhog: invalid sizes");
         return NULL;
     }
@@ -512,15 +1046,20 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     Py_buffer src, out;
     if (get_buffer(o_src, &src, 0, N * H * W * C * (u8 ? 1 : 4), "src") < 0)
         return NULL;
-    if (get_buffer(o_out, &out, 1, N * hc * wc * N_FHOG * 4, "out") < 0) {
+    if (get_buffer(o_out, &out, 1, ((N * hc * wc - 1) * step + N_FHOG) * 4, "out") < 0) {
         PyBuffer_Release(&src);
         return NULL;
     }
     /* One block of scratch memory: floats first, then the index arrays. */
-    const size_t n_float = (size_t)(hc * wc * (N_SIGNED + 1) + 4 * W + (wc + 2) * N_SIGNED + 2 * W + 2 * H
-                                    + (3 * W + 2) * C);
+    /* fhog_one's chunks: whole rows, about FHOG_CHUNK_PIXELS pixels (cache-sized), at least one row. */
+    const Py_ssize_t chunk_rows = W >= FHOG_CHUNK_PIXELS ? 1 : FHOG_CHUNK_PIXELS / W;
+    const Py_ssize_t chunk = chunk_rows * W;
+    const size_t floats = (size_t)(hc * wc * (N_SIGNED + 1) + (hc + 1) * (wc + 1) + 4 * W + (wc + 2) * N_SIGNED
+                                   + 2 * W + 2 * H + (3 * W + 2) * C + 6 * chunk);
+    const size_t n_float = floats + (floats & 1); /* even: the index arrays after them stay 8-byte aligned */
     const size_t n_index = (size_t)(W + H);
-    char *block = (char *)malloc(sizeof(float) * n_float + sizeof(Py_ssize_t) * n_index);
+    const size_t n_int = (size_t)(3 * chunk + hc);
+    char *block = (char *)malloc(sizeof(float) * n_float + sizeof(Py_ssize_t) * n_index + sizeof(int) * n_int);
     if (!block) {
         PyBuffer_Release(&out);
         PyBuffer_Release(&src);
@@ -531,6 +1070,8 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     f += hc * wc * N_SIGNED;
     float *energy = f;
     f += hc * wc;
+    float *norms = f;
+    f += (hc + 1) * (wc + 1);
     FhogScratch sc;
     sc.gx = f; f += W;
     sc.gy = f; f += W;
@@ -544,16 +1085,33 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     sc.up = f; f += W * C;
     sc.dn = f; f += W * C;
     sc.mid = f; f += (W + 2) * C;
+    sc.chunk_gx = f; f += chunk;
+    sc.chunk_gy = f; f += chunk;
+    sc.chunk_lo = f; f += chunk;
+    sc.chunk_hi = f; f += chunk;
+    sc.chunk_pos = f; f += chunk;
+    sc.chunk_mag = f; f += chunk;
     Py_ssize_t *idx = (Py_ssize_t *)(block + sizeof(float) * n_float);
     sc.cx0 = idx;
     sc.cy0 = idx + W;
+    sc.chunk_k0 = (int *)(idx + n_index);
+    sc.chunk_k1 = sc.chunk_k0 + chunk;
+    sc.chunk_col = sc.chunk_k1 + chunk;
+    sc.started = sc.chunk_col + chunk;
+    sc.chunk_rows = chunk_rows;
     axis_cells(W, cell, wc, sc.cx0, sc.wx_lo, sc.wx_hi);
     axis_cells(H, cell, hc, sc.cy0, sc.wy_lo, sc.wy_hi);
+    for (Py_ssize_t i = 0; i < chunk; i++)
+        sc.chunk_col[i] = (int)((sc.cx0[i % W] + 1) * N_SIGNED);
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t n = 0; n < N; n++) {
         const void *img = u8 ? (const void *)((const uint8_t *)src.buf + n * H * W * C)
                              : (const void *)((const float *)src.buf + n * H * W * C);
-        fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, (float *)out.buf + n * hc * wc * N_FHOG);
+        float *dst = (float *)out.buf + n * hc * wc * step;
+        if (reference)
+            fhog_one_reference(img, u8, H, W, C, cell, &sc, hist, energy, dst);
+        else
+            fhog_one(img, u8, H, W, C, cell, &sc, hist, energy, norms, dst, step);
     }
     Py_END_ALLOW_THREADS
     free(block);
@@ -562,9 +1120,23 @@ static PyObject *fhog(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+static PyObject *fhog(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return fhog_run(args, 0);
+}
+
+static PyObject *fhog_reference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return fhog_run(args, 1);
+}
+
+/* The loops of abi 5 (row by row, the cells' sums in `o`), kept as the specification of colour_cells_one's
+ * numbers (it must equal them to the bit; `colour_cells_reference` runs them). */
 HOT_LOOP_CLONES
-static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
-                             Py_ssize_t hc, Py_ssize_t wc, float *o)
+static void colour_cells_one_reference(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
+                                       Py_ssize_t hc, Py_ssize_t wc, float *o)
 {
     memset(o, 0, sizeof(float) * (size_t)(hc * wc * K));
     for (Py_ssize_t y = 0; y < hc * cell; y++) {
@@ -589,18 +1161,70 @@ static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, P
         o[t] *= inv;
 }
 
-/* ---------------------------------------------------------------------------------------------
- * colour_cells(src, h, w, table, channels, cell, out): mean over each cell of table[row(pixel)],
- * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels).
- */
-static PyObject *colour_cells(PyObject *self, PyObject *args)
+/* Cell by cell with the sums in registers: each cell adds its pixels' table rows in the reference's order
+ * (rows top to bottom, pixels left to right), from 0, then scales by 1 / cell^2: the same numbers. A pixel's
+ * table offset (r//8 + 32 (g//8) + 1024 (b//8)) K is the sum of three looked-up terms, one per channel. */
+HOT_LOOP_CLONES
+static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, Py_ssize_t K, Py_ssize_t cell,
+                             Py_ssize_t hc, Py_ssize_t wc, float *o, Py_ssize_t step)
 {
-    (void)self;
+    const float inv = 1.0f / (float)(cell * cell);
+    Py_ssize_t term_b[256], term_g[256], term_r[256];
+    for (int v = 0; v < 256; v++) {
+        term_b[v] = (Py_ssize_t)(1024 * (v >> 3)) * K;
+        term_g[v] = (Py_ssize_t)(32 * (v >> 3)) * K;
+        term_r[v] = (Py_ssize_t)(v >> 3) * K;
+    }
+#define COLOUR_ROW(p) (term_b[(p)[0]] + term_g[(p)[1]] + term_r[(p)[2]])
+    for (Py_ssize_t cy = 0; cy < hc; cy++)
+        for (Py_ssize_t cx = 0; cx < wc; cx++) {
+            const uint8_t *corner = s + (cy * cell * W + cx * cell) * 3;
+            float *dst = o + (cy * wc + cx) * step;
+            if (K == 10) { /* the derived and the original tables: a fixed count the compiler unrolls */
+                float acc[10] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+                for (Py_ssize_t dy = 0; dy < cell; dy++) {
+                    const uint8_t *p = corner + dy * W * 3;
+                    for (Py_ssize_t dx = 0; dx < cell; dx++, p += 3) {
+                        const float *entry = tab + COLOUR_ROW(p);
+                        for (int k = 0; k < 10; k++)
+                            acc[k] += entry[k];
+                    }
+                }
+                for (int k = 0; k < 10; k++)
+                    dst[k] = acc[k] * inv;
+            } else {
+                for (Py_ssize_t k = 0; k < K; k++)
+                    dst[k] = 0.0f;
+                for (Py_ssize_t dy = 0; dy < cell; dy++) {
+                    const uint8_t *p = corner + dy * W * 3;
+                    for (Py_ssize_t dx = 0; dx < cell; dx++, p += 3) {
+                        const float *entry = tab + COLOUR_ROW(p);
+                        for (Py_ssize_t k = 0; k < K; k++)
+                            dst[k] += entry[k];
+                    }
+                }
+                for (Py_ssize_t k = 0; k < K; k++)
+                    dst[k] *= inv;
+            }
+        }
+#undef COLOUR_ROW
+}
+
+/* ---------------------------------------------------------------------------------------------
+ * colour_cells(src, h, w, table, channels, cell, out[, step]): mean over each cell of table[row(pixel)],
+ * row = r//8 + 32*(g//8) + 1024*(b//8) of the uint8 BGR pixel; out float32 (H//cell, W//cell, channels), or each
+ * cell's values `step` floats after the previous cell's (into a channel stack); colour_cells_reference: the same
+ * through colour_cells_one_reference (step = channels, for the tests).
+ */
+static PyObject *colour_cells_run(PyObject *args, int reference)
+{
     PyObject *o_src, *o_table, *o_out;
-    Py_ssize_t H, W, K, cell;
-    if (!PyArg_ParseTuple(args, "OnnOnnO", &o_src, &H, &W, &o_table, &K, &cell, &o_out))
+    Py_ssize_t H, W, K, cell, step = -1;
+    if (!PyArg_ParseTuple(args, "OnnOnnO|n", &o_src, &H, &W, &o_table, &K, &cell, &o_out, &step))
         return NULL;
-    if (K < 1 || cell < 1 || H < cell || W < cell) {
+    if (step == -1)
+        step = K;
+    if (K < 1 || cell < 1 || H < cell || W < cell || step < K || (reference && step != K)) {
         PyErr_SetString(PyExc_ValueError, "colour_cells: invalid sizes");
         return NULL;
     }
@@ -612,18 +1236,35 @@ static PyObject *colour_cells(PyObject *self, PyObject *args)
         PyBuffer_Release(&src);
         return NULL;
     }
-    if (get_buffer(o_out, &out, 1, hc * wc * K * 4, "out") < 0) {
+    if (get_buffer(o_out, &out, 1, ((hc * wc - 1) * step + K) * 4, "out") < 0) {
         PyBuffer_Release(&table);
         PyBuffer_Release(&src);
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
-    colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf);
+    if (reference)
+        colour_cells_one_reference((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc,
+                                   (float *)out.buf);
+    else
+        colour_cells_one((const uint8_t *)src.buf, W, (const float *)table.buf, K, cell, hc, wc, (float *)out.buf,
+                         step);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&out);
     PyBuffer_Release(&table);
     PyBuffer_Release(&src);
     Py_RETURN_NONE;
+}
+
+static PyObject *colour_cells(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return colour_cells_run(args, 0);
+}
+
+static PyObject *colour_cells_reference(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return colour_cells_run(args, 1);
 }
 
 /* ---------------------------------------------------------------------------------------------
@@ -836,8 +1477,13 @@ static PyObject *strcf_f_step(PyObject *self, PyObject *args)
 
 static PyMethodDef methods[] = {
     {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
+    {"resample_reference", resample_reference, METH_VARARGS,
+     "resample through abi 5's loops, the bit-exact specification of resample."},
     {"fhog", fhog, METH_VARARGS, "fHOG, 31 channels per cell (see fhog.py)."},
+    {"fhog_reference", fhog_reference, METH_VARARGS, "fhog through abi 5's loops, the bit-exact specification of fhog."},
     {"colour_cells", colour_cells, METH_VARARGS, "Cell means of colour-table rows of BGR pixels (see colour.py)."},
+    {"colour_cells_reference", colour_cells_reference, METH_VARARGS,
+     "colour_cells through abi 5's loops, the bit-exact specification of colour_cells."},
     {"strcf_f_step", strcf_f_step, METH_VARARGS, "One STRCF ADMM iteration's element-wise work (see dcf.admm_solve)."},
     {NULL, NULL, 0, NULL},
 };
@@ -846,7 +1492,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 5
+#define KERNELS_ABI 6
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

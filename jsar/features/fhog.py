@@ -7,7 +7,8 @@ linearly between the two nearest; each pixel split bilinearly between the four n
 ((c + 0.5) * cell px), output (H // cell, W // cell). Every cell normalised by its four 2x2-cell blocks
 (1 / sqrt(block energy + EPS)) and clipped at 0.2; EPS is on this unscaled histogram scale, so it matters only
 on flat regions. The compiled kernel (jsar/features/_kernels.c) runs `fhog` / `fhog_batch`; the numpy functions
-below are the specification it is tested against (agreement to 2e-5).
+below are the specification it is tested against (agreement to 2e-5), and `fhog_batch_reference_loops` (the
+kernel's earlier loops) the numbers it must give to the bit.
 """
 from __future__ import annotations
 
@@ -136,8 +137,12 @@ def fhog_batch_reference(images: np.ndarray, cell: int = 4) -> np.ndarray:
     return features_from_histograms(orientation_histograms(gx, gy, cell))
 
 
-def fhog_batch(images: np.ndarray, cell: int = 4) -> np.ndarray:
-    """float32 (N, H//cell, W//cell, 31) fHOG of N equal-size images (N, H, W[, 3]) on a 0..255 scale."""
+def fhog_batch(images: np.ndarray, cell: int = 4, stack: np.ndarray | None = None, channel: int = 0) -> np.ndarray:
+    """float32 (N, H//cell, W//cell, 31) fHOG of N equal-size images (N, H, W[, 3]) on a 0..255 scale.
+
+    With `stack`, a C-contiguous float32 (N, H//cell, W//cell, C) array, the 31 channels are written into
+    stack[..., channel:channel + 31] (a feature stack, without a copy) and that view is returned.
+    """
     _check_images(images, True, cell)
     if images.dtype == np.uint8:
         src = np.ascontiguousarray(images)
@@ -145,8 +150,26 @@ def fhog_batch(images: np.ndarray, cell: int = 4) -> np.ndarray:
         src = np.ascontiguousarray(images, dtype=np.float32)
     n, h, w = src.shape[:3]
     channels = 1 if src.ndim == 3 else 3
+    if stack is None:
+        out = np.empty((n, h // cell, w // cell, N_CHANNELS), np.float32)
+        _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), out)
+        return out
+    if (stack.dtype != np.float32 or not stack.flags.c_contiguous or stack.shape[:3] != (n, h // cell, w // cell)
+            or not 0 <= channel <= stack.shape[3] - N_CHANNELS):
+        raise ValueError(f"stack must be C-contiguous float32 ({n}, {h // cell}, {w // cell}, >= channel + 31), "
+                         f"got {stack.dtype} {stack.shape} for channel {channel}")
+    _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), stack.reshape(-1)[channel:], stack.shape[3])
+    return stack[..., channel:channel + N_CHANNELS]
+
+
+def fhog_batch_reference_loops(images: np.ndarray, cell: int = 4) -> np.ndarray:
+    """`fhog_batch` through the compiled kernel's loops of abi 5 (`fhog_reference`): the numbers `fhog_batch` must
+    give to the bit (its faster loops are tested against these)."""
+    _check_images(images, True, cell)
+    src = np.ascontiguousarray(images) if images.dtype == np.uint8 else np.ascontiguousarray(images, dtype=np.float32)
+    n, h, w = src.shape[:3]
     out = np.empty((n, h // cell, w // cell, N_CHANNELS), np.float32)
-    _kernels.fhog(src, n, h, w, channels, src.dtype == np.uint8, int(cell), out)
+    _kernels.fhog_reference(src, n, h, w, 1 if src.ndim == 3 else 3, src.dtype == np.uint8, int(cell), out)
     return out
 
 

@@ -7,7 +7,8 @@ interpolation at its centre (cv2.INTER_LINEAR's positions). The border is replic
 indices, so no padded copy is made however far outside the region lies. uint8 results are rounded half up,
 equal to cv2.resize on whole-pixel regions inside the image up to OpenCV's fixed-point weights.
 The compiled kernel (jsar/features/_kernels.c) runs `sample_patch`, `sample_patches` and `resample_regions`;
-`axis_weights` + `resample_regions_reference` are the numpy specification it is tested against.
+`axis_weights` + `resample_regions_reference` are the numpy specification it is tested against, and
+`resample_reference_loops` (the kernel's earlier loops) the numbers it must give to the bit.
 """
 from __future__ import annotations
 
@@ -95,7 +96,7 @@ def _validated(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: t
 
 
 def _resample_native(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int],
-                     dtype: type) -> np.ndarray:
+                     dtype: type, kernel=_kernels.resample) -> np.ndarray:
     centre, sizes, out_w, out_h = _validated(image, centre_xy, sizes_wh, out_wh)
     if image.dtype != np.uint8:
         raise ValueError(f"image must be uint8, got dtype {image.dtype}")
@@ -103,9 +104,16 @@ def _resample_native(image: np.ndarray, centre_xy: object, sizes_wh: object, out
     height, width = src.shape[:2]
     channels = 1 if src.ndim == 2 else src.shape[2]
     out = np.empty((sizes.shape[0], out_h, out_w) + image.shape[2:], dtype)
-    _kernels.resample(src, height, width, channels, float(centre[0]), float(centre[1]),
-                      np.ascontiguousarray(sizes), sizes.shape[0], out_w, out_h, out, dtype == np.uint8)
+    kernel(src, height, width, channels, float(centre[0]), float(centre[1]), np.ascontiguousarray(sizes), sizes.shape[0],
+           out_w, out_h, out, dtype == np.uint8)
     return out
+
+
+def resample_reference_loops(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int],
+                             dtype: type = np.uint8) -> np.ndarray:
+    """`sample_patches` (uint8) or `resample_regions` (float32) through the compiled kernel's loops of abi 5
+    (`resample_reference`): the numbers they must give to the bit (their faster loops are tested against these)."""
+    return _resample_native(image, centre_xy, sizes_wh, out_wh, dtype, _kernels.resample_reference)
 
 
 def resample_regions(image: np.ndarray, centre_xy: object, sizes_wh: object, out_wh: tuple[int, int]) -> np.ndarray:

@@ -882,19 +882,26 @@ def test_a_target_confirmed_at_the_coasting_core_is_judged_afresh_and_not_lost_a
     assert all(states[i] == "tracking" for i in range(exits[0] + 1, 90)), states
 
 
-def test_a_target_that_changed_for_good_is_followed_but_the_loss_ends_only_through_the_decision_filter():
+@pytest.mark.parametrize("coast_max_frames", [0, 30])
+def test_a_target_that_changed_for_good_is_followed_but_the_loss_ends_only_through_the_decision_filter(
+        coast_max_frames: int):
     """The fading target moving 1.5 px per frame stays faded (a car that turned, or drove into shade, for
     good): the decision filter only ever learnt it as it was. The coasting core follows it, its box on
     the target, but a core confident on what it follows does not end the loss by itself: it learns
-    whatever it follows, an occluder as well (the closed loop's bridge)."""
+    whatever it follows, an occluder as well (the closed loop's bridge). The coast lasts
+    search.coast_max_frames lost frames (0: to the end); then the core waits and the target moves on."""
     frames, truth = _fading_target(120, 40, 3, back_at=None)
-    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect())
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"coast_max_frames": coast_max_frames}))
     tracker.init(frames[0], truth[0])
     results = _run(tracker, frames[1:])
     lost = [i for i in results if results[i][0] == "lost"]
     assert lost, "the fading must cost the core its confidence: the scenario tests nothing"
-    for i in range(1, 120):
+    followed = 120 if coast_max_frames == 0 else lost[0] + coast_max_frames
+    assert followed < 120 or coast_max_frames == 0, "the loss must outlast the bound: the scenario tests nothing"
+    for i in range(1, followed):
         assert math.dist(_centre(results[i][1]), _centre(truth[i])) < 8, (i, results[i], truth[i])
+    if followed < 120:
+        assert math.dist(_centre(results[119][1]), _centre(truth[119])) > 8, "the core must stop following"
     assert all(results[i][0] == "lost" for i in range(lost[0], 120))
 
 
@@ -1177,3 +1184,30 @@ def test_after_an_appearance_loss_the_core_does_not_coast_on_the_place_called_an
     assert len(waited) >= 10 and not any(waited)
     coasted = coasting_frames(True)
     assert len(coasted) >= 10 and any(coasted), "the core must coast where allowed: the scenario tests nothing"
+
+
+def test_a_coast_the_decision_filter_never_confirms_ends_after_search_coast_max_frames():
+    """At frame 30 another, still object takes the target's place for good (a peak loss): the core's detection on it
+    stays at the prediction, so the core coasts there on every lost frame, and the search must beat it. With
+    search.coast_max_frames 8 it coasts 8 lost frames of the loss and then waits at the prediction (the real-time
+    soak: a core coasting on still ground held the search for minutes while the car drove out of view)."""
+    background = _background()
+
+    def coasting_frames(limit: int) -> list[bool]:
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"coast_max_frames": limit}))
+        tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
+        coasting = []
+        for index in range(1, 70):
+            frame = _frame(background, (100, 100) if index < 30 else None)
+            if index >= 30:
+                _paste(frame, _other_object(), (100, 100))
+            tracker.update(frame)
+            if tracker.loss is not None:
+                coasting.append(tracker.loss.coasting)
+        return coasting
+
+    unbounded = coasting_frames(0)
+    assert len(unbounded) >= 30 and sum(unbounded) > 8, "the core must coast on and on: the scenario tests nothing"
+    bounded = coasting_frames(8)
+    assert len(bounded) == len(unbounded)
+    assert sum(bounded) == 8 and not any(bounded[bounded.index(True) + 8:])

@@ -343,8 +343,9 @@ class JsarReTracker:
         """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
         within coast_radius_sides of where the target was going (a target still there whose look
         changed moves on as predicted; an absent one's background does not), the loss's cause is the
-        monitor's (unless search.coast_after_drift) and, with search.coast_unless_other, the verifier does
-        not call it another object; else the core waits at the prediction, learning nothing. The
+        monitor's (unless search.coast_after_drift), the loss has not coasted search.coast_max_frames yet and,
+        with search.coast_unless_other, the verifier does not call it another object; else the core waits at the
+        prediction, learning nothing. The
         decision filter learns nothing either way."""
         radius = self.redetect.search.coast_radius_sides * loss.side_px
         near = math.hypot(loc.centre_xy[0] - loss.anchor_xy[0], loc.centre_xy[1] - loss.anchor_xy[1]) <= radius
@@ -353,12 +354,17 @@ class JsarReTracker:
         # A drift or appearance loss began because the core's place was judged not the target: a coast there
         # relearns it, and the prediction, following the coast, holds the search on it.
         refused = self.loss_cause in ("drift", "appearance") and not self.redetect.search.coast_after_drift
-        if near and not refused and not (self.redetect.search.coast_unless_other
-                                         and self._looks_other(frame, loc.centre_xy)):
+        # A coast the decision filter never confirms may be on still ground (the closed loop's camera coasting past
+        # it): bounded, the search is no longer held on it (_beating_the_core) nor the prediction with it.
+        limit = self.redetect.search.coast_max_frames
+        spent = limit > 0 and loss.coasted_frames >= limit
+        if near and not refused and not spent and not (self.redetect.search.coast_unless_other
+                                                       and self._looks_other(frame, loc.centre_xy)):
             self.core.commit(frame, loc)
             self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
             loss.coasting = True
+            loss.coasted_frames += 1
         else:
             self.core.relocate(loss.anchor_xy)
             loss.coasting = False

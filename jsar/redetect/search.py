@@ -130,6 +130,7 @@ class LossSearch:
     reach_sides: float = math.inf  # the motion gate's radius this frame (target sides from anchor_xy)
     refuted: list[Candidate] = field(default_factory=list)  # re-acquisitions of this search that did not hold
     coasting: bool = False  # the core followed its own detection on the last lost frame
+    coasted_frames: int = 0  # lost frames of this search on which the core coasted
 
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""

@@ -345,8 +345,7 @@ class JsarReTracker:
         changed moves on as predicted; an absent one's background does not), the loss's cause is the
         monitor's (unless search.coast_after_drift), the loss has not coasted search.coast_max_frames yet and,
         with search.coast_unless_other, the verifier does not call it another object; else the core waits at the
-        prediction, learning nothing. The
-        decision filter learns nothing either way."""
+        prediction, learning nothing. The decision filter learns nothing either way."""
         radius = self.redetect.search.coast_radius_sides * loss.side_px
         near = math.hypot(loc.centre_xy[0] - loss.anchor_xy[0], loc.centre_xy[1] - loss.anchor_xy[1]) <= radius
         # The motion model follows a coasting core: on still ground that the verifier calls another object the

@@ -118,7 +118,7 @@ class TrackingLoop:
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "lost_drift": 0, "lost_appearance": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0, "clock_resets": 0, "coasts": 0, "coasts_resumed": 0, "coast_frames": 0,
-                         "size_bounded_frames": 0}
+                         "size_bounded_frames": 0, "frame_gap_holds": 0}
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
@@ -234,6 +234,7 @@ class TrackingLoop:
         if self.tracker is None or self.halted:
             return
         self.halted = True
+        self.counters["frame_gap_holds"] += 1
         self._reset_controller()
         if self.coast is not None:  # frames stopped: nothing measures the camera any more, hold
             log.info("event=coast_end reason=no_frames")

@@ -551,12 +551,13 @@ def test_a_slow_step_is_not_a_frame_gap(monkeypatch) -> None:
     loop.run(mailbox, mailbox.stop)  # type: ignore[arg-type]
     held = [cmd for cmd in commands if cmd.state == LoopState.LOST and cmd.rates == (0.0, 0.0)]
     assert not held, f"held while frames kept coming: {held}"
-    assert len(commands) == len(frames) and loop.state == LoopState.TRACKING
+    assert len(commands) == len(frames) and loop.state == LoopState.TRACKING and loop.counters["frame_gap_holds"] == 0
 
     mailbox.script = [None, None, None]  # then the camera stops: 0.75 s without a frame
     loop.run(mailbox, mailbox.stop)  # type: ignore[arg-type]
     held = [cmd for cmd in commands[len(frames):] if cmd.state == LoopState.LOST and cmd.rates == (0.0, 0.0)]
     assert len(held) == 1 and len(commands) == len(frames) + 1, commands[len(frames):]
+    assert loop.counters["frame_gap_holds"] == 1
 
 
 def test_point_proposal_snaps_to_the_object_under_the_click() -> None:

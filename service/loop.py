@@ -37,7 +37,7 @@ from service.sources.base import Frame, LatestSlot
 
 log = logging.getLogger("service.loop")
 CLOCK_LIMITS = ClockLimits()  # controller time step bounds, capture-clock seconds
-FRAME_GAP_S = 0.5  # no frame for this long while tracking: hold gimbal and vehicle
+FRAME_GAP_S = 0.5  # no frame for this long after a step, while tracking: hold gimbal and vehicle
 SEARCH_LOG_EVERY_S = 1.0  # while lost, the re-detection's best candidate is logged at most this often (s)
 
 
@@ -118,28 +118,32 @@ class TrackingLoop:
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
         self.counters = {"frames": 0, "selections": 0, "lost": 0, "lost_drift": 0, "lost_appearance": 0, "recovered": 0, "tracker_errors": 0,
                          "resized": 0, "clock_resets": 0, "coasts": 0, "coasts_resumed": 0, "coast_frames": 0,
-                         "size_bounded_frames": 0}
+                         "size_bounded_frames": 0, "frame_gap_holds": 0}
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self, mailbox: LatestSlot[Frame], should_stop: Callable[[], bool],
             on_iteration: Callable[[], None] = lambda: None) -> None:
         """Take the newest frame and step, until should_stop(); on_iteration pings the watchdog."""
-        last_frame_s = time.monotonic()
+        # The gap counts from the end of the last step, when its commands went out and the loop was ready
+        # for the next frame: a step's own time is not a camera gap. Counted from the frame's arrival, a
+        # step longer than FRAME_GAP_S / 2 (a slow CPU, re-detection) followed by one empty wait held a
+        # camera that had not stopped, and the held controller's reset made the run depend on step times.
+        ready_s = time.monotonic()
         while not should_stop():
             on_iteration()
             frame = mailbox.take(timeout_s=FRAME_GAP_S / 2)
             if frame is None:
                 self._apply_selection_without_frame()
-                if time.monotonic() - last_frame_s > FRAME_GAP_S:
+                if time.monotonic() - ready_s > FRAME_GAP_S:
                     self._hold_without_frames()
                 continue
-            last_frame_s = time.monotonic()
             self.halted = False
             try:
                 self.step(frame)
             except Exception:  # noqa: BLE001 - never crash the daemon on one frame
                 log.exception("event=step_failed frame_id=%d", frame.frame_id)
                 self._stop_tracking("step failed")
+            ready_s = time.monotonic()
 
     def step(self, frame: Frame) -> FrameReport:
         """Process one frame: apply a pending selection, track, take the autopilot snapshot, control, report."""
@@ -221,7 +225,7 @@ class TrackingLoop:
         return "started"
 
     def _hold_without_frames(self) -> None:
-        """No frame for FRAME_GAP_S while tracking: command zero rates / zero velocity once.
+        """No frame for FRAME_GAP_S after the last step while tracking: command zero rates / zero velocity once.
 
         Rate commands persist on some gimbals and velocity setpoints until the autopilot's timeout:
         without frames nothing would correct them, so the camera and vehicle are held still until
@@ -230,6 +234,7 @@ class TrackingLoop:
         if self.tracker is None or self.halted:
             return
         self.halted = True
+        self.counters["frame_gap_holds"] += 1
         self._reset_controller()
         if self.coast is not None:  # frames stopped: nothing measures the camera any more, hold
             log.info("event=coast_end reason=no_frames")

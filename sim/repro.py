@@ -36,6 +36,7 @@ class RunTrace:
     commands: tuple[tuple[Any, ...], ...]
     summary: dict[str, Any]
     gimbal_command_timeouts: int
+    frame_gap_holds: int  # the daemon's no-frames holds: wall-clock events, so a run with any may not repeat
 
 
 def _plain(value: Any) -> Any:
@@ -58,7 +59,8 @@ def trace_of(loop: ClosedLoop, result: RunResult) -> RunTrace:
          tuple(sorted((k, _plain(v)) for k, v in c.fields.items() if k not in WALL_CLOCK_FIELDS)))
         for c in loop.autopilot.commands(link="service")
         if c.src_component == SERVICE_COMPONENT and c.msg_type in CONTROL_TYPES)
-    return RunTrace(frames, commands, result.summary(), result.gimbal_command_timeouts)
+    return RunTrace(frames, commands, result.summary(), result.gimbal_command_timeouts,
+                    int(result.counters.get("frame_gap_holds", 0)))
 
 
 def first_difference(a: RunTrace, b: RunTrace) -> str | None:
@@ -99,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         trace = run_once(cfg)
         traces.append(trace)
         print(json.dumps({"run": i + 1, "frames": len(trace.frames), "commands": len(trace.commands),
-                          **trace.summary}), flush=True)
+                          "frame_gap_holds": trace.frame_gap_holds, **trace.summary}), flush=True)
     differences = [first_difference(traces[0], t) for t in traces[1:]]
     for i, diff in enumerate(differences, start=2):
         print(f"run 1 vs run {i}: " + ("identical" if diff is None else f"differ at {diff}"), flush=True)

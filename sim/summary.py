@@ -88,6 +88,8 @@ COUNTER_MEANINGS = {
     "coast_frames": "frames spent coasting",
     "size_bounded_frames": "frames tracked with the range size bound set (box side held within a band around the "
                            "car's remembered ground size); how often it was set, not how often it changed the box",
+    "frame_gap_holds": "holds while tracking because no frame came for 0.5 s after a step (zero rates / velocity, "
+                       "the controllers reset); a lockstep run is only reproducible without them",
     "out_gimbal": "gimbal rate commands sent (287 ArduPilot, 282 PX4)",
     "out_claims": "PX4 gimbal-control claims sent (command 1001)",
     "out_velocity": "velocity setpoints sent (only in GUIDED / OFFBOARD)",

@@ -489,6 +489,77 @@ def test_gimbal_controller_does_not_integrate_while_the_autopilot_is_silent() ->
     assert commands[-1].state == "tracking"  # still tracking: only the controller's memory is dropped
 
 
+class _ScriptedClock:
+    """service.loop's monotonic clock in a test: moves only when the script says so."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+class _ScriptedMailbox:
+    """The loop's frame mailbox: each take() returns the script's next frame, or None after its timeout
+    has passed on the clock; stop() is true once the script is done."""
+
+    def __init__(self, clock: _ScriptedClock, script: list) -> None:
+        self.clock, self.script = clock, list(script)
+
+    def take(self, timeout_s: float):
+        item = self.script.pop(0)
+        if item is None:
+            self.clock.now += timeout_s
+        return item
+
+    def stop(self) -> bool:
+        return not self.script
+
+
+def test_a_slow_step_is_not_a_frame_gap(monkeypatch) -> None:
+    """The no-frames hold counts from the end of the last step: a step that takes 0.4 s followed by a frame
+    0.25 s later (one empty wait) is a camera that keeps sending, not one that stopped; 0.75 s without a frame
+    after a step is a gap, held once. (Counted from the frame's arrival, the hold fired after slow steps, and
+    its controller reset made a lockstep run depend on how long steps took: an aarch64 box under emulation.)"""
+    import numpy as np
+    from service import loop as loop_module
+    from service.loop import FRAME_GAP_S, TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    clock = _ScriptedClock()
+    monkeypatch.setattr(loop_module, "time", clock)
+    step_s = 0.4
+    assert FRAME_GAP_S / 2 < step_s < FRAME_GAP_S < step_s + FRAME_GAP_S / 2  # the case that was held
+
+    class SlowTracker(_StillTracker):
+        def update(self, image):
+            clock.now += step_s  # a slow CPU's tracking step
+            return super().update(image)
+
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
+    commands = _CommandLog()
+    selections: LatestSlot = LatestSlot()
+    loop = TrackingLoop(config, selections, SlowTracker, commands,
+                        lambda: AutopilotView(system_id=1, last_heartbeat_s=clock.now))  # heard all along
+    selections.put(c.TrackRectangle(0.70, 0.45, 0.80, 0.55))
+    image = np.zeros((100, 100, 3), np.uint8)
+    frames = [Frame(image, k, 0.033 * k, 0.0) for k in range(6)]
+    script = [frames[0], frames[1]]
+    for frame in frames[2:]:
+        script += [None, frame]  # each frame a quarter of the gap after the last step ended
+    mailbox = _ScriptedMailbox(clock, script)
+    loop.run(mailbox, mailbox.stop)  # type: ignore[arg-type]
+    held = [cmd for cmd in commands if cmd.state == LoopState.LOST and cmd.rates == (0.0, 0.0)]
+    assert not held, f"held while frames kept coming: {held}"
+    assert len(commands) == len(frames) and loop.state == LoopState.TRACKING and loop.counters["frame_gap_holds"] == 0
+
+    mailbox.script = [None, None, None]  # then the camera stops: 0.75 s without a frame
+    loop.run(mailbox, mailbox.stop)  # type: ignore[arg-type]
+    held = [cmd for cmd in commands[len(frames):] if cmd.state == LoopState.LOST and cmd.rates == (0.0, 0.0)]
+    assert len(held) == 1 and len(commands) == len(frames) + 1, commands[len(frames):]
+    assert loop.counters["frame_gap_holds"] == 1
+
+
 def test_point_proposal_snaps_to_the_object_under_the_click() -> None:
     import cv2
     import numpy as np

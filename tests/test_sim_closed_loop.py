@@ -274,6 +274,9 @@ def test_lockstep_run_is_reproducible():
     cfg = ClosedLoopConfig(flavour="px4", duration_s=4.0, guidance="velocity")
     first, second = run_once(cfg), run_once(cfg)
     assert first.gimbal_command_timeouts == 0 and second.gimbal_command_timeouts == 0
+    # the daemon's no-frames hold runs on its wall clock: a sim slower than that gap (a machine overloaded)
+    # would make the runs part for that reason, said here rather than as a difference of boxes
+    assert (first.frame_gap_holds, second.frame_gap_holds) == (0, 0)
     assert len(first.frames) == 120 and first.commands
     difference = first_difference(first, second)
     assert difference is None, difference

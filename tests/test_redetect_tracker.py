@@ -18,7 +18,7 @@ from jsar.config import JsarParams
 from jsar.redetect.jsar_re import TRANSITIONS, JsarReTracker, Phase
 from jsar.features.patches import sample_patch
 from jsar.redetect.memory import turned_patch, window_features
-from jsar.redetect.params import AcceptParams, RedetectParams, SearchParams
+from jsar.redetect.params import AcceptParams, ColourParams, RedetectParams, SearchParams, VerifyParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
                                   search_cycle, track_speed)
 from jsar.tracking.jsar_tracker import JsarTracker
@@ -1061,6 +1061,42 @@ class _PlaceEmbedder:
         x, y, w, h = region_xywh
         return [(tx, ty, 0.9) for tx, ty in self.targets if x <= tx < x + w and y <= ty < y + h
                 and frame[int(ty), int(tx)].tolist() == _target()[TARGET // 2, TARGET // 2].tolist()][:count]
+
+
+def test_the_verifier_embeds_only_candidates_whose_look_can_change_the_decision():
+    """A lost frame's candidates are embedded when over the bar (a refused one is learnt as a look-alike) or
+    over the lowest bar a look can give and takeable (within the motion gate, beating any refuted place near
+    it); a window's peak outside the gate and under the bar is not: its look would change nothing."""
+    embedder = _PlaceEmbedder([(112.0, 112.0)])
+    frame = _frame(_background(), (100, 100))
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True}), embedder=embedder)
+    tracker.init(frame, _target_box((100, 100)))
+    embedded: list[tuple[float, float]] = []
+    real_embed = embedder.embed
+
+    def recording(image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        embedded.extend((x + w / 2, y + h / 2) for x, y, w, h in np.asarray(boxes, float).reshape(-1, 4))
+        return real_embed(image, boxes)
+
+    embedder.embed = recording
+    side = math.sqrt(tracker.core.size_wh[0] * tracker.core.size_wh[1])
+    loss = LossSearch((112.0, 112.0), side, SearchParams(), AcceptParams(), lost_frames=10)
+    loss.reach_sides = 2.0
+    bar = 0.03
+    lowest = min(VerifyParams().bar_fraction, ColourParams().clear_bar_fraction) * bar
+    near_low = Candidate(112.0 + side, 112.0, (lowest + bar) / 2)  # within the gate, between the bars
+    far_low = Candidate(112.0 + 4 * side, 112.0, (lowest + bar) / 2)  # outside the gate, between the bars
+    far_high = Candidate(112.0, 112.0 + 4 * side, 1.5 * bar)  # outside the gate, over the bar
+    under = Candidate(112.0 - side, 112.0, 0.9 * lowest)  # within the gate, under every bar
+    refuted_near = Candidate(112.0, 112.0 - 1.8 * side, (lowest + bar) / 2)  # within the gate, at a refuted place
+    loss.refuted.append(Candidate(112.0, 112.0 - 1.8 * side, bar))  # refute_margin x 0.03 to beat it (2 sides from near_low)
+    looks = tracker._looks(frame, loss, [near_low, far_low, far_high, under, refuted_near], bar)
+    assert set(looks) == {id(near_low), id(far_high)}
+    assert sorted(embedded) == sorted([(near_low.x, near_low.y), (far_high.x, far_high.y)])
+    # Without the gate every candidate over the lowest bar that beats the refuted places is embedded.
+    loss.reach_sides = math.inf
+    assert set(tracker._looks(frame, loss, [near_low, far_low, far_high, under, refuted_near], bar)) \
+        == {id(near_low), id(far_low), id(far_high)}
 
 
 def test_a_look_alike_the_verifier_calls_another_object_is_not_taken_even_above_the_bar():

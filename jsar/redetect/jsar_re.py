@@ -456,7 +456,7 @@ class JsarReTracker:
               own: Candidate) -> Candidate | None:
         """The candidate taken on this lost frame (LossSearch.decide with the colour and verifier tests), or None."""
         minimum, over_match = self.redetect.colour.min_match, self.redetect.verify.over_colour_match
-        looks = self._looks(frame, candidates, bar)
+        looks = self._looks(frame, loss, candidates, bar)
         # The verifier's "target" stands in for the colour model's match (the embedding sees the colours too,
         # and the match refused targets whose box held other colours: a wakeboarder in spray), never for the
         # selection's colours (the drift check's: what slid onto grass must not come back through it).
@@ -516,13 +516,16 @@ class JsarReTracker:
         self.appearance.learn_others(rows[1:])
         return self.appearance
 
-    def _looks(self, frame: np.ndarray, candidates: list[Candidate], bar: float) -> dict[int, tuple[Look, np.ndarray]]:
-        """The verifier's Look at each candidate that could pass a bar lowered by it, with its embedding
-        (keyed by id; one batch)."""
+    def _looks(self, frame: np.ndarray, loss: LossSearch, candidates: list[Candidate],
+               bar: float) -> dict[int, tuple[Look, np.ndarray]]:
+        """The verifier's Look at each candidate whose look is used, with its embedding (keyed by id; one batch):
+        over the bar (a refused one is learnt: _learn_refused), or over the lowest bar a look can give and one the
+        search may take (LossSearch.may_take). Embedding the others would change nothing: a window's peak outside
+        the motion gate is never taken (early in a loss most of the lattice's are)."""
         if self.appearance is None or self.embedder is None:
             return {}
         lowest = min(self.redetect.verify.bar_fraction, self.redetect.colour.clear_bar_fraction) * bar
-        near = [c for c in candidates if c.score >= lowest]
+        near = [c for c in candidates if c.score >= bar or (c.score >= lowest and loss.may_take(c))]
         if not near:
             return {}
         rows = self.embedder.embed(frame, np.array([self._loss_box((c.x, c.y)) for c in near]))

@@ -160,6 +160,15 @@ class LossSearch:
                 if candidate.distance_sides((r.x, r.y), self.side_px) <= self.accept.confirm_radius_sides]
         return self.accept.refute_margin * max(near) if near else 0.0
 
+    def within_gate(self, candidate: Candidate) -> bool:
+        """Whether `candidate` lies within the motion gate (reach_sides of anchor_xy): only then may it be taken."""
+        return candidate.distance_sides(self.anchor_xy, self.side_px) <= self.reach_sides
+
+    def may_take(self, candidate: Candidate) -> bool:
+        """Whether `candidate` could be taken on this frame at some bar: within the gate and beating any refuted
+        place near it (refuted_bar)."""
+        return self.within_gate(candidate) and candidate.score >= self.refuted_bar(candidate)
+
     def decide(self, candidates: list[Candidate], bar: float, check: Callable[[Candidate], bool] | None = None,
                bar_for: Callable[[Candidate], float] | None = None) -> Candidate | None:
         """The candidate taken on this frame, or None; the best candidate found at least RECENTRE_SIDES
@@ -177,8 +186,7 @@ class LossSearch:
         # centred is known; re-centring on it again would let one look-alike hold the lead for good.
         off_centre = [c for c in candidates if c.off_centre_sides(self.side_px) >= RECENTRE_SIDES]
         self.lead = max(off_centre, key=lambda c: c.score) if off_centre else None
-        above = [c for c in candidates if c.score >= max(bar if bar_for is None else bar_for(c), self.refuted_bar(c))
-                 and c.distance_sides(self.anchor_xy, self.side_px) <= self.reach_sides
+        above = [c for c in candidates if c.score >= (bar if bar_for is None else bar_for(c)) and self.may_take(c)
                  and (check is None or check(c))]
         if self.pending is not None:
             near = [c for c in above if c.distance_sides((self.pending.x, self.pending.y), self.side_px)

@@ -668,9 +668,12 @@ def _run_with_a_passing_look_alike(redetect: RedetectParams) -> tuple[dict[int, 
     return results, refuted
 
 
+REFUTING = {"verify": {"hold_verified": False}}  # every take lost again on probation is refuted
+
+
 def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
     target_centre, look_alike_centre = (112.0, 112.0), (162.0, 112.0)
-    results, refuted = _run_with_a_passing_look_alike(RedetectParams())
+    results, refuted = _run_with_a_passing_look_alike(_redetect(**REFUTING))
     taken = [i for i in range(35, 50) if results[i][0] == "recovered"]
     assert taken, "the look-alike must be taken while the target is hidden: the scenario tests nothing"
     assert math.dist(_centre(results[taken[0]][1]), look_alike_centre) < 6
@@ -684,10 +687,30 @@ def test_a_take_lost_again_within_probation_is_refuted_and_its_search_resumes():
     assert results[61][0] == "recovered" and math.dist(_centre(results[61][1]), target_centre) < 3  # core, 2 frames
     assert all(results[i][0] == "tracking" for i in range(62, 75))
     # probation_frames 0: the take stands; the next loss is searched from the look-alike's place.
-    standing, never = _run_with_a_passing_look_alike(_redetect(accept={"probation_frames": 0}))
+    standing, never = _run_with_a_passing_look_alike(_redetect(accept={"probation_frames": 0}, **REFUTING))
     relost_standing = min(i for i in range(50, 60) if standing[i][0] == "lost")
     assert math.dist(_centre(standing[relost_standing][1]), target_centre) > 30
     assert all(not never[i] for i in range(1, 75))
+
+
+def test_a_verified_take_lost_again_within_probation_starts_a_new_loss_instead_of_being_refuted():
+    """verify.hold_verified (the default): the look-alike of _run_with_a_passing_look_alike, in the target's colours,
+    is called the target when taken and on every watch check, so its loss on probation is a new loss from where the
+    track is, with no refuted place: a target lost again as it went further under an occluder must not be barred
+    from its own place (bench.occlusions). The target, back at 60, is re-acquired on the same frame as when the take
+    is refuted."""
+    look_alike_centre, target_centre = (162.0, 112.0), (112.0, 112.0)
+    held, places = _run_with_a_passing_look_alike(RedetectParams())
+    refuting, _ = _run_with_a_passing_look_alike(_redetect(**REFUTING))
+    taken = [i for i in range(35, 50) if held[i][0] == "recovered"]
+    assert taken and math.dist(_centre(held[taken[0]][1]), look_alike_centre) < 6
+    relost = min(i for i in range(50, 60) if held[i][0] == "lost")
+    assert relost - taken[0] <= AcceptParams().probation_frames
+    assert math.dist(_centre(held[relost][1]), look_alike_centre) < 6  # searched from the take, not the old search
+    assert math.dist(_centre(refuting[relost][1]), target_centre) < 3  # (refuted: back where the old search waited)
+    assert all(not places[i] for i in range(1, 75))
+    assert held[61][0] == refuting[61][0] == "recovered" and math.dist(_centre(held[61][1]), target_centre) < 3
+    assert all(held[i][0] == "tracking" for i in range(62, 75))
 
 
 def test_a_refuted_take_restarts_the_cores_count_towards_its_own_way_out():
@@ -698,7 +721,7 @@ def test_a_refuted_take_restarts_the_cores_count_towards_its_own_way_out():
 
     def states(hidden_until: int, core_passed_on_take: bool) -> dict[int, str]:
         frame = _hidden_target_scene(_same_colour_look_alike(), (150, 100), range(38, 50), range(35, hidden_until))
-        tracker = JsarReTracker(JsarParams.jsar_re(), RedetectParams())
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(**REFUTING))
         tracker.init(frame(0), _target_box((100, 100)))
         seen: dict[int, str] = {}
         for index in range(1, 60):

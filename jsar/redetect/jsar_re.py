@@ -45,6 +45,7 @@ TRANSITIONS: dict[tuple[Phase, str], Phase] = {
     (Phase.PROBATION, "tracked"): Phase.PROBATION,  # committed within accept.probation_frames of the take
     (Phase.PROBATION, "held"): Phase.TRACKING,  # accept.probation_frames committed: the take holds
     (Phase.PROBATION, "refuted"): Phase.LOST,  # lost again on probation: the search the take ended resumes
+    (Phase.PROBATION, "lost"): Phase.LOST,  # lost again on probation, the take verified throughout: a new loss
     (Phase.LOST, "searched"): Phase.LOST,  # nothing taken: the core coasts or waits
     (Phase.LOST, "core recovered"): Phase.TRACKING,  # the core confident again where the decision filter agrees
     (Phase.LOST, "confirmed at core"): Phase.TRACKING,  # a candidate confirmed where the coasting core is
@@ -76,6 +77,7 @@ class Probation:
     taken: Candidate  # the refuted place: a candidate there must beat it (accept.refute_margin)
     frames_left: int  # committed frames until the take holds
     core_at_loss: JsarTracker | None
+    verified: bool = False  # the verifier called the take and every check since the target (verify.hold_verified)
 
 
 class JsarReTracker:
@@ -179,11 +181,12 @@ class JsarReTracker:
                 self._go(self._track_frame(frame, loc, verdict))
                 return TrackResult(box=self.core.box, score=loc.peak, state="tracking")
             self.loss_cause = cause
-            if self.phase is Phase.PROBATION:
+            if self.phase is Phase.PROBATION and not self._verified_take():
                 self._refute()
                 self._go("refuted")
                 loc, verdict = self._localise(frame)  # the restored core localises afresh
             else:
+                self.probation = None  # a verified take lost again: nothing to restore, a loss of its own
                 loc, verdict = self._start_loss(frame, loc, verdict)
                 self._go("lost")
         event, score = self._search_lost(frame, loc, verdict)
@@ -259,6 +262,8 @@ class JsarReTracker:
         w, h = self.core.size_wh
         box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
         look = self.appearance.judge(self.embedder.embed(frame, np.array([box])))[0]
+        if self.probation is not None and look.verdict is not Appearance.TARGET:
+            self.probation.verified = False
         self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
         return self.away_checks >= verify.watch_count
 
@@ -304,6 +309,14 @@ class JsarReTracker:
 
     def _predicted_centre(self) -> tuple[float, float]:
         return predicted_centre(list(self.recent_centres), self.frame_index, self.redetect.search.predict_max_frames)
+
+    def _verified_take(self) -> bool:
+        """Whether the take on probation stands although lost again (verify.hold_verified): the verifier called it
+        the target when taken and on every check since. Its loss is then a new loss from the track, not a return to
+        the search the take ended with the take's place barred: a target taken back at an occluder's edge and lost
+        again as it went further under comes out near that place (bench.occlusions), and a fast target has moved on
+        from where the old search waited."""
+        return self.redetect.verify.hold_verified and self.probation is not None and self.probation.verified
 
     def _refute(self) -> None:
         """Restore the search a refuted re-acquisition ended; its place joins the refuted ones."""
@@ -401,7 +414,7 @@ class JsarReTracker:
         candidates = self._candidates(frame, loss, own)
         if loss.coasting:
             candidates = self._beating_the_core(candidates, own, loss)
-        taken = self._take(frame, loss, candidates, bar, own)
+        taken, verified = self._take(frame, loss, candidates, bar, own)
         if taken is None:
             self._coast(frame, loc, loss)
             return "searched", loc.peak
@@ -414,7 +427,7 @@ class JsarReTracker:
             # elsewhere restarts it too (_reacquire).
             self.monitor.restart()
             return "confirmed at core", taken.score
-        return self._reacquire_on_probation(frame, loss, taken), taken.score
+        return self._reacquire_on_probation(frame, loss, taken, verified), taken.score
 
     def _bars(self, lost_frames: int) -> tuple[float, float]:
         """The acceptance bars (raw peak) on this lost frame: a candidate's, and the core's own detection's."""
@@ -453,8 +466,9 @@ class JsarReTracker:
                 or c.distance_sides((own.x, own.y), loss.side_px) <= self.redetect.accept.confirm_radius_sides]
 
     def _take(self, frame: np.ndarray, loss: LossSearch, candidates: list[Candidate], bar: float,
-              own: Candidate) -> Candidate | None:
-        """The candidate taken on this lost frame (LossSearch.decide with the colour and verifier tests), or None."""
+              own: Candidate) -> tuple[Candidate | None, bool]:
+        """The candidate taken on this lost frame (LossSearch.decide with the colour and verifier tests), or None;
+        whether the verifier called it the target."""
         minimum, over_match = self.redetect.colour.min_match, self.redetect.verify.over_colour_match
         looks = self._looks(frame, loss, candidates, bar)
         # The verifier's "target" stands in for the colour model's match (the embedding sees the colours too,
@@ -467,13 +481,14 @@ class JsarReTracker:
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own,
                                     coasting=loss.coasting)
-        return taken
+        return taken, taken is not None and self._verified(looks, taken)
 
-    def _reacquire_on_probation(self, frame: np.ndarray, loss: LossSearch, taken: Candidate) -> str:
-        """Move the track to `taken`, keeping what a refutation restores (accept.probation_frames > 0); the event."""
+    def _reacquire_on_probation(self, frame: np.ndarray, loss: LossSearch, taken: Candidate, verified: bool) -> str:
+        """Move the track to `taken` (`verified`: the verifier called it the target), keeping what a refutation
+        restores (accept.probation_frames > 0); the event."""
         frames = self.redetect.accept.probation_frames
         kept = (Probation(loss, copy.deepcopy(self.core), copy.deepcopy(self.monitor), list(self.recent_centres),
-                          taken, frames, self.core_at_loss) if frames > 0 else None)
+                          taken, frames, self.core_at_loss, verified) if frames > 0 else None)
         self._reacquire(frame, taken)
         self.probation = kept
         return "reacquired" if kept is not None else "reacquired unguarded"

@@ -13,7 +13,8 @@ hidden the camera keeps following it, as the service's coast does at best; frame
 
 A frame is "on" when the tracker is not lost and its box centre lies inside the car's ground-truth box. A
 *failure* is `--fail-s` seconds (default 2) of frames in a row on which at least half of the car is visible and
-the tracker is not on it (lost, or confident elsewhere): in the closed loop the camera's coast lasts about as
+the tracker is not on it (lost, or confident elsewhere; frames with the car mostly hidden in between neither count
+nor break the run): in the closed loop the camera's coast lasts about as
 long, so such a run ends the soak. A failure is counted against the last occluder the car passed (or "none"),
 and the tracker is then re-initialised on the ground truth (VOT's reset protocol) so the run goes on. Also
 reported: the frames on which the car is mostly hidden and the tracker reports tracking off the car (false
@@ -49,8 +50,8 @@ class Failure:
     """One loss of the car for good: when the bad run began (s), the occluder before it, how the track ended."""
 
     time_s: float
-    occluder: str  # "canopy", "bridge" or "none" (no occluder within the last 10 s)
-    since_occluder_s: float  # seconds from the car under that occluder's centre to the bad run's start
+    occluder: str  # "canopy", "bridge" or "none" (no occluder from 10 s before to 1 s after the bad run's start)
+    since_occluder_s: float | None  # seconds from the car under that occluder's centre to the bad run's start (< 0: entering it)
     tracker_state: str  # the tracker's state on the run's first frame: "lost" or tracking off the car
     last_event: str | None  # JsarReTracker.last_event then (how the last loss ended), None for other trackers
 
@@ -82,17 +83,18 @@ def camera_pose(aim_n: float, aim_e: float) -> CameraPose:
     return CameraPose(aim_n - STAND_OFF_M, aim_e, ALTITUDE_M, 0.0, pitch)
 
 
-def last_occluder(scene: Scene, t: float) -> tuple[str, float]:
-    """The kind of the last occluder the car was under the centre of by time t (s) within 10 s, and how long ago."""
+def last_occluder(scene: Scene, t: float) -> tuple[str, float | None]:
+    """The kind of the last occluder whose centre the car passed within 10 s before time t (s), or passes within 1 s
+    after it (a run that began as the car went under), and the seconds from that passage to t."""
     passed = [o for o in scene.occluders(t) if o.time_s <= t + 1.0 and t - o.time_s <= 10.0]
     if not passed:
-        return "none", math.nan
+        return "none", None
     last = max(passed, key=lambda o: o.time_s)
     return last.kind, t - last.time_s
 
 
 def new_tracker(make_tracker: Callable[[], Tracker], frame: np.ndarray, box: tuple[float, float, float, float],
-          side_band: float) -> Tracker:
+                side_band: float) -> Tracker:
     """A new tracker initialised on box (x, y, w, h px), side-bounded as the service bounds it (run_seed)."""
     tracker = make_tracker()
     tracker.init(frame, box)
@@ -148,9 +150,9 @@ def run_seed(seed: int, minutes: float, make_tracker: Callable[[], Tracker], tex
         if len(bad_run) >= fail_frames:
             began, state, event = bad_run[0]
             kind, since = last_occluder(scene, began)
-            result.failures.append(Failure(round(began, 3), kind, round(since, 3), state, event))
-            print(f"seed {seed} t={began:.2f}s failure after {kind} (+{since:.2f}s): state={state} "
-                  f"last_event={event}", flush=True)
+            result.failures.append(Failure(round(began, 3), kind, None if since is None else round(since, 3), state, event))
+            when = "" if since is None else f" ({since:+.2f} s from its centre)"
+            print(f"seed {seed} t={began:.2f}s failure after {kind}{when}: state={state} last_event={event}", flush=True)
             tracker = new_tracker(make_tracker, frame, truth.box, side_band)  # VOT's reset: the run goes on from the truth
             bad_run = []
     return result

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from jsar import registry
-from jsar.api import Tracker
+from jsar.api import SideBoundedTracker, Tracker
 from sim.scene import CameraConfig, CameraPose, Scene, SceneConfig
 
 FPS = 30.0
@@ -98,7 +98,7 @@ def new_tracker(make_tracker: Callable[[], Tracker], frame: np.ndarray, box: tup
     """A new tracker initialised on box (x, y, w, h px), side-bounded as the service bounds it (run_seed)."""
     tracker = make_tracker()
     tracker.init(frame, box)
-    if side_band > 0 and hasattr(tracker, "set_side_bounds"):
+    if side_band > 0 and isinstance(tracker, SideBoundedTracker):
         side = math.sqrt(box[2] * box[3])
         tracker.set_side_bounds((side / side_band, side * side_band))
     return tracker

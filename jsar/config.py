@@ -51,8 +51,7 @@ class JsarParams:
     num_aspects: int = checked(13, positive, odd)  # A: aspect ratios on the size grid
     scale_step: float = checked(1.03, at_least(1))  # gamma: size multiplied by gamma^n along the scale axis
     aspect_step: float = checked(1.02, at_least(1))  # phi: (w, h) -> (w * phi^n, h / phi^n), w/h ratio step phi^2
-    size_learning_rate: float = checked(0.03, RATE)  # size filter's learning rate per frame (the original's 0.014: docs/method.md)
-    size_learn_interval: int = checked(4, at_least(1))  # the size filter estimates on every frame and learns on one in this many, at the rate per update that keeps size_learning_rate's memory (1: every frame, the paper's)
+    size_learning_rate: float = checked(0.03, RATE)  # size filter's learning rate (the original's 0.014: docs/method.md)
     size_lambda: float = checked(0.01, non_negative)  # size filter's regularisation weight
     size_model_max_area: float = checked(512.0, positive)  # size model's sample area bound (px^2, 16 x 32), aspect kept
     size_model_min_side: int = checked(8, positive)  # size model's smallest sample side (px): 2 fHOG cells for tiny targets

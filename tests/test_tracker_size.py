@@ -6,7 +6,7 @@ import pytest
 
 from jsar.config import JsarParams
 from jsar.tracking.size_filter import (SizeFilter, best_cell, bound_side, clamp_size, grid_label, grid_sizes, model_size,
-                                       rate_per_update, refined_position)
+                                       refined_position)
 
 
 def test_grid_is_symmetric_and_its_centre_is_the_current_size():
@@ -184,47 +184,12 @@ def _textured_scene(target_wh: tuple[float, float], angle_deg: float = 0.0) -> n
     return frame
 
 
-def test_the_rate_per_update_forgets_as_fast_per_frame_as_the_rate_per_frame():
-    assert rate_per_update(0.03, 1) == pytest.approx(0.03)
-    assert rate_per_update(0.03, 2) == pytest.approx(0.0591)
-    # what k frames at the per-frame rate keep of the old model, one update keeps at the per-update rate
-    assert 1 - rate_per_update(0.1, 3) == pytest.approx(0.9**3)
-    assert SizeFilter(JsarParams(size_learn_interval=4), (40.0, 30.0)).rate == pytest.approx(1 - 0.97**4)
-
-
-@pytest.mark.parametrize("interval", [1, 2, 4])
-def test_the_size_filter_estimates_on_every_frame_and_learns_on_one_in_the_interval(monkeypatch, interval):
-    """size_learn_interval = k: every frame samples the grid at the current size and moves the size; on
-    committed frames 0, k, 2k, ... after init a second grid at the new size trains the filter."""
-    from jsar.tracking import size_filter as size_filter_module
-    from jsar.tracking.jsar_tracker import JsarTracker
-
-    grids, trained = [], []
-    features, train = size_filter_module.SizeFilter._features, size_filter_module.SizeFilter.train
-    monkeypatch.setattr(size_filter_module.SizeFilter, "_features",
-                        lambda self, *args: grids.append(1) or features(self, *args))
-    monkeypatch.setattr(size_filter_module.SizeFilter, "train",
-                        lambda self, *args: trained.append(1) or train(self, *args))
-    tracker = JsarTracker(JsarParams.jsar_re(size_learn_interval=interval))
-    tracker.init(_textured_scene((90.0, 40.0)), (275.0, 220.0, 90.0, 40.0))
-    sizes = [tracker.box[2:]]
-    for k in range(9):
-        grids.clear()
-        trained.clear()
-        sizes.append(tracker.update(_textured_scene((90.0 * 0.99 ** (k + 1), 40.0 * 0.99 ** (k + 1)))).box[2:])
-        learns = k % interval == 0
-        assert sizes[-1] != sizes[-2], k  # the shrinking car moves the estimate on every frame
-        assert (len(grids), len(trained)) == ((2, 1) if learns else (1, 0)), k
-
-
-@pytest.mark.parametrize("interval", [1, 4])
-def test_tracker_box_follows_a_shrinking_target_with_the_default_size_estimate(interval):
+def test_tracker_box_follows_a_shrinking_target_with_the_default_size_estimate():
     """A car shrinking 0.5 % per frame (a sixth of a grid step) for 120 frames: the sub-cell path
-    (fractional steps, fresh grid sample for training) ends within 12 % of its size, both sides, with the
-    size filter learning on every frame and on one in four (the default)."""
+    (fractional steps, fresh grid sample for training) ends within 12 % of its size, both sides."""
     from jsar.tracking.jsar_tracker import JsarTracker
 
-    params = JsarParams.jsar_re(size_learn_interval=interval)
+    params = JsarParams.jsar_re()
     assert params.size_subcell_peak
     tracker = JsarTracker(params)
     tracker.init(_textured_scene((90.0, 40.0)), (275.0, 220.0, 90.0, 40.0))

@@ -226,45 +226,47 @@ class JsarTracker:
         self._initialised = True
 
     def _update_size(self, image: np.ndarray) -> None:
-        """Estimate scale and aspect at the new centre; on one frame in params.size_learn_interval, train
-        the size filter at the new size (at the old one during a hold: hold_size_until_recognised)."""
+        """Estimate scale and aspect at the new centre; train the size filter at the new size (at the
+        old one during a hold: hold_size_until_recognised)."""
         assert self.size_filter is not None
-        size_filter = self.size_filter
-        sample = size_filter.sample(image, self.centre_xy, self.size_wh)
-        sample_f = size_filter.spectrum(sample)
-        resp = size_filter.response(sample_f)
+        sample = self.size_filter.sample(image, self.centre_xy, self.size_wh)
+        sample_f = self.size_filter.spectrum(sample)
+        resp = self.size_filter.response(sample_f)
         peak, mean = float(resp.max()), self.size_peak_mean
         self.size_peak_mean = updated_mean(mean, peak, self.params.size_peak_rate)
-        # Learning needs a second grid of crops at the new size; the size changes slowly, so one frame in
-        # k learns (at the rate per update that keeps the memory per frame) and every frame estimates.
-        learns = self.frame_index % self.params.size_learn_interval == 0
         if self.size_hold_fraction is not None:
             if mean is not None and peak < self.size_hold_fraction * mean:
-                if learns:
-                    size_filter.train(sample_f)
+                self.size_filter.train(sample_f)
                 return
             self.size_hold_fraction = None  # recognised: estimate from here on
-        old_size, shift = self.size_wh, None
         if self.params.size_subcell_peak:
-            fw, fh = size_filter.cell_factors(*refined_position(resp, self.params.size_deadband_cells))
-            self.size_wh = self._clamp((old_size[0] * fw, old_size[1] * fh), image)
-        else:
-            i, j = best_cell(resp)
-            fw, fh = size_filter.cell_factors(i, j)
-            grid_size = (old_size[0] * fw, old_size[1] * fh)
-            self.size_wh = self._clamp(grid_size, image)
-            if self.size_wh == grid_size:  # not clamped: the new grid is the old one shifted by whole cells
-                shift = (i - (size_filter.grid_shape[0] - 1) // 2, j - (size_filter.grid_shape[1] - 1) // 2)
-        if not learns:
+            # A fractional step: the new grid shares no cell with the old one, so sample it afresh.
+            fw, fh = self.size_filter.cell_factors(*refined_position(resp, self.params.size_deadband_cells))
+            w, h = self.size_wh
+            new_size = self._clamp((w * fw, h * fh), image)
+            if new_size != self.size_wh:
+                self.size_wh = new_size
+                sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.centre_xy, new_size))
+            self.size_filter.train(sample_f)
             return
-        if self.size_wh != old_size:
-            if shift is not None:
-                # Around the same centre: reuse the overlap, sample only the cells that enter the grid.
-                sample = size_filter.shifted_sample(image, self.centre_xy, self.size_wh, sample, shift)
-            else:  # a fractional step (or a clamp) shares no cell with the old grid: sample it afresh
-                sample = size_filter.sample(image, self.centre_xy, self.size_wh)
-            sample_f = size_filter.spectrum(sample)
-        size_filter.train(sample_f)
+        i, j = best_cell(resp)
+        fw, fh = self.size_filter.cell_factors(i, j)
+        w, h = self.size_wh
+        grid_size = (w * fw, h * fh)
+        new_size = self._clamp(grid_size, image)
+        if new_size != self.size_wh:
+            centre_i = (self.size_filter.grid_shape[0] - 1) // 2
+            centre_j = (self.size_filter.grid_shape[1] - 1) // 2
+            if new_size == grid_size:
+                # The new grid is the old one shifted by (i - c, j - c) cells around the same
+                # centre: reuse the overlap, sample only the cells that enter the grid.
+                sample = self.size_filter.shifted_sample(
+                    image, self.centre_xy, new_size, sample, (i - centre_i, j - centre_j))
+            else:  # clamped: not on the old grid, sample it afresh
+                sample = self.size_filter.sample(image, self.centre_xy, new_size)
+            self.size_wh = new_size
+            sample_f = self.size_filter.spectrum(sample)
+        self.size_filter.train(sample_f)
 
     def _clamp(self, size_wh: tuple[float, float], image: np.ndarray) -> tuple[float, float]:
         band = self.params.aspect_band

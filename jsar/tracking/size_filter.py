@@ -57,12 +57,6 @@ def grid_label(params: JsarParams) -> np.ndarray:
     return np.exp(-0.5 * (ns**2 / params.size_sigma_scale**2 + na**2 / params.size_sigma_aspect**2)).astype(np.float32)
 
 
-def rate_per_update(rate_per_frame: float, interval_frames: int) -> float:
-    """The learning rate that, applied once every `interval_frames` frames, forgets as fast as
-    `rate_per_frame` applied on every frame: 1 - (1 - rate)^interval."""
-    return 1.0 - (1.0 - rate_per_frame) ** interval_frames
-
-
 def grid_window(params: JsarParams) -> np.ndarray:
     """(S, A) float32 Hann window over the grid (zero-free), DSST's scale window in 2-D."""
 
@@ -93,7 +87,6 @@ class SizeFilter:
         self.window = grid_window(params)
         self._dft_aspect = dft_matrix(params.num_aspects)[: params.num_aspects // 2 + 1]
         self._dft_scale = dft_matrix(params.num_scales)
-        self.rate = rate_per_update(params.size_learning_rate, params.size_learn_interval)  # per train() call
         self.numerator: np.ndarray | None = None  # (S, A//2+1, D) complex64
         self.denominator: np.ndarray | None = None  # (S, A//2+1) float32
 
@@ -147,15 +140,14 @@ class SizeFilter:
         return spec.reshape(half.shape)
 
     def train(self, sample_f: np.ndarray) -> None:
-        """DSST update: first call sets the model, later calls interpolate with `rate` (the rate per update:
-        params.size_learning_rate per frame, one update every params.size_learn_interval frames)."""
+        """DSST update: first call sets the model, later calls interpolate with the learning rate."""
         # The numerator is kept conjugated (Y X^*), the form the response multiplies with.
         num = self.label_f[:, :, None] * sample_f.conj()
         den = (sample_f.real**2 + sample_f.imag**2).sum(axis=-1)
         if self.numerator is None:
             self.numerator, self.denominator = num, den
             return
-        rate = np.float32(self.rate)
+        rate = np.float32(self.params.size_learning_rate)
         num *= rate
         self.numerator *= np.float32(1 - rate)
         self.numerator += num

@@ -58,7 +58,8 @@ MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
 # figures: A73 ~ A72, A75 +22 %, A76 +35 %). fps = clock * IPC / instructions per frame.
 CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2.4 GHz, IPC 1.7)": (2.4e9, 1.7)}
 # the last two: kinds of results saved before the search rework (--report still prints them)
-KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re lost", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
+KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re redetect omega 5",
+         "jsar-re redetect omega 12")
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
 
@@ -167,10 +168,13 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
         counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
         counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
         counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
+        # the verifier's deferred embeddings, which the service runs on a thread of its own (verify.defer_frames)
+        counted(f"{sequence}|jsar-re verifier|{index}", again.run_deferred)
     searching = searching_tracker()
     searching.init(first, box)
     for image in tracked:
         searching.update(image)
+    searching.run_deferred()  # the tracked frames' deferred work: the verifier thread's, not a lost frame's
     states: list[str] = []
     for index, image in enumerate(hidden, start=frames + 1):
         counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))

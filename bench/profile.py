@@ -36,7 +36,7 @@ from typing import Any, Callable, Iterable  # noqa: E402
 
 from bench.instructions import count_frame_kinds, run_worker_under_callgrind  # noqa: E402
 
-KINDS = ("jsar", "jsar-re confident", "jsar-re lost", "csrt")
+KINDS = ("jsar", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "csrt")
 # (module, attribute path, stage name): the functions the markers wrap. A module-level function is
 # wrapped where its callers look it up (module attribute or the defining module's globals).
 STAGES: tuple[tuple[str, str, str], ...] = (

@@ -168,13 +168,13 @@ def thread_times(pid: int) -> dict[int, tuple[str, int]]:
     return found
 
 
-SERVICE_THREADS = ("tracking-loop", "capture", "mavlink-rx", "mavlink-tx", "video-preview", "video-stream")
+SERVICE_THREADS = ("tracking-loop", "verifier", "capture", "mavlink-rx", "mavlink-tx", "video-preview", "video-stream")
 ZENOH_RUNTIMES = ("app", "acc", "net", "rx", "tx")  # zenoh-runtime's pools, threads named <pool>-<n>
 ZENOH_WATCHDOGS = ("Watchdog Confirmator", "Watchdog Validator")  # zenoh's shared-memory threads, cut to 15 bytes
 THREAD_GROUPS = (*SERVICE_THREADS, "main", "zenoh runtime", "other native", "ended threads")
 # the threads whose work comes per frame, and the window count of their frames: the rest wake on timers and messages.
 # Zenoh's pools carry a telemetry sample per tracked frame (and the previews); their timers (keep-alives) are small.
-FRAME_DRIVEN = {"capture": "source", "tracking-loop": "loop", "video-preview": "preview_sent",
+FRAME_DRIVEN = {"capture": "source", "tracking-loop": "loop", "verifier": "loop", "video-preview": "preview_sent",
                 "video-stream": "stream_sent", "zenoh runtime": "loop"}
 END_MARGIN_FRAMES = 15  # the window ends this many frames before the file does: the capture thread is still alive
 

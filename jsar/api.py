@@ -5,6 +5,7 @@ Conventions: frames are HxWx3 uint8 BGR (as cv2 reads them) or HxW uint8 grey; b
 """
 from __future__ import annotations
 
+import concurrent.futures
 import math
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
@@ -37,6 +38,13 @@ class SideBoundedTracker(Tracker, Protocol):
     """A tracker whose box side sqrt(w*h) can be bounded from outside the image (jsar, jsar-re, strcf)."""
 
     def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None: ...
+
+
+@runtime_checkable
+class DeferringTracker(Tracker, Protocol):
+    """A tracker with work it can hand to another thread (jsar-re: the verifier's deferred embeddings)."""
+
+    def set_verifier_worker(self, worker: concurrent.futures.Executor | None) -> None: ...
 
 
 def validate_frame(frame: object) -> np.ndarray:

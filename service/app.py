@@ -1,6 +1,7 @@
 """The imperative shell: build the adapters from config, run the tracking loop, shut down cleanly."""
 from __future__ import annotations
 
+import concurrent.futures
 import logging
 import os
 import signal
@@ -12,7 +13,7 @@ import cv2
 from threadpoolctl import threadpool_limits
 
 import jsar
-from jsar.api import SideBoundedTracker
+from jsar.api import DeferringTracker, SideBoundedTracker
 from service.config import ConfigError, ServiceConfig, as_plain
 from service.domain import ControlCommand, LoopState
 from service.loop import FrameReport, TrackingLoop
@@ -24,7 +25,7 @@ from service.sources import CaptureWorker, LatestSlot, check_source, make_reader
 from service.sources.base import Frame
 from service.systemd import sd_notify, watchdog_interval_s
 from service.telemetry import Telemetry, open_session
-from service.threads import service_thread
+from service.threads import name_os_thread, service_thread
 from service.video.rtp_stream import RtpH264Stream, check_destination
 from service.video.zenoh_preview import ZenohPreview
 
@@ -54,6 +55,13 @@ class Service:
             began = time.monotonic()
             load_models()
             log.info("event=tracker_prepared tracker=%s load_s=%.2f", tracker_cfg.name, time.monotonic() - began)
+        # One thread, named for the OS, for the tracker's deferred work (jsar-re's verifier): another core's time
+        # instead of the tracking thread's, the same boxes.
+        self.verifier_worker = (
+            concurrent.futures.ThreadPoolExecutor(max_workers=1, initializer=name_os_thread, initargs=("verifier",))
+            if tracker_cfg.verifier_thread and isinstance(probe, DeferringTracker) else None)
+        log.info("event=verifier_thread tracker=%s enabled=%s", tracker_cfg.name,
+                 str(self.verifier_worker is not None).lower())
         if tracker_cfg.range_size_band != 0 and not isinstance(probe, SideBoundedTracker):
             raise ConfigError(f"tracker.range_size_band: tracker {tracker_cfg.name!r} cannot bound its box size; "
                               "set 0 to run it without the range size bound")
@@ -86,7 +94,7 @@ class Service:
                 log.info("event=preview_off reason=zenoh_disabled")
             self.video_outputs = [output for output in (self.preview, self.stream) if output is not None]
             self.loop = TrackingLoop(
-                config, self.selections, lambda: jsar.create(tracker_cfg.name, **tracker_cfg.params),
+                config, self.selections, self._new_tracker,
                 self.outputs, self.camera.autopilot, publish_snapshot=self.camera.publish,
                 publish_report=self._publish_report, dropped=lambda: self.worker.dropped,
                 publish_frame=self._publish_frame)
@@ -226,6 +234,13 @@ class Service:
         except OSError as exc:  # a read-only or missing directory costs the report, not the service
             log.warning('event=run_marker_failed dir=%s error="%s"', self._runtime_dir, exc)
 
+    def _new_tracker(self) -> Any:
+        """A tracker for a new selection, its deferred work on the verifier thread when there is one."""
+        tracker = jsar.create(self.config.tracker.name, **self.config.tracker.params)
+        if self.verifier_worker is not None:
+            tracker.set_verifier_worker(self.verifier_worker)
+        return tracker
+
     def shutdown(self) -> None:
         """Zero the gimbal if tracking, stop threads, close links."""
         sd_notify("STOPPING=1")
@@ -238,6 +253,8 @@ class Service:
         if self.telemetry is not None:
             self.telemetry.close()
         self.link.close()
+        if self.verifier_worker is not None:
+            self.verifier_worker.shutdown(wait=False, cancel_futures=True)
         if self._session is not None:
             self._session.close()
         log.info("event=stopped frames=%d dropped=%d", self.loop.counters["frames"], self.worker.dropped)

@@ -13,8 +13,8 @@ def test_summarise_groups_by_sequence_and_kind_and_keeps_the_counts_in_frame_ord
 
 
 def test_count_frame_kinds_labels_every_measured_call_of_both_benchmarks(data_root):
-    """The per-sequence set-up bench.instructions and bench.profile share: each kind on each tracked frame, then
-    jsar-re's lost frames with the target hidden (what a lost frame costs only if they are lost)."""
+    """The per-sequence set-up bench.instructions and bench.profile share: each kind on each tracked frame (jsar-re's
+    deferred verifier work counted apart, as the service's verifier thread does it), then jsar-re's lost frames with the target hidden (what a lost frame costs only if they are lost)."""
     from bench.instructions import count_frame_kinds
 
     labels: list[str] = []
@@ -25,6 +25,8 @@ def test_count_frame_kinds_labels_every_measured_call_of_both_benchmarks(data_ro
 
     states = count_frame_kinds(data_root, "OTB_Crossing", 2, 2, counted)
     assert labels == ["OTB_Crossing|jsar|1", "OTB_Crossing|csrt|1", "OTB_Crossing|jsar-re confident|1",
+                      "OTB_Crossing|jsar-re verifier|1",
                       "OTB_Crossing|jsar|2", "OTB_Crossing|csrt|2", "OTB_Crossing|jsar-re confident|2",
+                      "OTB_Crossing|jsar-re verifier|2",
                       "OTB_Crossing|jsar-re lost|3", "OTB_Crossing|jsar-re lost|4"]
     assert states == ["lost", "lost"]

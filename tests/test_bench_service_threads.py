@@ -34,7 +34,7 @@ def test_threads_are_grouped_by_their_os_names() -> None:
     assert thread_group("tracking-loop", 4001, PID) == "tracking-loop"
     assert thread_group("capture-file:UA", 4002, PID) == "capture"
     assert thread_group("capture-v4l2:/d", 4002, PID) == "capture"
-    for name in ("mavlink-rx", "mavlink-tx", "video-preview", "video-stream"):
+    for name in ("verifier", "mavlink-rx", "mavlink-tx", "video-preview", "video-stream"):
         assert thread_group(name, 4003, PID) == name
     for zenoh in ("app-0", "acc-1", "net-0", "rx-12", "tx-0", "Watchdog Confir", "Watchdog Valida"):
         assert thread_group(zenoh, 4004, PID) == "zenoh runtime"

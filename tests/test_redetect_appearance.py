@@ -1,10 +1,13 @@
 """The verifier's memories and verdicts (jsar.redetect.appearance), on hand-made unit embeddings."""
 from __future__ import annotations
 
+import concurrent.futures
+import threading
+
 import numpy as np
 import pytest
 
-from jsar.redetect.appearance import AppearanceMemory, Verdict, map_peaks, max_cosine, ring_boxes
+from jsar.redetect.appearance import AppearanceMemory, DeferredEmbeddings, Verdict, map_peaks, max_cosine, ring_boxes
 from jsar.redetect.params import RedetectParams, VerifyParams
 
 
@@ -106,3 +109,29 @@ def test_the_target_memory_does_not_learn_a_look_it_would_call_another_object():
     memory.learn_others(unit(0.1, 1, 0)[None])  # a look-alike seen beside it
     assert not memory.learn_target(unit(0, 1, 0))  # cos 0.45 to the target, 0.99 to the look-alike: a slide onto it
     assert len(memory.target_rows()) == 2
+
+
+class _MeanEmbedder:
+    """Embeds each box as its frame region's mean level and the thread that computed it."""
+
+    def __init__(self) -> None:
+        self.threads: list[str] = []
+
+    def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
+        self.threads.append(threading.current_thread().name)
+        return np.array([[frame[int(y):int(y + h), int(x):int(x + w)].mean()] for x, y, w, h in boxes_xywh],
+                        np.float32)
+
+
+@pytest.mark.parametrize("threaded", [False, True])
+def test_deferred_embeddings_belong_to_the_frame_as_it_was_when_they_were_started(threaded):
+    """The frame's owner may reuse its buffer once update() returns: the rows are those of the frame as given,
+    computed once, on the worker when there is one and else on the first rows()."""
+    embedder, frame = _MeanEmbedder(), np.full((40, 60, 3), 10, np.uint8)
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="worker") as worker:
+        job = DeferredEmbeddings(embedder, frame, np.array([[0.0, 0.0, 20.0, 20.0], [30.0, 10.0, 20.0, 20.0]]),
+                                 worker if threaded else None)
+        frame[:] = 200  # the owner reuses its buffer
+        assert job.rows()[:, 0].tolist() == [10.0, 10.0]
+        assert job.rows()[:, 0].tolist() == [10.0, 10.0]
+    assert len(embedder.threads) == 1 and embedder.threads[0].startswith("worker") == threaded

@@ -4,6 +4,7 @@ look-alike, a target followed while it looks otherwise (coasting), and an inject
 sequence."""
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 import re
@@ -1187,32 +1188,92 @@ def test_the_whole_gate_search_looks_where_the_target_came_back_on_the_frame_it_
     assert len(embedder.gate_regions) == 32  # one map on every searched frame, 35..66 (verify.gate_map_frames 1)
 
 
-def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_row_is_a_loss():
-    """The target stands still; from frame 40 the stand-in network calls it another object (as if the track had
-    slid onto a look-alike that the core and the colours accept). With the watch on (a check each frame, two in a
-    row) the track is lost on frame 41 with cause "appearance"; with the watch off it stays tracked."""
+class _MarkEmbedder:
+    """A stand-in for the network that reads the frame it was given: a box centred within 6 px of the target's
+    place embeds as the target, unless the frame's corner pixel is marked (255), then as the look-alike that
+    every other box is. Its answer belongs to the frame, not to the moment it is computed (a deferred embedding
+    runs later)."""
+
+    def __init__(self, place: tuple[float, float] = (100 + TARGET / 2, 100 + TARGET / 2)) -> None:
+        self.place = place
+        self.calls = 0
+
+    def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        rows = []
+        for x, y, w, h in np.asarray(boxes_xywh, float).reshape(-1, 4):
+            target = math.dist((x + w / 2, y + h / 2), self.place) < 6 and frame[0, 0, 0] != 255
+            rows.append((1.0, 0.0, 0.0) if target else (0.0, 1.0, 0.0))
+        return np.asarray(rows, np.float32)
+
+
+def _marked(frame: np.ndarray) -> np.ndarray:
+    frame[0, 0] = 255  # far outside the core's search region around the target
+    return frame
+
+
+def _watched_run(verify: dict, frames: int = 50, worker=None):
+    """The still target, every frame from 40 on marked: the stand-in network calls the box another object
+    there (as if the track had slid onto a look-alike that the core and the colours accept)."""
     background = _background()
-    centre = (100 + TARGET / 2, 100 + TARGET / 2)
+    embedder = _MarkEmbedder()
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, **verify}), embedder=embedder)
+    tracker.set_verifier_worker(worker)
+    tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
+    results, causes = {}, {}
+    for index in range(1, frames):
+        frame = _frame(background, (100, 100))
+        result = tracker.update(_marked(frame) if index >= 40 else frame)
+        results[index] = (result.state, result.box)
+        causes[index] = tracker.loss_cause
+    return results, causes
 
-    def run(watch_frames: int) -> tuple[dict[int, tuple[str, Box]], list[str | None]]:
-        embedder = _PlaceEmbedder([centre])
-        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "watch_frames": watch_frames}),
-                                embedder=embedder)
-        tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
-        results, causes = {}, []
-        for index in range(1, 50):
-            if index == 40:
-                embedder.targets = []
-            result = tracker.update(_frame(background, (100, 100)))
-            results[index] = (result.state, result.box)
-            causes.append(tracker.loss_cause)
-        return results, causes
 
-    watched, causes = run(1)
-    assert all(watched[i][0] == "tracking" for i in range(1, 41))
-    assert watched[41][0] == "lost" and causes[40] == "appearance"
-    unwatched, _ = run(0)
+@pytest.mark.parametrize("defer, lost_on", [(0, 41), (3, 44)])
+def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_row_is_a_loss(defer, lost_on):
+    """With the watch on (a check each frame, two in a row) the track is lost with cause "appearance" on the
+    second marked frame's check: frame 41 when judged at once, 44 when judged verify.defer_frames = 3 frames
+    later (the default: the embeddings can run on another thread meanwhile). With the watch off it stays tracked."""
+    watched, causes = _watched_run({"watch_frames": 1, "defer_frames": defer})
+    assert all(watched[i][0] == "tracking" for i in range(1, lost_on))
+    assert watched[lost_on][0] == "lost" and causes[lost_on] == "appearance"
+    unwatched, _ = _watched_run({"watch_frames": 0, "defer_frames": defer})
     assert all(unwatched[i][0] == "tracking" for i in range(1, 50))
+
+
+def test_a_worker_thread_gives_the_same_track_as_deferred_work_done_on_the_tracking_thread():
+    """set_verifier_worker: the deferred embeddings run on a one-thread executor while the tracker goes on; every
+    box, state and loss cause is the one computed without it (the worker only moves where the work runs)."""
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1) as worker:
+        threaded = _watched_run({"watch_frames": 1}, frames=60, worker=worker)
+    assert threaded == _watched_run({"watch_frames": 1}, frames=60)
+    assert threaded[0][44][0] == "lost"
+
+
+def test_a_learnt_frame_joins_the_memory_defer_frames_later_and_run_deferred_computes_it_apart():
+    """verify.learn_frames = 5: the fifth reliable frame is learnt (the target and its look-alike ring, one
+    batch), its target memory grows verify.defer_frames = 3 frames later; run_deferred() computes the batch at once,
+    so the due frame's update() embeds nothing (a benchmark counts the two apart)."""
+    embedder = _MarkEmbedder()
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "learn_frames": 5,
+                                                                    "watch_frames": 0}), embedder=embedder)
+    background = _background()
+    tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
+    learnt, computed = [len(tracker.appearance.recent)], []
+    for _ in range(12):
+        before = embedder.calls
+        tracker.update(_frame(background, (100, 100)))
+        assert embedder.calls == before  # update() itself embeds nothing: the due batch was computed already
+        tracker.run_deferred()
+        computed.append(embedder.calls - before)
+        learnt.append(len(tracker.appearance.recent))
+    assert computed == [0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0]  # each batch computed once, when run_deferred came
+    assert tracker.reliable_frames == 12
+    # reliable frames 5 and 10 learnt on frames 5 and 10: in the target memory from frames 8 and 13
+    assert learnt == [0] * 8 + [1] * 5
+    before = embedder.calls
+    tracker.run_deferred()
+    assert embedder.calls == before  # nothing computed twice
 
 
 def test_after_an_appearance_loss_the_core_does_not_coast_on_the_place_called_another_object():

@@ -232,6 +232,39 @@ def test_jsar_re_s_verifier_network_loads_at_start_not_on_the_first_selection(fr
     assert shared_embedder.cache_info().currsize == 1  # the network every later JsarReTracker shares
 
 
+def test_jsar_re_s_deferred_verifier_work_gets_a_thread_named_for_the_os(frames_dir: Path, caplog) -> None:
+    """tracker.verifier_thread (on by default): each new jsar-re runs its deferred embeddings on one executor
+    whose thread the OS knows as "verifier" (bench.service's per-thread report); off, or for a tracker without
+    deferred work, there is none, and the log says which at start."""
+    import logging
+    import threading
+
+    from service.app import Service
+    from tests.service_peers import service_config
+
+    caplog.set_level(logging.INFO, logger="service")
+    for name, band, thread in (("jsar-re", 2, True), ("jsar-re", 2, False), ("jsar", 2, True)):
+        config = service_config(free_udp_port(), {"source": {"path": str(frames_dir)},
+                                                  "tracker": {"name": name, "range_size_band": band,
+                                                              "verifier_thread": thread}})
+        service = Service(config)
+        try:
+            expected = thread and name == "jsar-re"
+            assert (service.verifier_worker is not None) is expected
+            assert f"event=verifier_thread tracker={name} enabled={str(expected).lower()}" in caplog.text
+            tracker = service._new_tracker()
+            if expected:
+                assert tracker.worker is service.verifier_worker
+                os_name = service.verifier_worker.submit(
+                    lambda: Path(f"/proc/self/task/{threading.get_native_id()}/comm").read_text().strip())
+                assert os_name.result(timeout=10) == "verifier"
+        finally:
+            service.link.close()  # built, never run
+            if service.verifier_worker is not None:
+                service.verifier_worker.shutdown(wait=True)
+        caplog.clear()
+
+
 class _StderrLines:
     """The daemon's stderr read line by line on a thread; wait_for(text) waits on a condition, not a sleep."""
 

@@ -13,6 +13,7 @@ Conventions: boxes (x, y, w, h) px; embeddings (N, D) float32 rows of unit lengt
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import enum
 import functools
 from dataclasses import dataclass
@@ -181,3 +182,29 @@ class NetworkEmbedder:
 def shared_embedder() -> NetworkEmbedder:
     """One network per process, shared by every tracker (it holds no per-target state)."""
     return NetworkEmbedder()
+
+
+class DeferredEmbeddings:
+    """The embeddings of boxes of one frame, started now and used later (`rows()` waits for them).
+
+    With `worker` (a one-thread executor) they are computed there meanwhile, on another core; without, on
+    the first `rows()`. Either way the rows are the same: the frame is copied (its owner may reuse it)."""
+
+    def __init__(self, embedder: Embedder, frame: np.ndarray, boxes_xywh: np.ndarray,
+                 worker: concurrent.futures.Executor | None = None) -> None:
+        frame, boxes = frame.copy(), np.array(boxes_xywh, dtype=np.float64)
+        self._future = worker.submit(embedder.embed, frame, boxes) if worker is not None else None
+        self._compute: tuple[Embedder, np.ndarray, np.ndarray] | None = (embedder, frame, boxes)
+        self._rows: np.ndarray | None = None
+
+    def rows(self) -> np.ndarray:
+        """(N, D) float32 unit rows of the boxes, computed once."""
+        if self._rows is None:
+            if self._future is not None:
+                self._rows = self._future.result()
+            else:
+                assert self._compute is not None
+                embedder, frame, boxes = self._compute
+                self._rows = embedder.embed(frame, boxes)
+            self._compute = self._future = None  # the frame copy goes
+        return self._rows

@@ -9,18 +9,20 @@ in docs/method.md ("JSAR-Re") and the ablation (`python -m bench.ablation`).
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import copy
 import dataclasses
 import enum
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
-from jsar.redetect.appearance import AppearanceMemory, Embedder, Look, Verdict as Appearance, ring_boxes, shared_embedder
+from jsar.redetect.appearance import (AppearanceMemory, DeferredEmbeddings, Embedder, Look, Verdict as Appearance, ring_boxes,
+                                     shared_embedder)
 from jsar.redetect.colour_check import AnchorColours, ColourModel
 from jsar.redetect.memory import DecisionFilter
 from jsar.redetect.monitor import FailureMonitor, Verdict
@@ -28,6 +30,9 @@ from jsar.redetect.params import RedetectParams
 from jsar.redetect.search import Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
 from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.size_filter import bound_side
+
+
+DeferredKind = Literal["learn", "watch"]  # the verifier's deferred work: a reliable frame learnt, or a watch check
 
 
 class Phase(enum.Enum):
@@ -94,6 +99,10 @@ class JsarReTracker:
         self.appearance: AppearanceMemory | None = None  # the verifier's memories (appearance.py)
         self.reliable_frames = 0  # reliable committed frames since init (the verifier learns one in learn_frames)
         self.away_checks = 0  # the verifier's checks in a row that called the tracked box another object
+        self.watched_now = False  # a deferred watch check was judged at the start of this frame
+        # (due frame index, "learn" or "watch", embeddings): the verifier's deferred work (verify.defer_frames)
+        self.deferred: collections.deque[tuple[int, DeferredKind, DeferredEmbeddings]] = collections.deque()
+        self.worker: concurrent.futures.Executor | None = None  # where deferred embeddings run (None: when due)
         self.gate_template: tuple[np.ndarray, float] | None = None  # the whole-gate search's (template, scale)
         self.core = JsarTracker(self.params, use_size_filter=True)
         self.monitor = FailureMonitor(self.redetect.monitor)
@@ -135,6 +144,7 @@ class JsarReTracker:
         self.loss_cause = None
         self.reliable_frames = 0
         self.away_checks = 0
+        self.deferred.clear()
         self.appearance = None
         self.gate_template = None
         if self.redetect.verify.enabled:
@@ -157,6 +167,16 @@ class JsarReTracker:
         if self.redetect.verify.enabled and self.embedder is None:
             self.embedder = shared_embedder()
 
+    def set_verifier_worker(self, worker: concurrent.futures.Executor | None) -> None:
+        """Run the verifier's deferred embeddings (verify.defer_frames) on `worker`, a one-thread executor on
+        another core, while the tracker goes on; None: on the tracking thread when due. The same boxes either way."""
+        self.worker = worker
+
+    def run_deferred(self) -> None:
+        """Compute the deferred embeddings now (a benchmark's way to count them apart from update())."""
+        for _, _, job in self.deferred:
+            job.rows()
+
     def set_side_bounds(self, side_bounds_px: tuple[float, float] | None) -> None:
         """Bound the box side sqrt(w*h) to (lo, hi) px (None: unbounded), for the core's size estimate
         and for re-acquired boxes; see JsarTracker.set_side_bounds. init() clears it."""
@@ -174,6 +194,7 @@ class JsarReTracker:
         frame = validate_frame(frame)
         self.frame_index += 1
         self.last_step = None
+        self._apply_due()
         loc, verdict = self._localise(frame)
         if self.phase is not Phase.LOST:
             cause = self._loss_cause(frame, loc, verdict)
@@ -197,6 +218,8 @@ class JsarReTracker:
         """Move the phase by TRANSITIONS (KeyError: no such transition); leaving LOST ends the loss."""
         left, self.phase = self.phase, TRANSITIONS[(self.phase, event)]
         self.last_event = event
+        if self.phase is Phase.LOST:  # a watch check of the track that ended is moot
+            self.deferred = collections.deque(job for job in self.deferred if job[1] != "watch")
         if left is Phase.LOST and self.phase is not Phase.LOST:
             self.loss, self.drift_frames, self.away_checks, self.loss_cause = None, 0, 0, None
         assert (self.phase is Phase.LOST) == (self.loss is not None)
@@ -257,10 +280,15 @@ class JsarReTracker:
         verify = self.redetect.verify
         if self.appearance is None or self.embedder is None or verify.watch_frames == 0:
             return False
+        # Not on probation (its checks decide verify.hold_verified within its frames): a check judged when due
+        deferring = verify.defer_frames > 0 and self.probation is None
         if self.frame_index % verify.watch_frames:
-            return False
+            return deferring and self.watched_now and self.away_checks >= verify.watch_count
         w, h = self.core.size_wh
         box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
+        if deferring:
+            self._defer("watch", frame, np.array([box]))
+            return self.watched_now and self.away_checks >= verify.watch_count
         look = self.appearance.judge(self.embedder.embed(frame, np.array([box])))[0]
         if self.probation is not None and look.verdict is not Appearance.TARGET:
             self.probation.verified = False
@@ -343,7 +371,10 @@ class JsarReTracker:
             self.colour.learn(frame, self.core.box)
             self.reliable_frames += 1
             if self.appearance is not None and self.reliable_frames % self.redetect.verify.learn_frames == 0:
-                self._learn_appearance(frame, self.core.box)
+                if self.redetect.verify.defer_frames > 0:
+                    self._defer("learn", frame, self._appearance_boxes(frame, self.core.box))
+                else:
+                    self._learn_appearance(frame, self.core.box)
         else:
             self.decision_filter.skip()
 
@@ -516,16 +547,43 @@ class JsarReTracker:
         w, h = (self.core_at_loss if self.core_at_loss is not None else self.core).size_wh
         return (centre_xy[0] - w / 2.0, centre_xy[1] - h / 2.0, w, h)
 
-    def _learn_appearance(self, frame: np.ndarray, box: Box) -> AppearanceMemory:
-        """The verifier learns a reliable frame: the target's embedding at `box` (x, y, w, h px) and the
-        look-alikes' on a ring around it (one batch); on init the memories are made."""
+    def _appearance_boxes(self, frame: np.ndarray, box: Box) -> np.ndarray:
+        """(1 + ring_count, 4) boxes a reliable frame teaches the verifier: `box` (x, y, w, h px), then the
+        look-alike windows on a ring around it."""
         verify = self.redetect.verify
+        ring = ring_boxes(box, verify.ring_sides, verify.ring_count, (frame.shape[1], frame.shape[0]))
+        return np.vstack([np.asarray(box, float)[None], ring])
+
+    def _defer(self, kind: DeferredKind, frame: np.ndarray, boxes: np.ndarray) -> None:
+        """Start the embeddings of `boxes` for `kind` ("learn" or "watch"), used verify.defer_frames from now."""
+        assert self.embedder is not None
+        job = DeferredEmbeddings(self.embedder, frame, boxes, self.worker)
+        self.deferred.append((self.frame_index + self.redetect.verify.defer_frames, kind, job))
+
+    def _apply_due(self) -> None:
+        """The deferred work due at this frame: a learnt frame joins the memories; a watch check is judged
+        (its track goes on: a loss drops them) and counts towards verify.watch_count."""
+        self.watched_now = False
+        while self.deferred and self.deferred[0][0] <= self.frame_index:
+            _, kind, job = self.deferred.popleft()
+            assert self.appearance is not None
+            if kind == "learn":
+                rows = job.rows()
+                self.appearance.learn_target(rows[0])
+                self.appearance.learn_others(rows[1:])
+                continue
+            look = self.appearance.judge(job.rows())[0]
+            self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
+            self.watched_now = True
+
+    def _learn_appearance(self, frame: np.ndarray, box: Box) -> AppearanceMemory:
+        """The verifier learns a reliable frame at once: the target's embedding at `box` (x, y, w, h px) and the
+        look-alikes' on a ring around it (one batch); on init the memories are made."""
         if self.embedder is None:
             self.embedder = shared_embedder()  # the network loads only where the verifier is used
-        ring = ring_boxes(box, verify.ring_sides, verify.ring_count, (frame.shape[1], frame.shape[0]))
-        rows = self.embedder.embed(frame, np.vstack([np.asarray(box, float)[None], ring]))
+        rows = self.embedder.embed(frame, self._appearance_boxes(frame, box))
         if self.appearance is None:
-            self.appearance = AppearanceMemory(verify, rows[0])
+            self.appearance = AppearanceMemory(self.redetect.verify, rows[0])
         else:
             self.appearance.learn_target(rows[0])
         self.appearance.learn_others(rows[1:])

@@ -144,6 +144,7 @@ class VerifyParams:
     ring_count: int = checked(8, at_least(1))  # look-alike windows per learnt frame, at evenly spaced angles
     watch_frames: int = checked(3, non_negative)  # while tracking the box is checked once per this many frames (0: never)
     watch_count: int = checked(2, at_least(1))  # "other" on this many checks in a row is a loss (a confident slide)
+    defer_frames: int = checked(3, non_negative)  # a tracked frame's learning and watch check (not on probation) take effect this many frames later: their embeddings can run on another thread meanwhile (0: at once)
     hold_verified: bool = True  # a take called the target when taken and on every check since is not refuted by a loss on probation: a new loss starts from it
     gate_map: bool = False  # whole-gate search: one network pass over the motion gate while lost
     gate_map_frames: int = checked(1, at_least(1))  # the whole-gate search runs on one lost frame in this many

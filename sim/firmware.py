@@ -63,9 +63,10 @@ PX4_MAIN_POSCTL = 3
 
 
 def sitl_root() -> Path:
-    """The firmware folder: $JSAR_SITL_ROOT, else ../shared/sitl next to the repository."""
+    """The firmware folder, absolute: $JSAR_SITL_ROOT (a relative one from the working directory, since the
+    firmware runs in a folder of its own), else ../shared/sitl next to the repository."""
     env = os.environ.get("JSAR_SITL_ROOT")
-    return Path(env) if env else REPO_ROOT.parent / "shared" / "sitl"
+    return Path(env).resolve() if env else REPO_ROOT.parent / "shared" / "sitl"
 
 
 def firmware_missing(kind: str) -> str | None:

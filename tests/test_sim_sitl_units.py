@@ -48,3 +48,14 @@ def test_mode_names_and_firmware_kinds():
     assert firmware_kind("ardupilot") == "arducopter" and firmware_kind("px4") == "px4"
     with pytest.raises(ValueError, match="flavour"):
         firmware_kind("betaflight")
+
+
+def test_a_relative_firmware_folder_is_taken_from_the_working_directory(tmp_path, monkeypatch):
+    """JSAR_SITL_ROOT=../shared/sitl (as one types it at the repository root) stays right when the firmware is
+    started in a folder of its own."""
+    from sim.firmware import sitl_root
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("JSAR_SITL_ROOT", "firmware/sitl")
+    assert sitl_root() == tmp_path / "firmware" / "sitl"
+    assert sitl_root().is_absolute()

@@ -233,9 +233,12 @@ def test_jsar_re_s_verifier_network_loads_at_start_not_on_the_first_selection(fr
 
 
 def test_jsar_re_s_deferred_verifier_work_gets_a_thread_named_for_the_os(frames_dir: Path, caplog) -> None:
-    """tracker.verifier_thread (on by default): each new jsar-re runs its deferred embeddings on one executor
+    """tracker.verifier_thread (off by default): each new jsar-re runs its deferred embeddings on one executor
     whose thread the OS knows as "verifier" (bench.service's per-thread report); off, or for a tracker without
     deferred work, there is none, and the log says which at start."""
+    from service.config import TrackerConfig
+
+    assert TrackerConfig().verifier_thread is False
     import logging
     import threading
 

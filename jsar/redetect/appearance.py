@@ -194,7 +194,7 @@ class DeferredEmbeddings:
                  worker: concurrent.futures.Executor | None = None) -> None:
         frame, boxes = frame.copy(), np.array(boxes_xywh, dtype=np.float64)
         self._future = worker.submit(embedder.embed, frame, boxes) if worker is not None else None
-        self._compute: tuple[Embedder, np.ndarray, np.ndarray] | None = (embedder, frame, boxes)
+        self._compute: tuple[Embedder, np.ndarray, np.ndarray] | None = (embedder, frame, boxes) if worker is None else None
         self._rows: np.ndarray | None = None
 
     def rows(self) -> np.ndarray:

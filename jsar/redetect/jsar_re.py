@@ -218,7 +218,7 @@ class JsarReTracker:
         """Move the phase by TRANSITIONS (KeyError: no such transition); leaving LOST ends the loss."""
         left, self.phase = self.phase, TRANSITIONS[(self.phase, event)]
         self.last_event = event
-        if self.phase is Phase.LOST:  # a watch check of the track that ended is moot
+        if self.phase is Phase.LOST and left is not Phase.LOST:  # a watch check of the track that ended is moot
             self.deferred = collections.deque(job for job in self.deferred if job[1] != "watch")
         if left is Phase.LOST and self.phase is not Phase.LOST:
             self.loss, self.drift_frames, self.away_checks, self.loss_cause = None, 0, 0, None
@@ -267,9 +267,7 @@ class JsarReTracker:
         minimum = self.redetect.colour.drift_share
         if minimum <= 0 or not self.anchor.usable:
             return False
-        w, h = self.core.size_wh
-        box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
-        self.share = self.anchor.share(frame, box)
+        self.share = self.anchor.share(frame, self._detection_box(loc))
         self.drift_frames = self.drift_frames + 1 if self.share < minimum else 0
         return self.drift_frames >= self.redetect.colour.drift_frames
 
@@ -280,20 +278,23 @@ class JsarReTracker:
         verify = self.redetect.verify
         if self.appearance is None or self.embedder is None or verify.watch_frames == 0:
             return False
-        # Not on probation (its checks decide verify.hold_verified within its frames): a check judged when due
-        deferring = verify.defer_frames > 0 and self.probation is None
+        # Deferred, except on probation (its checks decide verify.hold_verified within its frames)
+        if verify.defer_frames > 0 and self.probation is None:
+            if self.frame_index % verify.watch_frames == 0:
+                self._defer("watch", frame, np.array([self._detection_box(loc)]))
+            return self.watched_now and self.away_checks >= verify.watch_count  # a check judged by _apply_due
         if self.frame_index % verify.watch_frames:
-            return deferring and self.watched_now and self.away_checks >= verify.watch_count
-        w, h = self.core.size_wh
-        box = (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
-        if deferring:
-            self._defer("watch", frame, np.array([box]))
-            return self.watched_now and self.away_checks >= verify.watch_count
-        look = self.appearance.judge(self.embedder.embed(frame, np.array([box])))[0]
+            return False
+        look = self.appearance.judge(self.embedder.embed(frame, np.array([self._detection_box(loc)])))[0]
         if self.probation is not None and look.verdict is not Appearance.TARGET:
             self.probation.verified = False
         self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
         return self.away_checks >= verify.watch_count
+
+    def _detection_box(self, loc: Localisation) -> Box:
+        """The box (x, y, w, h px) at the core's detection `loc`, at the core's size."""
+        w, h = self.core.size_wh
+        return (loc.centre_xy[0] - w / 2.0, loc.centre_xy[1] - h / 2.0, w, h)
 
     def _keep_checkpoint(self) -> None:
         """After a committed tracked frame: the core, decision filter and colour model become the checkpoint

@@ -8,6 +8,7 @@ The response is r(t) = sum_c sum_n f_c(n) x_c(n + t), i.e. spectrum sum_c conj(F
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -165,7 +166,7 @@ def admm_solve(
             box = None
     if box_transforms is False:
         box = None
-    partial = _BoxDft(shape_hw, box[0]) if box is not None else None
+    partial = _box_dft(shape_hw, box[0]) if box is not None else None
     if kernel is None or kernel:
         return _admm_iterations_compiled(
             sample_f, label_f, previous_f if mu > 0.0 else None, reg_sq, box, partial, shape_hw, lam=lam,
@@ -316,6 +317,8 @@ class _BoxDft:
                       / (height * width)).astype(np.complex64)  # (W', bw)
         self.fwd_y = np.exp(-2j * np.pi * np.outer(ky, ys) / height).astype(np.complex64)  # (H, bh)
         self.fwd_x = np.exp(-2j * np.pi * np.outer(xs, kx) / width).astype(np.complex64)  # (bw, W')
+        for matrix in (self.inv_y, self.inv_x, self.fwd_y, self.fwd_x):
+            matrix.flags.writeable = False  # shared: `_box_dft` hands one instance to every solve with this box
 
     def inverse(self, spectrum: np.ndarray) -> np.ndarray:
         """(C, bh, bw) float32: irfft2(spectrum) on the box."""
@@ -325,6 +328,13 @@ class _BoxDft:
         """(C, H, W//2+1) complex64: rfft2 of the signal equal to box_values on the box, 0 elsewhere."""
         rows = np.matmul(box_values.astype(np.complex64), self.fwd_x)  # (C, bh, W')
         return np.matmul(self.fwd_y, rows, out=out)
+
+
+@functools.lru_cache(maxsize=32)
+def _box_dft(shape_hw: tuple[int, int], box: tuple[int, int, int, int]) -> _BoxDft:
+    """The `_BoxDft` of a box, built once: a track keeps its box over many frames, and building the four
+    matrices cost about 1 % of a frame (0.7 M of ~70 M aarch64 instructions)."""
+    return _BoxDft(shape_hw, box)
 
 
 def strcf_objective(

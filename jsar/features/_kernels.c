@@ -1475,6 +1475,352 @@ static PyObject *strcf_f_step(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ---------------------------------------------------------------------------------------------
+ * The size filter's spectra over its (S, A) grid (the specification is size_filter.grid_spectrum_reference:
+ * rfft2 over the grid axes of the windowed sample, half spectrum along A). Channels (D, contiguous) are the
+ * vector axis, processed in blocks of GRID_BLOCK held in registers:
+ *   step 1, along A (real input): t[s][j] = sum_a w[s][a] x[s][a] exp(-2 pi i j a / A), j = 0..A/2, planar
+ *           (re, im) rows of D in `scratch`;
+ *   step 2, along S (complex input): rows k and S - k of exp(-2 pi i k s / S) share cos and negate sin, so
+ *           P = sum_s cos_s[k][s] t[s][j] and Q = sum_s sin_s[k][s] t[s][j] give out[k] = P - iQ and
+ *           out[S - k] = P + iQ for k = 0..S/2: half the products of a full transform.
+ * cos_a, sin_a: (A/2+1, A); cos_s, sin_s: (S/2+1, S) (float32, sin of k = 0 and k = S/2 exactly 0). */
+#define GRID_MAX_SIDE 64
+/* Four floats as one value (GCC / clang vector extension: one NEON or SSE register; a size every target has,
+ * so that it never goes through memory), loadable from any float address: accumulators stay in registers. */
+typedef float GridVec __attribute__((vector_size(16), aligned(4), may_alias));
+#define GRID_BLOCK 4
+
+/* Step 1 of grid_spectrum_run for channels [d0, d0 + 4 n) (n GridVecs, n <= 4): t = sum_a (cr[a], ci[a]) x[a]. */
+static ALWAYS_INLINE void grid_step1_block(const float *restrict xs, const float *restrict cr,
+                                           const float *restrict ci, float *restrict tr, float *restrict ti,
+                                           Py_ssize_t A, Py_ssize_t D, Py_ssize_t d0, int n)
+{
+    GridVec re[4] = {{0}}, im[4] = {{0}};
+    for (Py_ssize_t a = 0; a < A; a++) {
+        const float *xa = xs + a * D + d0;
+        const float c = cr[a], sn = ci[a];
+        for (int q = 0; q < n; q++) {
+            const GridVec v = *(const GridVec *)(xa + q * GRID_BLOCK);
+            re[q] += c * v;
+            im[q] += sn * v;
+        }
+    }
+    for (int q = 0; q < n; q++) {
+        *(GridVec *)(tr + d0 + q * GRID_BLOCK) = re[q];
+        *(GridVec *)(ti + d0 + q * GRID_BLOCK) = im[q];
+    }
+}
+
+/* Step 2 of grid_spectrum_run for channels [d0, d0 + 4 n) (n <= 2) of column j, rows k and S - k. */
+static ALWAYS_INLINE void grid_step2_block(const float *restrict scratch, const float *restrict cs,
+                                           const float *restrict ss, float *restrict lo, float *restrict hi,
+                                           int mirrored, Py_ssize_t S, Py_ssize_t stride, Py_ssize_t D,
+                                           Py_ssize_t d0, int n)
+{
+    GridVec pr[2] = {{0}}, pi[2] = {{0}}, qr[2] = {{0}}, qi[2] = {{0}};
+    for (Py_ssize_t s = 0; s < S; s++) {
+        const float *tr = scratch + s * stride + d0, *ti = tr + D;
+        const float c = cs[s], sn = ss[s];
+        for (int q = 0; q < n; q++) {
+            const GridVec vr = *(const GridVec *)(tr + q * GRID_BLOCK), vi = *(const GridVec *)(ti + q * GRID_BLOCK);
+            pr[q] += c * vr;
+            pi[q] += c * vi;
+            qr[q] += sn * vr;
+            qi[q] += sn * vi;
+        }
+    }
+    for (int q = 0; q < n; q++) {
+        const GridVec lo_re = pr[q] + qi[q], lo_im = pi[q] - qr[q], hi_re = pr[q] - qi[q], hi_im = pi[q] + qr[q];
+        float *l = lo + 2 * (d0 + q * GRID_BLOCK), *h = hi + 2 * (d0 + q * GRID_BLOCK);
+        for (int e = 0; e < GRID_BLOCK; e++) {
+            l[2 * e] = lo_re[e];
+            l[2 * e + 1] = lo_im[e];
+        }
+        if (mirrored)
+            for (int e = 0; e < GRID_BLOCK; e++) {
+                h[2 * e] = hi_re[e];
+                h[2 * e + 1] = hi_im[e];
+            }
+    }
+}
+
+static HOT_LOOP_CLONES void grid_spectrum_run(const float *restrict x, const float *restrict w,
+                                              const float *restrict cos_a, const float *restrict sin_a,
+                                              const float *restrict cos_s, const float *restrict sin_s,
+                                              float *restrict scratch, float *restrict out, Py_ssize_t S,
+                                              Py_ssize_t A, Py_ssize_t D)
+{
+    const Py_ssize_t A2 = A / 2 + 1, S2 = S / 2 + 1, blocked = D - D % GRID_BLOCK;
+    float cr[GRID_MAX_SIDE], ci[GRID_MAX_SIDE];
+    for (Py_ssize_t s = 0; s < S; s++) {
+        const float *xs = x + s * A * D;
+        for (Py_ssize_t j = 0; j < A2; j++) {
+            for (Py_ssize_t a = 0; a < A; a++) {
+                cr[a] = cos_a[j * A + a] * w[s * A + a];
+                ci[a] = -sin_a[j * A + a] * w[s * A + a];
+            }
+            float *tr = scratch + (s * A2 + j) * 2 * D, *ti = tr + D;
+            Py_ssize_t d0 = 0;
+            for (; d0 + 4 * GRID_BLOCK <= blocked; d0 += 4 * GRID_BLOCK)
+                grid_step1_block(xs, cr, ci, tr, ti, A, D, d0, 4);
+            for (; d0 < blocked; d0 += GRID_BLOCK)
+                grid_step1_block(xs, cr, ci, tr, ti, A, D, d0, 1);
+            for (Py_ssize_t d = blocked; d < D; d++) {
+                float re = 0.0f, im = 0.0f;
+                for (Py_ssize_t a = 0; a < A; a++) {
+                    re += cr[a] * xs[a * D + d];
+                    im += ci[a] * xs[a * D + d];
+                }
+                tr[d] = re;
+                ti[d] = im;
+            }
+        }
+    }
+    for (Py_ssize_t j = 0; j < A2; j++) {
+        for (Py_ssize_t k = 0; k < S2; k++) {
+            const int mirrored = k > 0 && 2 * k != S;
+            float *lo = out + (k * A2 + j) * 2 * D, *hi = out + ((S - k) * A2 + j) * 2 * D;
+            const float *cs = cos_s + k * S, *ss = sin_s + k * S, *column = scratch + j * 2 * D;
+            const Py_ssize_t stride = A2 * 2 * D;
+            Py_ssize_t d0 = 0;
+            for (; d0 + 2 * GRID_BLOCK <= blocked; d0 += 2 * GRID_BLOCK)
+                grid_step2_block(column, cs, ss, lo, hi, mirrored, S, stride, D, d0, 2);
+            for (; d0 < blocked; d0 += GRID_BLOCK)
+                grid_step2_block(column, cs, ss, lo, hi, mirrored, S, stride, D, d0, 1);
+            for (Py_ssize_t d = blocked; d < D; d++) {
+                float pr = 0.0f, pi = 0.0f, qr = 0.0f, qi = 0.0f;
+                for (Py_ssize_t s = 0; s < S; s++) {
+                    const float vr = column[s * stride + d], vi = column[s * stride + D + d];
+                    pr += cs[s] * vr;
+                    pi += cs[s] * vi;
+                    qr += ss[s] * vr;
+                    qi += ss[s] * vi;
+                }
+                lo[2 * d] = pr + qi;
+                lo[2 * d + 1] = pi - qr;
+                if (mirrored) {
+                    hi[2 * d] = pr - qi;
+                    hi[2 * d + 1] = pi + qr;
+                }
+            }
+        }
+    }
+}
+
+/* grid_spectrum(x, window, cos_a, sin_a, cos_s, sin_s, scratch, out, S, A, D): out (S, A/2+1, D) complex64
+ * from x (S, A, D) float32 and window (S, A); scratch: S * (A/2+1) * 2 * D float32. */
+static PyObject *grid_spectrum(PyObject *self, PyObject *args)
+{
+    (void)self;
+    enum { X, WIN, COS_A, SIN_A, COS_S, SIN_S, SCRATCH, OUT, N_BUF };
+    static const char *const names[N_BUF] = {"x", "window", "cos_a", "sin_a", "cos_s", "sin_s", "scratch", "out"};
+    PyObject *objs[N_BUF];
+    Py_ssize_t S, A, D;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOnnn", &objs[X], &objs[WIN], &objs[COS_A], &objs[SIN_A], &objs[COS_S],
+                          &objs[SIN_S], &objs[SCRATCH], &objs[OUT], &S, &A, &D))
+        return NULL;
+    if (S < 1 || A < 1 || D < 1 || S > GRID_MAX_SIDE || A > GRID_MAX_SIDE) {
+        PyErr_Format(PyExc_ValueError, "grid_spectrum: sizes must be positive and the grid sides at most %d",
+                     GRID_MAX_SIDE);
+        return NULL;
+    }
+    const Py_ssize_t A2 = A / 2 + 1, S2 = S / 2 + 1;
+    const Py_ssize_t need[N_BUF] = {S * A * D * 4, S * A * 4, A2 * A * 4, A2 * A * 4, S2 * S * 4, S2 * S * 4,
+                                    S * A2 * 2 * D * 4, S * A2 * D * 8};
+    Py_buffer views[N_BUF];
+    int held = 0, failed = 0;
+    for (; held < N_BUF && !failed; held++)
+        failed = get_buffer_of(objs[held], &views[held], held >= SCRATCH, need[held], held == OUT ? "Zf" : "f",
+                               names[held]) < 0;
+    if (failed)
+        held--;
+    else if (views[OUT].buf == views[X].buf || views[SCRATCH].buf == views[X].buf || views[OUT].buf == views[SCRATCH].buf) {
+        PyErr_SetString(PyExc_ValueError, "grid_spectrum: x, scratch and out must be distinct buffers");
+        failed = 1;
+    }
+    if (!failed) {
+        Py_BEGIN_ALLOW_THREADS
+        grid_spectrum_run((const float *)views[X].buf, (const float *)views[WIN].buf, (const float *)views[COS_A].buf,
+                          (const float *)views[SIN_A].buf, (const float *)views[COS_S].buf,
+                          (const float *)views[SIN_S].buf, (float *)views[SCRATCH].buf, (float *)views[OUT].buf, S, A,
+                          D);
+        Py_END_ALLOW_THREADS
+    }
+    for (int b = 0; b < held; b++)
+        PyBuffer_Release(&views[b]);
+    if (failed)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* The size filter's DSST update and response over M grid frequencies of D channels (the specification is
+ * size_filter.SizeFilter's numpy methods with `compiled=False`):
+ *   train:    numerator = (1 - rate) numerator + rate y conj(x), denominator = (1 - rate) denominator + rate
+ *             sum_d |x|^2 (first: numerator = y conj(x), denominator = sum_d |x|^2);
+ *   response: out[m] = sum_d numerator[m][d] x[m][d] / (denominator[m] + lambda). */
+/* Sum of a GridVec's lanes, in a fixed order. */
+static ALWAYS_INLINE float grid_lanes_sum(GridVec v)
+{
+    return (v[0] + v[1]) + (v[2] + v[3]);
+}
+
+/* sum_d |x_d|^2 of n complex values (2n floats): lane-parallel partial sums, then the tail. */
+static ALWAYS_INLINE float grid_energy(const float *restrict x, Py_ssize_t n)
+{
+    const Py_ssize_t floats = 2 * n, blocked = floats - floats % GRID_BLOCK;
+    GridVec acc = {0};
+    for (Py_ssize_t f = 0; f < blocked; f += GRID_BLOCK) {
+        const GridVec v = *(const GridVec *)(x + f);
+        acc += v * v;
+    }
+    float energy = grid_lanes_sum(acc);
+    for (Py_ssize_t f = blocked; f < floats; f++)
+        energy += x[f] * x[f];
+    return energy;
+}
+
+static HOT_LOOP_CLONES void grid_train_run(const float *restrict label, const float *restrict x,
+                                           float *restrict num, float *restrict den, float rate, int first,
+                                           Py_ssize_t M, Py_ssize_t D)
+{
+    const float keep = 1.0f - rate;
+    for (Py_ssize_t m = 0; m < M; m++) {
+        const float yr = label[2 * m], yi = label[2 * m + 1];
+        const float *xm = x + 2 * m * D;
+        float *nm = num + 2 * m * D;
+        if (first) {
+            for (Py_ssize_t d = 0; d < D; d++) {
+                const float xr = xm[2 * d], xi = xm[2 * d + 1];
+                nm[2 * d] = yr * xr + yi * xi;
+                nm[2 * d + 1] = yi * xr - yr * xi;
+            }
+            den[m] = grid_energy(xm, D);
+        } else {
+            for (Py_ssize_t d = 0; d < D; d++) {
+                const float xr = xm[2 * d], xi = xm[2 * d + 1];
+                nm[2 * d] = keep * nm[2 * d] + rate * (yr * xr + yi * xi);
+                nm[2 * d + 1] = keep * nm[2 * d + 1] + rate * (yi * xr - yr * xi);
+            }
+            den[m] = keep * den[m] + rate * grid_energy(xm, D);
+        }
+    }
+}
+
+/* (1, 0, 3, 2, ...): a GridVec of interleaved complex values with each value's real and imaginary parts swapped. */
+static ALWAYS_INLINE GridVec grid_swap_pairs(GridVec v)
+{
+#if defined(__clang__)
+    return __builtin_shufflevector(v, v, 1, 0, 3, 2);
+#else
+    typedef int GridMask __attribute__((vector_size(16)));
+    return __builtin_shuffle(v, (GridMask){1, 0, 3, 2});
+#endif
+}
+
+static HOT_LOOP_CLONES void grid_response_run(const float *restrict num, const float *restrict x,
+                                              const float *restrict den, float lam, float *restrict out,
+                                              Py_ssize_t M, Py_ssize_t D)
+{
+    const Py_ssize_t floats = 2 * D, blocked = floats - floats % GRID_BLOCK;
+    for (Py_ssize_t m = 0; m < M; m++) {
+        const float *xm = x + 2 * m * D, *nm = num + 2 * m * D;
+        /* same = (nr xr, ni xi, ...), crossed = (nr xi, ni xr, ...): re = sum even(same) - odd(same),
+         * im = sum of crossed. */
+        GridVec same = {0}, crossed = {0};
+        for (Py_ssize_t f = 0; f < blocked; f += GRID_BLOCK) {
+            const GridVec n = *(const GridVec *)(nm + f), v = *(const GridVec *)(xm + f);
+            same += n * v;
+            crossed += n * grid_swap_pairs(v);
+        }
+        float re = (same[0] - same[1]) + (same[2] - same[3]);
+        float im = grid_lanes_sum(crossed);
+        for (Py_ssize_t f = blocked; f < floats; f += 2) {
+            re += nm[f] * xm[f] - nm[f + 1] * xm[f + 1];
+            im += nm[f] * xm[f + 1] + nm[f + 1] * xm[f];
+        }
+        const float scale = 1.0f / (den[m] + lam);
+        out[2 * m] = re * scale;
+        out[2 * m + 1] = im * scale;
+    }
+}
+
+/* grid_train(label, x, numerator, denominator, rate, first, M, D): label (M) and x, numerator (M, D) complex64,
+ * denominator (M) float32; numerator and denominator updated in place. */
+static PyObject *grid_train(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *objs[4];
+    static const char *const names[4] = {"label", "x", "numerator", "denominator"};
+    double rate;
+    int first;
+    Py_ssize_t M, D;
+    if (!PyArg_ParseTuple(args, "OOOOdpnn", &objs[0], &objs[1], &objs[2], &objs[3], &rate, &first, &M, &D))
+        return NULL;
+    if (M < 1 || D < 1) {
+        PyErr_SetString(PyExc_ValueError, "grid_train: sizes must be positive");
+        return NULL;
+    }
+    const Py_ssize_t need[4] = {M * 8, M * D * 8, M * D * 8, M * 4};
+    Py_buffer views[4];
+    int held = 0, failed = 0;
+    for (; held < 4 && !failed; held++)
+        failed = get_buffer_of(objs[held], &views[held], held >= 2, need[held], held == 3 ? "f" : "Zf",
+                               names[held]) < 0;
+    if (failed)
+        held--;
+    else if (views[2].buf == views[1].buf) {
+        PyErr_SetString(PyExc_ValueError, "grid_train: x and numerator must be distinct buffers");
+        failed = 1;
+    }
+    if (!failed) {
+        Py_BEGIN_ALLOW_THREADS
+        grid_train_run((const float *)views[0].buf, (const float *)views[1].buf, (float *)views[2].buf,
+                       (float *)views[3].buf, (float)rate, first, M, D);
+        Py_END_ALLOW_THREADS
+    }
+    for (int b = 0; b < held; b++)
+        PyBuffer_Release(&views[b]);
+    if (failed)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* grid_response(numerator, x, denominator, lam, out, M, D): out (M) complex64. */
+static PyObject *grid_response(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *objs[4];
+    static const char *const names[4] = {"numerator", "x", "denominator", "out"};
+    double lam;
+    Py_ssize_t M, D;
+    if (!PyArg_ParseTuple(args, "OOOdOnn", &objs[0], &objs[1], &objs[2], &lam, &objs[3], &M, &D))
+        return NULL;
+    if (M < 1 || D < 1) {
+        PyErr_SetString(PyExc_ValueError, "grid_response: sizes must be positive");
+        return NULL;
+    }
+    const Py_ssize_t need[4] = {M * D * 8, M * D * 8, M * 4, M * 8};
+    Py_buffer views[4];
+    int held = 0, failed = 0;
+    for (; held < 4 && !failed; held++)
+        failed = get_buffer_of(objs[held], &views[held], held == 3, need[held], held == 2 ? "f" : "Zf",
+                               names[held]) < 0;
+    if (failed)
+        held--;
+    if (!failed) {
+        Py_BEGIN_ALLOW_THREADS
+        grid_response_run((const float *)views[0].buf, (const float *)views[1].buf, (const float *)views[2].buf,
+                          (float)lam, (float *)views[3].buf, M, D);
+        Py_END_ALLOW_THREADS
+    }
+    for (int b = 0; b < held; b++)
+        PyBuffer_Release(&views[b]);
+    if (failed)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
     {"resample_reference", resample_reference, METH_VARARGS,
@@ -1485,6 +1831,9 @@ static PyMethodDef methods[] = {
     {"colour_cells_reference", colour_cells_reference, METH_VARARGS,
      "colour_cells through abi 5's loops, the bit-exact specification of colour_cells."},
     {"strcf_f_step", strcf_f_step, METH_VARARGS, "One STRCF ADMM iteration's element-wise work (see dcf.admm_solve)."},
+    {"grid_spectrum", grid_spectrum, METH_VARARGS, "The size filter's half spectrum over its grid (see size_filter.py)."},
+    {"grid_train", grid_train, METH_VARARGS, "The size filter's DSST update (see size_filter.py)."},
+    {"grid_response", grid_response, METH_VARARGS, "The size filter's response spectrum (see size_filter.py)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1492,7 +1841,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 6
+#define KERNELS_ABI 7
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

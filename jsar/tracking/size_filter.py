@@ -18,6 +18,7 @@ import scipy.fft as sfft
 
 from jsar.config import JsarParams
 from jsar.features import fhog, patches
+from jsar.features._native import kernels
 
 
 def model_size(target_wh: tuple[float, float], max_area: float, min_side: int, cell: int) -> tuple[int, int]:
@@ -48,6 +49,48 @@ def dft_matrix(n: int) -> np.ndarray:
     """(n, n) complex64 forward DFT matrix exp(-2 pi i j k / n) (unnormalised, as rfft/fft)."""
     k = np.arange(n)
     return np.exp(-2j * np.pi * np.outer(k, k) / n).astype(np.complex64)
+
+
+def half_twiddles(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n//2+1, n) float32 cos and sin of 2 pi k m / n for k = 0..n//2 (the sine rows k = 0 and n/2 exactly 0)."""
+    angle = 2.0 * np.pi * np.outer(np.arange(n // 2 + 1), np.arange(n)) / n
+    sin = np.sin(angle)
+    sin[0] = 0.0
+    if n % 2 == 0:
+        sin[-1] = 0.0
+    return np.cos(angle).astype(np.float32), sin.astype(np.float32)
+
+
+def grid_spectrum_reference(sample: np.ndarray, window: np.ndarray) -> np.ndarray:
+    """(S, A//2+1, D) complex64 rfft2 over the grid axes of `sample` (S, A, D) float32 times `window` (S, A):
+    the numpy specification of `kernels.grid_spectrum`, as two DFT-matrix products."""
+    n_s, n_a = window.shape
+    windowed = (sample * window[:, :, None]).astype(np.complex64)
+    half = np.matmul(dft_matrix(n_a)[: n_a // 2 + 1], windowed)  # (S, A//2+1, D)
+    return (dft_matrix(n_s) @ half.reshape(n_s, -1)).reshape(half.shape)
+
+
+def dsst_train_reference(
+    numerator: np.ndarray | None, denominator: np.ndarray | None, label_f: np.ndarray, sample_f: np.ndarray,
+    rate: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(numerator (S, A', D) complex64, denominator (S, A') float32) after DSST's update with `sample_f`:
+    (1 - rate) old + rate new, new = (Y X^*, sum_d |X_d|^2); the new pair itself when there is no old one.
+    The numpy specification of `kernels.grid_train`."""
+    num = label_f[:, :, None] * sample_f.conj()
+    den = (sample_f.real**2 + sample_f.imag**2).sum(axis=-1)
+    if numerator is None or denominator is None:
+        return num, den
+    rate32 = np.float32(rate)
+    return numerator * np.float32(1 - rate32) + num * rate32, (1 - rate32) * denominator + rate32 * den
+
+
+def dsst_response_spectrum_reference(
+    numerator: np.ndarray, denominator: np.ndarray, sample_f: np.ndarray, lam: float
+) -> np.ndarray:
+    """(S, A') complex64 sum_d numerator_d X_d / (denominator + lam): the numpy specification of
+    `kernels.grid_response`."""
+    return (numerator * sample_f).sum(axis=-1) / (denominator + np.float32(lam))
 
 
 def grid_label(params: JsarParams) -> np.ndarray:
@@ -83,10 +126,10 @@ class SizeFilter:
         self.model_wh = model_size(init_size_wh, params.size_model_max_area,
                                    params.size_model_min_side, params.cell_size)
         self.grid_shape = (params.num_scales, params.num_aspects)
-        self.label_f = sfft.rfft2(grid_label(params), workers=1)  # (S, A//2+1)
+        self.label_f = sfft.rfft2(grid_label(params), workers=1).astype(np.complex64)  # (S, A//2+1)
         self.window = grid_window(params)
-        self._dft_aspect = dft_matrix(params.num_aspects)[: params.num_aspects // 2 + 1]
-        self._dft_scale = dft_matrix(params.num_scales)
+        self._twiddles_aspect = half_twiddles(params.num_aspects)
+        self._twiddles_scale = half_twiddles(params.num_scales)
         self.numerator: np.ndarray | None = None  # (S, A//2+1, D) complex64
         self.denominator: np.ndarray | None = None  # (S, A//2+1) float32
 
@@ -129,37 +172,38 @@ class SizeFilter:
         return fhog.fhog_batch(crops, self.params.cell_size).reshape(len(sizes), -1)
 
     def spectrum(self, sample: np.ndarray) -> np.ndarray:
-        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample (windowed if configured).
-
-        Same values as rfft2 over axes (0, 1), computed as two small DFT-matrix products: with
-        ~1000 channels of 13-point transforms the matrix products are ~2.5x faster than pocketfft.
-        """
-        windowed = sample * self.window[:, :, None] if self.params.size_grid_window else sample
-        half = np.matmul(self._dft_aspect, windowed.astype(np.complex64))  # (S, A//2+1, D)
-        spec = self._dft_scale @ half.reshape(half.shape[0], -1)
-        return spec.reshape(half.shape)
+        """(S, A//2+1, D) complex64 spectrum of an (S, A, D) grid sample (windowed if configured): rfft2 over
+        the grid axes (`grid_spectrum_reference`), compiled."""
+        n_s, n_a, channels = sample.shape
+        half = n_a // 2 + 1
+        out = np.empty((n_s, half, channels), np.complex64)
+        scratch = np.empty((n_s, half, 2, channels), np.float32)
+        kernels.grid_spectrum(np.ascontiguousarray(sample, dtype=np.float32), self.window, *self._twiddles_aspect,
+                              *self._twiddles_scale, scratch, out, n_s, n_a, channels)
+        return out
 
     def train(self, sample_f: np.ndarray) -> None:
-        """DSST update: first call sets the model, later calls interpolate with the learning rate."""
-        # The numerator is kept conjugated (Y X^*), the form the response multiplies with.
-        num = self.label_f[:, :, None] * sample_f.conj()
-        den = (sample_f.real**2 + sample_f.imag**2).sum(axis=-1)
-        if self.numerator is None:
-            self.numerator, self.denominator = num, den
-            return
-        rate = np.float32(self.params.size_learning_rate)
-        num *= rate
-        self.numerator *= np.float32(1 - rate)
-        self.numerator += num
-        self.denominator = (1 - rate) * self.denominator + rate * den
+        """DSST update (`dsst_train_reference`), compiled: the first call sets the model, later calls
+        interpolate with the learning rate. The numerator is kept conjugated (Y X^*), the form the response
+        multiplies with."""
+        sample_f = np.ascontiguousarray(sample_f, dtype=np.complex64)
+        first = self.numerator is None or self.denominator is None
+        if first:
+            self.numerator = np.empty_like(sample_f)
+            self.denominator = np.empty(sample_f.shape[:2], np.float32)
+        frequencies = sample_f.shape[0] * sample_f.shape[1]
+        kernels.grid_train(self.label_f, sample_f, self.numerator, self.denominator,
+                           float(np.float32(self.params.size_learning_rate)), first, frequencies, sample_f.shape[2])
 
     def response(self, sample_f: np.ndarray) -> np.ndarray:
-        """(S, A) float32 response over the grid; the peak cell is the size estimate (best_cell,
-        refined_position)."""
+        """(S, A) float32 response over the grid (`dsst_response_spectrum_reference`, compiled, then the inverse
+        DFT); the peak cell is the size estimate (best_cell, refined_position)."""
         if self.numerator is None or self.denominator is None:
             raise RuntimeError("SizeFilter.response called before train")
-        resp_f = (self.numerator * sample_f).sum(axis=-1)
-        resp_f /= self.denominator + np.float32(self.params.size_lambda)
+        sample_f = np.ascontiguousarray(sample_f, dtype=np.complex64)
+        resp_f = np.empty(sample_f.shape[:2], np.complex64)
+        kernels.grid_response(self.numerator, sample_f, self.denominator, float(np.float32(self.params.size_lambda)),
+                              resp_f, resp_f.size, sample_f.shape[2])
         return sfft.irfft2(resp_f, s=self.grid_shape, workers=1).astype(np.float32)
 
     def cell_factors(self, i: float, j: float) -> tuple[float, float]:

@@ -300,8 +300,11 @@ def _two_valued_box(window: np.ndarray) -> tuple[tuple[int, int, int, int], floa
 class _BoxDft:
     """Inverse DFT restricted to a box of the (H, W) grid, and forward DFT of box-supported signals.
 
-    Half spectra (C, H, W//2+1) in the MATLAB scaling, exactly the values irfft2 / rfft2 give
-    on (resp. from) the box, by two small matrix products per channel.
+    Half spectra (C, H, W//2+1) in the MATLAB scaling, exactly the values irfft2 / rfft2 give on (resp. from)
+    the box, by two small matrix products per channel and direction. Each direction takes the order of its
+    two products (rows or columns first) with fewer multiply-adds for the box's shape: the step with real
+    input or output runs as one real matrix product on the complex array's float view (half the
+    multiply-adds of a complex product), so a tall box does columns first and a wide one rows first.
     """
 
     def __init__(self, shape_hw: tuple[int, int], box: tuple[int, int, int, int]):
@@ -311,23 +314,63 @@ class _BoxDft:
         ys = np.arange(r0, r1)
         xs = np.arange(c0, c1)
         weights = fourier.half_spectrum_weights(shape_hw)
+        bh, bw, half = r1 - r0, c1 - c0, len(kx)
         self.box = box
-        self.inv_y = np.exp(2j * np.pi * np.outer(ys, ky) / height).astype(np.complex64)  # (bh, H)
-        self.inv_x = (weights[:, None] * np.exp(2j * np.pi * np.outer(kx, xs) / width)
-                      / (height * width)).astype(np.complex64)  # (W', bw)
-        self.fwd_y = np.exp(-2j * np.pi * np.outer(ky, ys) / height).astype(np.complex64)  # (H, bh)
-        self.fwd_x = np.exp(-2j * np.pi * np.outer(xs, kx) / width).astype(np.complex64)  # (bw, W')
-        for matrix in (self.inv_y, self.inv_x, self.fwd_y, self.fwd_x):
-            matrix.flags.writeable = False  # shared: `_box_dft` hands one instance to every solve with this box
+        self.inv_y = _frozen(np.exp(2j * np.pi * np.outer(ys, ky) / height).astype(np.complex64))  # (bh, H)
+        self.inv_x = _frozen((weights[:, None] * np.exp(2j * np.pi * np.outer(kx, xs) / width)
+                              / (height * width)).astype(np.complex64))  # (W', bw)
+        self.fwd_y = _frozen(np.exp(-2j * np.pi * np.outer(ky, ys) / height).astype(np.complex64))  # (H, bh)
+        self.fwd_x = _frozen(np.exp(-2j * np.pi * np.outer(xs, kx) / width).astype(np.complex64))  # (bw, W')
+        # Real multiply-adds per channel (a complex one counts 4): columns first, or rows first.
+        self.inverse_rows_first = 4 * bh * height * half + 2 * bh * half * bw < 4 * height * half * bw + 4 * bh * height * bw
+        self.forward_rows_first = 2 * height * bh * bw + 4 * height * bw * half < 2 * bh * bw * half + 4 * height * bh * half
+        # Re(Z X) of an interleaved (re, im) row of Z: rows (Re X[k], -Im X[k]) per frequency k.
+        self.inv_x_real = _frozen(np.stack([self.inv_x.real, -self.inv_x.imag], axis=1).reshape(2 * half, bw))
+        # b F of a real row b: columns (Re F[:, k], Im F[:, k]) per frequency k.
+        self.fwd_x_of_real = _frozen(np.stack([self.fwd_x.real, self.fwd_x.imag], axis=2).reshape(bw, 2 * half))
+        # (Zr | Zi) F for Z = Zr + i Zi along the box's columns: rows (Fr, Fi) then (-Fi, Fr), interleaved columns.
+        self.fwd_x_of_pair = _frozen(np.concatenate(
+            [self.fwd_x_of_real, np.stack([-self.fwd_x.imag, self.fwd_x.real], axis=2).reshape(bw, 2 * half)]))
+        self.fwd_y_real = _frozen(np.concatenate([self.fwd_y.real, self.fwd_y.imag]))  # (2H, bh)
 
     def inverse(self, spectrum: np.ndarray) -> np.ndarray:
         """(C, bh, bw) float32: irfft2(spectrum) on the box."""
-        return np.real(np.matmul(self.inv_y, np.matmul(spectrum, self.inv_x))).astype(np.float32)
+        if not self.inverse_rows_first:
+            # one product each for all channels: (C H, W') @ (W', bw), then (bh, H) @ (H, C bw)
+            channels, height, half = spectrum.shape
+            bw = self.inv_x.shape[1]
+            columns = (np.ascontiguousarray(spectrum).reshape(channels * height, half) @ self.inv_x)
+            columns = columns.reshape(channels, height, bw).transpose(1, 0, 2).reshape(height, channels * bw)
+            box = np.real(self.inv_y @ columns).astype(np.float32)  # (bh, C bw)
+            return box.reshape(-1, channels, bw).transpose(1, 0, 2)
+        rows = np.matmul(self.inv_y, spectrum)  # (C, bh, W') complex
+        channels, bh, half = rows.shape
+        return (rows.view(np.float32).reshape(channels * bh, 2 * half) @ self.inv_x_real).reshape(channels, bh, -1)
 
     def forward(self, box_values: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """(C, H, W//2+1) complex64: rfft2 of the signal equal to box_values on the box, 0 elsewhere."""
-        rows = np.matmul(box_values.astype(np.complex64), self.fwd_x)  # (C, bh, W')
-        return np.matmul(self.fwd_y, rows, out=out)
+        values = np.ascontiguousarray(box_values, dtype=np.float32)
+        channels, bh, bw = values.shape
+        half = self.fwd_x.shape[1]
+        if not self.forward_rows_first:
+            rows = (values.reshape(channels * bh, bw) @ self.fwd_x_of_real).view(np.complex64)
+            return np.matmul(self.fwd_y, rows.reshape(channels, bh, half), out=out)
+        height = self.fwd_y.shape[0]
+        # one product for all channels: (2H, bh) @ (bh, C bw), real parts then imaginary parts
+        columns = self.fwd_y_real @ values.transpose(1, 0, 2).reshape(bh, channels * bw)
+        pairs = columns.reshape(2, height, channels, bw).transpose(2, 1, 0, 3).reshape(channels * height, 2 * bw)
+        spectrum = (pairs @ self.fwd_x_of_pair).view(np.complex64).reshape(channels, height, half)
+        if out is None:
+            return spectrum
+        out[...] = spectrum
+        return out
+
+
+def _frozen(matrix: np.ndarray) -> np.ndarray:
+    """`matrix` made read-only: `_box_dft` hands one `_BoxDft` to every solve with its box."""
+    matrix = np.ascontiguousarray(matrix)
+    matrix.flags.writeable = False
+    return matrix
 
 
 @functools.lru_cache(maxsize=32)

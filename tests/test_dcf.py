@@ -207,3 +207,30 @@ def test_box_transforms_require_a_box_window():
     with pytest.raises(ValueError, match="rectangular"):
         dcf.admm_solve(zeros, zeros[0], window, None, lam=1e-2, mu=16.0, iterations=2, penalty_init=1.0,
                        penalty_growth=10.0, penalty_max=1e4, box_transforms=True)
+
+
+@pytest.mark.parametrize("box", [(16, 33, 22, 27), (20, 29, 20, 30), (22, 27, 16, 33), (0, 1, 0, 50)])
+@pytest.mark.parametrize("rows_first", [False, True])
+def test_box_transforms_equal_the_full_ffts_in_either_order(box, rows_first):
+    """Both orders of each direction (the cost model picks one per box) are irfft2 / rfft2 on the box."""
+    rng = np.random.default_rng(sum(box))
+    spectrum = fourier.rfft2(rng.standard_normal((4, *SHAPE)).astype(np.float32))
+    partial = dcf._BoxDft(SHAPE, box)
+    partial.inverse_rows_first = partial.forward_rows_first = rows_first
+    r0, r1, c0, c1 = box
+    spatial = fourier.irfft2(spectrum, SHAPE)
+    np.testing.assert_allclose(partial.inverse(spectrum), spatial[:, r0:r1, c0:c1], atol=1e-5 * np.abs(spatial).max())
+    values = rng.standard_normal((4, r1 - r0, c1 - c0)).astype(np.float32)
+    padded = np.zeros((4, *SHAPE), np.float32)
+    padded[:, r0:r1, c0:c1] = values
+    expected = fourier.rfft2(padded)
+    out = np.empty_like(expected)
+    assert partial.forward(values, out=out) is out
+    np.testing.assert_allclose(out, expected, atol=1e-5 * np.abs(expected).max())
+
+
+def test_the_box_transforms_take_the_cheaper_order_for_the_box_shape():
+    assert not dcf._BoxDft((50, 50), (16, 33, 22, 27)).inverse_rows_first  # tall: columns first
+    assert dcf._BoxDft((50, 50), (16, 33, 22, 27)).forward_rows_first
+    assert dcf._BoxDft((50, 50), (22, 27, 16, 33)).inverse_rows_first  # wide: rows first
+    assert not dcf._BoxDft((50, 50), (22, 27, 16, 33)).forward_rows_first

@@ -9,7 +9,7 @@ export OPENBLAS_NUM_THREADS := 1
 export MKL_NUM_THREADS := 1
 export MAVLINK20 := 1
 
-.PHONY: run test eval longterm ablation bench instructions profile instructions-arm64 image check-arm64 check-systemd clean mavproxy
+.PHONY: run test eval longterm ablation bench instructions profile instructions-arm64 profile-arm64 image check-arm64 check-systemd clean mavproxy
 
 # The compiled feature kernels are rebuilt when their source changes.
 $(STAMP): pyproject.toml requirements-no-deps.txt jsar/features/_kernels.c
@@ -80,6 +80,11 @@ instructions-arm64: $(STAMP)
 		$(PY) -m bench.instructions $(DATA) --arm64-rootfs "$${JSAR_ARM64_CACHE:-$$HOME/.cache/jsar-arm64}/rootfs-bookworm" \
 			--arm64-cpu $$cpu --json out/instructions-aarch64-$$cpu.json || exit 1; \
 	done
+
+# The arm64 build's instructions by tracker stage (bench.profile's markers under qemu; no per-function costs).
+profile-arm64: $(STAMP)
+	$(PY) -m bench.profile $(DATA) --sequences OTB_Crossing,DTB70_MountainBike6 \
+		--arm64-rootfs "$${JSAR_ARM64_CACHE:-$$HOME/.cache/jsar-arm64}/rootfs-bookworm" --json out/profile-aarch64.json
 
 # Deployment checks (heavy, need root; not part of `make test`). See docs/deploy.md.
 # The container image for amd64 and arm64 (emulated), then the image test on both.

@@ -210,6 +210,15 @@ def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[st
     /opt/jsar/.venv, as deploy/check-arm64.sh leaves it), under qemu-aarch64 emulating `cpu` (numpy,
     OpenBLAS and OpenCV pick their SIMD paths from the CPU's features: cortex-a72 has plain NEON,
     cortex-a76 adds fp16 and dot product, qemu's default "max" more) with the marks plugin."""
+    out, counts = run_arm64_marks(rootfs, "bench.instructions", [*worker_args, "--worker-marks"], cpu)
+    labels = [line.split(" ", 2)[1:] for line in out.splitlines() if line.startswith("MARK ")]
+    return [(label, counts[int(mark) + 1] - counts[int(mark)]) for mark, label in labels]
+
+
+def run_arm64_marks(rootfs: Path, module: str, module_args: list[str], cpu: str) -> tuple[str, dict[int, int]]:
+    """(standard output, {mark: guest instructions executed so far}) of `python3 -m module module_args` run from
+    the arm64 build installed in `rootfs` under qemu-aarch64 emulating `cpu` with the marks plugin
+    (bench/qemu_insn_marks.c: the guest sets a mark with the system call MARK_SYSCALL)."""
     qemu = shutil.which("qemu-aarch64")  # the dynamic build: qemu-aarch64-static cannot load plugins
     if qemu is None or shutil.which("gcc") is None:
         raise SystemExit("needs qemu-aarch64 (apt-get install qemu-user) and gcc")
@@ -228,16 +237,16 @@ def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[st
         if python.is_symlink():  # Debian's python3 -> python3.11, relative to /usr/bin
             python = python.parent / os.readlink(python)
         command = [qemu, "-L", str(rootfs), "-cpu", cpu, "-plugin", f"{plugin},out={marks_file}", str(python),
-                   "-m", "bench.instructions", *worker_args, "--worker-marks"]
+                   "-m", module, *module_args]
         env = {**os.environ, "PYTHONPATH": str(site[0]), "PYTHONNOUSERSITE": "1"}
-        print(f"running: qemu-aarch64 -cpu {cpu} -plugin qemu_insn_marks.so python3 -m bench.instructions ... "
-              "(arm64 build)", flush=True)
+        print(f"running: qemu-aarch64 -cpu {cpu} -plugin qemu_insn_marks.so python3 -m {module} ... (arm64 build)",
+              flush=True)
         start = time.monotonic()
         out = subprocess.run(command, check=True, cwd="/", env=env, capture_output=True, text=True).stdout
         print(f"qemu run took {time.monotonic() - start:.0f} s", flush=True)
-        counts = dict(line.split() for line in marks_file.read_text().splitlines() if not line.startswith("exit"))
-    labels = [line.split(" ", 2)[1:] for line in out.splitlines() if line.startswith("MARK ")]
-    return [(label, int(counts[str(int(mark) + 1)]) - int(counts[mark])) for mark, label in labels]
+        counts = {int(mark): int(count) for mark, count in
+                  (line.split() for line in marks_file.read_text().splitlines() if not line.startswith("exit"))}
+    return out, counts
 
 
 def host_rate(root: Path, sequence: str, frames: int) -> dict[str, float]:

@@ -3,6 +3,7 @@
     python -m bench.profile DATA_ROOT [--sequences OTB_Crossing] [--frames 5] [--lost-frames 2] [--top 15]
                             [--json out/profile.json] [--keep FOLDER]
     python -m bench.profile DATA_ROOT --report out/profile.json   (print a saved result)
+    python -m bench.profile DATA_ROOT --arm64-rootfs ROOTFS [--arm64-cpu cortex-a72]   (the arm64 build, by stage)
 
 The same frame kinds as bench.instructions (jsar, csrt, jsar-re confident, jsar-re lost; fewer frames),
 run under `valgrind --tool=callgrind`. Callgrind sees C functions only, so the tracker's Python-level
@@ -14,7 +15,9 @@ stage (exclusive counts; the path makes the nesting explicit). The markers' own 
 and a client request per entry and exit) is measured on a no-op stage and reported. The dumps carry
 callgrind's per-function costs, summed here by object (`ob=`) into libraries and by function; frame
 and stage totals are callgrind's own counter (`summary:`), which the per-function costs match to
-within a few 0.1 % (both are printed).
+within a few 0.1 % (both are printed). With --arm64-rootfs the same markers run in the arm64 build that
+deploy/check-arm64.sh installed, under qemu-aarch64 with bench/qemu_insn_marks.c (a mark per dump, as
+bench.instructions counts frames): stage totals only, since callgrind does not run under qemu-user.
 """
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, Callable, Iterable  # noqa: E402
 
-from bench.instructions import count_frame_kinds, run_worker_under_callgrind  # noqa: E402
+from bench.instructions import MARK_SYSCALL, count_frame_kinds, run_arm64_marks, run_worker_under_callgrind  # noqa: E402
 
 KINDS = ("jsar", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "csrt")
 # (module, attribute path, stage name): the functions the markers wrap. A module-level function is
@@ -321,22 +324,33 @@ def install(marks: StageMarks) -> None:
         setattr(owner, name, marks.wrap(getattr(owner, name), stage))
 
 
-def worker(root: Path, sequences: list[str], frames: int, lost_frames: int, helper: Path) -> None:
-    """Under callgrind: set each sequence's trackers up uncounted, count each measured call by segments."""
+def worker(root: Path, sequences: list[str], frames: int, lost_frames: int, helper: Path | None) -> None:
+    """Under callgrind (helper: the client-request library) or qemu with the marks plugin (helper None): set each
+    sequence's trackers up uncounted, count each measured call by segments."""
     import cv2
     from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
-    cg = ctypes.CDLL(str(helper))
-    cg.cg_dump.argtypes = [ctypes.c_char_p]
-    marks = StageMarks(lambda label: cg.cg_dump(label.encode()))
-    cg.cg_start()
+    if helper is not None:
+        cg = ctypes.CDLL(str(helper))
+        cg.cg_dump.argtypes = [ctypes.c_char_p]
+        dump: Callable[[str], None] = lambda label: cg.cg_dump(label.encode())
+        cg.cg_start()
+    else:  # mark i ends the segment labelled i (printed: qemu's plugin records only the count)
+        libc = ctypes.CDLL(None, use_errno=True)
+        marks_set = [0]
+
+        def dump(label: str) -> None:
+            libc.syscall(MARK_SYSCALL, ctypes.c_long(marks_set[0]))
+            print(f"DUMP {marks_set[0]} {label}", flush=True)
+            marks_set[0] += 1
+    marks = StageMarks(dump)
 
     def counted(frame: str, call: Callable[[], Any]) -> None:
         # A dump, not CALLGRIND_ZERO_STATS: after a zero, callgrind's per-function costs kept part of what ran
         # before it (its counter did not), e.g. 56 M extra in the first frame after the set-up.
-        cg.cg_dump(b"uncounted")
+        dump("uncounted")
         marks.frame_call(frame, call)
 
     def noop() -> None:
@@ -362,6 +376,26 @@ def run_callgrind(worker_args: list[str], keep: Path | None) -> list[Dump]:
         run_worker_under_callgrind("bench.profile", [*worker_args, "--worker"], folder, Path(tmp))
         paths = dump_files(folder)
         return parse_dumps(path.read_text(errors="replace") for path in paths)
+
+
+def run_arm64(worker_args: list[str], rootfs: Path, cpu: str) -> list[Dump]:
+    """Run the worker from the arm64 build in `rootfs` under qemu-aarch64 with the marks plugin: dumps with the
+    instruction counter of each segment (`summary`) and no per-function costs (no callgrind under qemu-user)."""
+    out, counts = run_arm64_marks(rootfs, "bench.profile", [*worker_args, "--worker-marks"], cpu)
+    return dumps_from_marks(out, counts)
+
+
+def dumps_from_marks(out: str, counts: dict[int, int]) -> list[Dump]:
+    """The worker's segments from its printed "DUMP i label" lines and the plugin's count at each mark i: the
+    segment labelled i ran between marks i - 1 and i (mark 0 only starts the first)."""
+    dumps = []
+    for line in out.splitlines():
+        if line.startswith("DUMP "):
+            _, mark, label = line.split(" ", 2)
+            index = int(mark)
+            if index > 0:
+                dumps.append(Dump(label, summary=counts[index] - counts[index - 1]))
+    return dumps
 
 
 # ----------------------------------------------------------------------------- report
@@ -413,17 +447,21 @@ def report(result: dict[str, Any], top: int = 15) -> None:
         print(f"\n{sequence}: millions of instructions per frame (% of the frame)")
         for kind in shown:
             k = kinds[kind]
+            functions = f"per-function costs sum to {k['function_total']:.1f} M; " if k["libraries"] else ""
             print(f"  {kind:18s} {k['total']:7.1f} M, mean of {k['frames']} frames "
-                  f"({min(k['frame_totals']):.1f}-{max(k['frame_totals']):.1f}); per-function costs sum to "
-                  f"{k['function_total']:.1f} M; {k['stage_calls_per_frame']:.0f} stage calls a frame, "
-                  f"markers {100 * k['marker_share']:.1f} %")
-        print("\n(a) by library")
-        groups = sorted({g for kind in shown for g in kinds[kind]["libraries"]},
-                        key=lambda g: -kinds[shown[0]]["libraries"].get(g, 0.0))
-        print(f"  {'library':40s} " + " ".join(f"{kind:>17s}" for kind in shown))
-        for group in groups:
-            print(f"  {group:40s} " + " ".join(
-                _cell(kinds[kind]["libraries"].get(group, 0.0), kinds[kind]["function_total"]) for kind in shown))
+                  f"({min(k['frame_totals']):.1f}-{max(k['frame_totals']):.1f}); {functions}"
+                  f"{k['stage_calls_per_frame']:.0f} stage calls a frame, markers {100 * k['marker_share']:.1f} %")
+        per_function = any(kinds[kind]["libraries"] for kind in shown)
+        if not per_function:
+            print("\n(a), (c): no per-function costs (counted under qemu: totals by stage only)")
+        else:
+            print("\n(a) by library")
+            groups = sorted({g for kind in shown for g in kinds[kind]["libraries"]},
+                            key=lambda g: -kinds[shown[0]]["libraries"].get(g, 0.0))
+            print(f"  {'library':40s} " + " ".join(f"{kind:>17s}" for kind in shown))
+            for group in groups:
+                print(f"  {group:40s} " + " ".join(
+                    _cell(kinds[kind]["libraries"].get(group, 0.0), kinds[kind]["function_total"]) for kind in shown))
         for title, rows, wanted in (("(b) by stage, tracked frames", TRACKED_ROWS, ("jsar", "jsar-re confident")),
                                     ("(b) by stage, lost frame", LOST_ROWS, ("jsar-re lost",))):
             present = [kind for kind in wanted if kind in kinds]
@@ -438,7 +476,7 @@ def report(result: dict[str, Any], top: int = 15) -> None:
             print(f"\n(b) {kind}: exclusive per stage path")
             for path, count in sorted(kinds[kind]["stage_paths"].items()):
                 print(f"  {path or '(top level)':70s} {_cell(count, kinds[kind]['total'])}")
-        for kind in shown:
+        for kind in shown if per_function else ():
             print(f"\n(c) {kind}: top functions by exclusive instructions, and their instructions in the other kinds")
             costs = {kind: {(fn, ob): count for fn, ob, count in kinds[kind]["functions"]} for kind in shown}
             others = [other for other in shown if other != kind]
@@ -463,7 +501,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="write the summary here")
     parser.add_argument("--keep", type=Path, default=None, help="keep callgrind's dump files in this folder")
     parser.add_argument("--report", type=Path, default=None, metavar="JSON", help="print an earlier --json result")
+    parser.add_argument("--arm64-rootfs", type=Path, default=None,
+                        help="profile the arm64 build installed in this root file system (deploy/check-arm64.sh) under "
+                             "qemu-aarch64: stage tables only, no per-function costs")
+    parser.add_argument("--arm64-cpu", default="cortex-a72", help="qemu CPU model for --arm64-rootfs")
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
+    parser.add_argument("--worker-marks", action="store_true", help=argparse.SUPPRESS)  # the run under qemu
     args = parser.parse_args(argv)
     if args.report is not None:
         report(json.loads(args.report.read_text()), args.top)
@@ -472,12 +515,15 @@ def main(argv: list[str] | None = None) -> int:
     for sequence in sequences:
         if not (args.data_root / sequence / "img").is_dir():
             parser.error(f"{sequence} is not a sequence under {args.data_root}")
-    if args.worker is not None:
+    if args.worker is not None or args.worker_marks:
         worker(args.data_root, sequences, args.frames, args.lost_frames, args.worker)
         return 0
     worker_args = [str(args.data_root.resolve()), "--sequences", ",".join(sequences), "--frames", str(args.frames),
                    "--lost-frames", str(args.lost_frames)]
-    dumps = run_callgrind(worker_args, args.keep)
+    if args.arm64_rootfs is not None:
+        dumps = run_arm64(worker_args, args.arm64_rootfs, args.arm64_cpu)
+    else:
+        dumps = run_callgrind(worker_args, args.keep)
     result = summary(collect(dumps), marker_cost(dumps))
     report(result, args.top)
     if args.json is not None:

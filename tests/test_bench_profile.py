@@ -5,7 +5,8 @@ from collections import Counter
 
 import pytest
 
-from bench.profile import (Dump, StageMarks, by_function, by_library, collect, marker_cost, parse_dumps, row_of,
+from bench.profile import (Dump, StageMarks, by_function, by_library, collect, dumps_from_marks, marker_cost,
+                           parse_dumps, report, row_of,
                            summary)
 
 # Two dumps of one run: names are compressed per run, so the second file uses ids the first defined.
@@ -137,3 +138,20 @@ def test_stage_marks_label_each_segment_with_the_open_stages():
     with pytest.raises(ValueError):
         marks.frame_call("s|jsar|2", marked_failing)
     assert labels == ["s|jsar|2|", "s|jsar|2|failing"] and marks.frame == "" and marks.stack == []
+
+
+def test_marks_under_qemu_give_one_segment_per_mark_and_a_stage_report(capsys):
+    """--arm64-rootfs: the worker prints "DUMP i label" at mark i, the plugin the count there; the segment labelled
+    i is what ran since mark i - 1. The report then has stage tables and says it has no per-function costs."""
+    out = "\n".join(["noise", "DUMP 0 uncounted", "DUMP 1 s|jsar|1|", "DUMP 2 s|jsar|1|locate/features",
+                     "DUMP 3 s|jsar|1|", "DUMP 4 uncounted", "DUMP 5 s|jsar|2|"])
+    counts = {0: 1000, 1: 1100, 2: 1400, 3: 1450, 4: 9000, 5: 9070}
+    dumps = dumps_from_marks(out, counts)
+    assert [(d.label, d.summary) for d in dumps] == [("s|jsar|1|", 100), ("s|jsar|1|locate/features", 300),
+                                                    ("s|jsar|1|", 50), ("uncounted", 7550), ("s|jsar|2|", 70)]
+    profile = collect(dumps)[("s", "jsar")]
+    assert profile.frames == Counter({"1": 450, "2": 70}) and not profile.costs
+    report(summary(collect(dumps), 0.0))
+    printed = capsys.readouterr().out
+    assert "no per-function costs" in printed and "(b) by stage, tracked frames" in printed
+    assert "(c) jsar" not in printed

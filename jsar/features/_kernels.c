@@ -1608,13 +1608,42 @@ static HOT_LOOP_CLONES void grid_spectrum_run(const float *restrict x, const flo
     }
 }
 
+/* Buffers objs[0..n) as views: need[i] bytes at least, item type code[i] ("f", "Zf"), writable when
+ * writable[i]; the error names names[i]. Returns how many views are held (n on success; fewer after an error, which
+ * is set): release them with release_views. Then, if one of the first `distinct` buffers shares its memory with
+ * another of them, a ValueError saying they must be distinct, and -1 - n. */
+static int acquire_views(PyObject *const *objs, Py_buffer *views, int n, const Py_ssize_t *need,
+                         const char *const *code, const int *writable, const char *const *names, int distinct,
+                         const char *function)
+{
+    int held = 0;
+    for (; held < n; held++)
+        if (get_buffer_of(objs[held], &views[held], writable[held], need[held], code[held], names[held]) < 0)
+            return held;
+    for (int i = 0; i < distinct; i++)
+        for (int j = i + 1; j < distinct; j++)
+            if (views[i].buf == views[j].buf) {
+                PyErr_Format(PyExc_ValueError, "%s: %s and %s must be distinct buffers", function, names[i], names[j]);
+                return -1 - n;
+            }
+    return n;
+}
+
+static void release_views(Py_buffer *views, int held)
+{
+    for (int i = 0; i < held; i++)
+        PyBuffer_Release(&views[i]);
+}
+
 /* grid_spectrum(x, window, cos_a, sin_a, cos_s, sin_s, scratch, out, S, A, D): out (S, A/2+1, D) complex64
  * from x (S, A, D) float32 and window (S, A); scratch: S * (A/2+1) * 2 * D float32. */
 static PyObject *grid_spectrum(PyObject *self, PyObject *args)
 {
     (void)self;
-    enum { X, WIN, COS_A, SIN_A, COS_S, SIN_S, SCRATCH, OUT, N_BUF };
-    static const char *const names[N_BUF] = {"x", "window", "cos_a", "sin_a", "cos_s", "sin_s", "scratch", "out"};
+    enum { X, SCRATCH, OUT, WIN, COS_A, SIN_A, COS_S, SIN_S, N_BUF };
+    static const char *const names[N_BUF] = {"x", "scratch", "out", "window", "cos_a", "sin_a", "cos_s", "sin_s"};
+    static const char *const codes[N_BUF] = {"f", "f", "Zf", "f", "f", "f", "f", "f"};
+    static const int writable[N_BUF] = {0, 1, 1, 0, 0, 0, 0, 0};
     PyObject *objs[N_BUF];
     Py_ssize_t S, A, D;
     if (!PyArg_ParseTuple(args, "OOOOOOOOnnn", &objs[X], &objs[WIN], &objs[COS_A], &objs[SIN_A], &objs[COS_S],
@@ -1626,36 +1655,24 @@ static PyObject *grid_spectrum(PyObject *self, PyObject *args)
         return NULL;
     }
     const Py_ssize_t A2 = A / 2 + 1, S2 = S / 2 + 1;
-    const Py_ssize_t need[N_BUF] = {S * A * D * 4, S * A * 4, A2 * A * 4, A2 * A * 4, S2 * S * 4, S2 * S * 4,
-                                    S * A2 * 2 * D * 4, S * A2 * D * 8};
+    const Py_ssize_t need[N_BUF] = {S * A * D * 4, S * A2 * 2 * D * 4, S * A2 * D * 8, S * A * 4, A2 * A * 4,
+                                    A2 * A * 4, S2 * S * 4, S2 * S * 4};
     Py_buffer views[N_BUF];
-    int held = 0, failed = 0;
-    for (; held < N_BUF && !failed; held++)
-        failed = get_buffer_of(objs[held], &views[held], held >= SCRATCH, need[held], held == OUT ? "Zf" : "f",
-                               names[held]) < 0;
-    if (failed)
-        held--;
-    else if (views[OUT].buf == views[X].buf || views[SCRATCH].buf == views[X].buf || views[OUT].buf == views[SCRATCH].buf) {
-        PyErr_SetString(PyExc_ValueError, "grid_spectrum: x, scratch and out must be distinct buffers");
-        failed = 1;
-    }
-    if (!failed) {
+    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, OUT + 1, "grid_spectrum");
+    if (held == N_BUF) {
         Py_BEGIN_ALLOW_THREADS
-        grid_spectrum_run((const float *)views[X].buf, (const float *)views[WIN].buf, (const float *)views[COS_A].buf,
-                          (const float *)views[SIN_A].buf, (const float *)views[COS_S].buf,
-                          (const float *)views[SIN_S].buf, (float *)views[SCRATCH].buf, (float *)views[OUT].buf, S, A,
-                          D);
+        grid_spectrum_run(views[X].buf, views[WIN].buf, views[COS_A].buf, views[SIN_A].buf, views[COS_S].buf,
+                          views[SIN_S].buf, views[SCRATCH].buf, views[OUT].buf, S, A, D);
         Py_END_ALLOW_THREADS
     }
-    for (int b = 0; b < held; b++)
-        PyBuffer_Release(&views[b]);
-    if (failed)
+    release_views(views, held < 0 ? N_BUF : held);
+    if (held != N_BUF)
         return NULL;
     Py_RETURN_NONE;
 }
 
-/* The size filter's DSST update and response over M grid frequencies of D channels (the specification is
- * size_filter.SizeFilter's numpy methods with `compiled=False`):
+/* The size filter's DSST update and response over M grid frequencies of D channels (the specifications are
+ * size_filter.dsst_train_reference and dsst_response_spectrum_reference):
  *   train:    numerator = (1 - rate) numerator + rate y conj(x), denominator = (1 - rate) denominator + rate
  *             sum_d |x|^2 (first: numerator = y conj(x), denominator = sum_d |x|^2);
  *   response: out[m] = sum_d numerator[m][d] x[m][d] / (denominator[m] + lambda). */
@@ -1750,38 +1767,32 @@ static HOT_LOOP_CLONES void grid_response_run(const float *restrict num, const f
 static PyObject *grid_train(PyObject *self, PyObject *args)
 {
     (void)self;
-    PyObject *objs[4];
-    static const char *const names[4] = {"label", "x", "numerator", "denominator"};
+    enum { X, NUMERATOR, LABEL, DENOMINATOR, N_BUF };
+    static const char *const names[N_BUF] = {"x", "numerator", "label", "denominator"};
+    static const char *const codes[N_BUF] = {"Zf", "Zf", "Zf", "f"};
+    static const int writable[N_BUF] = {0, 1, 0, 1};
+    PyObject *objs[N_BUF];
     double rate;
     int first;
     Py_ssize_t M, D;
-    if (!PyArg_ParseTuple(args, "OOOOdpnn", &objs[0], &objs[1], &objs[2], &objs[3], &rate, &first, &M, &D))
+    if (!PyArg_ParseTuple(args, "OOOOdpnn", &objs[LABEL], &objs[X], &objs[NUMERATOR], &objs[DENOMINATOR], &rate,
+                          &first, &M, &D))
         return NULL;
     if (M < 1 || D < 1) {
         PyErr_SetString(PyExc_ValueError, "grid_train: sizes must be positive");
         return NULL;
     }
-    const Py_ssize_t need[4] = {M * 8, M * D * 8, M * D * 8, M * 4};
-    Py_buffer views[4];
-    int held = 0, failed = 0;
-    for (; held < 4 && !failed; held++)
-        failed = get_buffer_of(objs[held], &views[held], held >= 2, need[held], held == 3 ? "f" : "Zf",
-                               names[held]) < 0;
-    if (failed)
-        held--;
-    else if (views[2].buf == views[1].buf) {
-        PyErr_SetString(PyExc_ValueError, "grid_train: x and numerator must be distinct buffers");
-        failed = 1;
-    }
-    if (!failed) {
+    const Py_ssize_t need[N_BUF] = {M * D * 8, M * D * 8, M * 8, M * 4};
+    Py_buffer views[N_BUF];
+    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, NUMERATOR + 1, "grid_train");
+    if (held == N_BUF) {
         Py_BEGIN_ALLOW_THREADS
-        grid_train_run((const float *)views[0].buf, (const float *)views[1].buf, (float *)views[2].buf,
-                       (float *)views[3].buf, (float)rate, first, M, D);
+        grid_train_run(views[LABEL].buf, views[X].buf, views[NUMERATOR].buf, views[DENOMINATOR].buf, (float)rate,
+                       first, M, D);
         Py_END_ALLOW_THREADS
     }
-    for (int b = 0; b < held; b++)
-        PyBuffer_Release(&views[b]);
-    if (failed)
+    release_views(views, held < 0 ? N_BUF : held);
+    if (held != N_BUF)
         return NULL;
     Py_RETURN_NONE;
 }
@@ -1790,33 +1801,30 @@ static PyObject *grid_train(PyObject *self, PyObject *args)
 static PyObject *grid_response(PyObject *self, PyObject *args)
 {
     (void)self;
-    PyObject *objs[4];
-    static const char *const names[4] = {"numerator", "x", "denominator", "out"};
+    enum { NUMERATOR, X, DENOMINATOR, OUT, N_BUF };
+    static const char *const names[N_BUF] = {"numerator", "x", "denominator", "out"};
+    static const char *const codes[N_BUF] = {"Zf", "Zf", "f", "Zf"};
+    static const int writable[N_BUF] = {0, 0, 0, 1};
+    PyObject *objs[N_BUF];
     double lam;
     Py_ssize_t M, D;
-    if (!PyArg_ParseTuple(args, "OOOdOnn", &objs[0], &objs[1], &objs[2], &lam, &objs[3], &M, &D))
+    if (!PyArg_ParseTuple(args, "OOOdOnn", &objs[NUMERATOR], &objs[X], &objs[DENOMINATOR], &lam, &objs[OUT], &M, &D))
         return NULL;
     if (M < 1 || D < 1) {
         PyErr_SetString(PyExc_ValueError, "grid_response: sizes must be positive");
         return NULL;
     }
-    const Py_ssize_t need[4] = {M * D * 8, M * D * 8, M * 4, M * 8};
-    Py_buffer views[4];
-    int held = 0, failed = 0;
-    for (; held < 4 && !failed; held++)
-        failed = get_buffer_of(objs[held], &views[held], held == 3, need[held], held == 2 ? "f" : "Zf",
-                               names[held]) < 0;
-    if (failed)
-        held--;
-    if (!failed) {
+    const Py_ssize_t need[N_BUF] = {M * D * 8, M * D * 8, M * 4, M * 8};
+    Py_buffer views[N_BUF];
+    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, 0, "grid_response");
+    if (held == N_BUF) {
         Py_BEGIN_ALLOW_THREADS
-        grid_response_run((const float *)views[0].buf, (const float *)views[1].buf, (const float *)views[2].buf,
-                          (float)lam, (float *)views[3].buf, M, D);
+        grid_response_run(views[NUMERATOR].buf, views[X].buf, views[DENOMINATOR].buf, (float)lam, views[OUT].buf, M,
+                          D);
         Py_END_ALLOW_THREADS
     }
-    for (int b = 0; b < held; b++)
-        PyBuffer_Release(&views[b]);
-    if (failed)
+    release_views(views, held < 0 ? N_BUF : held);
+    if (held != N_BUF)
         return NULL;
     Py_RETURN_NONE;
 }

@@ -322,8 +322,10 @@ class _BoxDft:
         self.fwd_y = _frozen(np.exp(-2j * np.pi * np.outer(ky, ys) / height).astype(np.complex64))  # (H, bh)
         self.fwd_x = _frozen(np.exp(-2j * np.pi * np.outer(xs, kx) / width).astype(np.complex64))  # (bw, W')
         # Real multiply-adds per channel (a complex one counts 4): columns first, or rows first.
-        self.inverse_rows_first = 4 * bh * height * half + 2 * bh * half * bw < 4 * height * half * bw + 4 * bh * height * bw
-        self.forward_rows_first = 2 * height * bh * bw + 4 * height * bw * half < 2 * bh * bw * half + 4 * height * bh * half
+        self.inverse_rows_first = (4 * bh * height * half + 2 * bh * half * bw
+                                   < 4 * height * half * bw + 4 * bh * height * bw)
+        self.forward_rows_first = (2 * height * bh * bw + 4 * height * bw * half
+                                   < 2 * bh * bw * half + 4 * height * bh * half)
         # Re(Z X) of an interleaved (re, im) row of Z: rows (Re X[k], -Im X[k]) per frequency k.
         self.inv_x_real = _frozen(np.stack([self.inv_x.real, -self.inv_x.imag], axis=1).reshape(2 * half, bw))
         # b F of a real row b: columns (Re F[:, k], Im F[:, k]) per frequency k.

@@ -1580,7 +1580,8 @@ static HOT_LOOP_CLONES void grid_spectrum_run(const float *restrict x, const flo
     for (Py_ssize_t j = 0; j < A2; j++) {
         for (Py_ssize_t k = 0; k < S2; k++) {
             const int mirrored = k > 0 && 2 * k != S;
-            float *lo = out + (k * A2 + j) * 2 * D, *hi = out + ((S - k) * A2 + j) * 2 * D;
+            /* row S - k exists only when mirrored (row S would be past the end); else hi is never written */
+            float *lo = out + (k * A2 + j) * 2 * D, *hi = mirrored ? out + ((S - k) * A2 + j) * 2 * D : lo;
             const float *cs = cos_s + k * S, *ss = sin_s + k * S, *column = scratch + j * 2 * D;
             const Py_ssize_t stride = A2 * 2 * D;
             Py_ssize_t d0 = 0;
@@ -1671,11 +1672,6 @@ static PyObject *grid_spectrum(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
-/* The size filter's DSST update and response over M grid frequencies of D channels (the specifications are
- * size_filter.dsst_train_reference and dsst_response_spectrum_reference):
- *   train:    numerator = (1 - rate) numerator + rate y conj(x), denominator = (1 - rate) denominator + rate
- *             sum_d |x|^2 (first: numerator = y conj(x), denominator = sum_d |x|^2);
- *   response: out[m] = sum_d numerator[m][d] x[m][d] / (denominator[m] + lambda). */
 /* Sum of a GridVec's lanes, in a fixed order. */
 static ALWAYS_INLINE float grid_lanes_sum(GridVec v)
 {
@@ -1697,6 +1693,11 @@ static ALWAYS_INLINE float grid_energy(const float *restrict x, Py_ssize_t n)
     return energy;
 }
 
+/* The size filter's DSST update and response over M grid frequencies of D channels (the specifications are
+ * size_filter.dsst_train_reference and dsst_response_spectrum_reference):
+ *   train:    numerator = (1 - rate) numerator + rate y conj(x), denominator = (1 - rate) denominator + rate
+ *             sum_d |x|^2 (first: numerator = y conj(x), denominator = sum_d |x|^2);
+ *   response: out[m] = sum_d numerator[m][d] x[m][d] / (denominator[m] + lambda). */
 static HOT_LOOP_CLONES void grid_train_run(const float *restrict label, const float *restrict x,
                                            float *restrict num, float *restrict den, float rate, int first,
                                            Py_ssize_t M, Py_ssize_t D)

@@ -21,8 +21,8 @@ import numpy as np
 
 from jsar.api import Box, TrackResult, validate_frame
 from jsar.config import JsarParams
-from jsar.redetect.appearance import (AppearanceMemory, DeferredEmbeddings, Embedder, Look, Verdict as Appearance, ring_boxes,
-                                     shared_embedder)
+from jsar.redetect.appearance import (AppearanceMemory, DeferredEmbeddings, Embedder, Look, Verdict as Appearance,
+                                     ring_boxes, shared_embedder)
 from jsar.redetect.colour_check import AnchorColours, ColourModel
 from jsar.redetect.memory import DecisionFilter
 from jsar.redetect.monitor import FailureMonitor, Verdict
@@ -569,9 +569,7 @@ class JsarReTracker:
             _, kind, job = self.deferred.popleft()
             assert self.appearance is not None
             if kind == "learn":
-                rows = job.rows()
-                self.appearance.learn_target(rows[0])
-                self.appearance.learn_others(rows[1:])
+                self._learn_rows(job.rows())
                 continue
             look = self.appearance.judge(job.rows())[0]
             self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
@@ -582,7 +580,11 @@ class JsarReTracker:
         look-alikes' on a ring around it (one batch); on init the memories are made."""
         if self.embedder is None:
             self.embedder = shared_embedder()  # the network loads only where the verifier is used
-        rows = self.embedder.embed(frame, self._appearance_boxes(frame, box))
+        return self._learn_rows(self.embedder.embed(frame, self._appearance_boxes(frame, box)))
+
+    def _learn_rows(self, rows: np.ndarray) -> AppearanceMemory:
+        """The verifier's memories learn the embeddings of `_appearance_boxes`: rows[0] the target's, the rest the
+        look-alikes'; the first frame makes the memories."""
         if self.appearance is None:
             self.appearance = AppearanceMemory(self.redetect.verify, rows[0])
         else:

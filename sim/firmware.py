@@ -49,7 +49,7 @@ from typing import Any, Callable
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink's MAVLink 2 dialect (gimbal messages) must load first
 from pymavlink import mavutil  # noqa: E402
 
-from sim.ports import free_udp_port  # noqa: E402
+from sim.ports import free_udp_port, free_udp_ports  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 M = mavutil.mavlink
@@ -378,7 +378,7 @@ class Px4Sih(Firmware):
         self.system_id = self.instance + 1
         self.speed_factor = speed_factor
         self.params = {**self.DEFAULT_PARAMS, **(params or {})}
-        self.listen_ports = [free_udp_port(), free_udp_port()]  # PX4's own GCS / API ports
+        self.listen_ports = free_udp_ports(2)  # PX4's own GCS / API ports
 
     def _command_line(self) -> tuple[list[str], dict[str, str]]:
         env = dict(os.environ)

@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from sim.daemon import Daemon, deep_merge
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_ports
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 from tests.helpers import Background
 from tests.service_peers import AutopilotPeer, GroundStation, Received, camera_handshake
@@ -59,7 +59,7 @@ class FaultRig:
                  module: str = "service", env: dict[str, str] | None = None,
                  autopilot_kwargs: dict[str, Any] | None = None) -> None:
         zenoh_port = free_tcp_port()
-        service_port, gcs_port = free_udp_port(), free_udp_port()
+        service_port, gcs_port = free_udp_ports(2)
         self.autopilot = AutopilotPeer(service_port, gcs_port, system_id=SYSTEM_ID, **(autopilot_kwargs or {})).start()
         self.gcs = GroundStation(gcs_port).start()
         self.daemon = Daemon(workdir, deep_merge(base_overrides(zenoh_port), overrides or {}),

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_ports
 from tests.deploy_helpers import (FPS, IMAGE, SIZE, host_arch, podman, podman_limits, select_and_track, write_config,
                                   write_target_video, zenoh_session)
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake
@@ -58,7 +58,7 @@ def test_image_runs_the_daemon_as_non_root_tracks_a_mounted_video_and_stops_with
     video_dir = tmp_path / "video"
     video_dir.mkdir()
     write_target_video(video_dir, EMULATED_FPS if emulated else FPS)
-    service_port, gcs_port, zenoh_port = free_udp_port(), free_udp_port(), free_tcp_port()
+    (service_port, gcs_port), zenoh_port = free_udp_ports(2), free_tcp_port()
     config_dir = tmp_path / "etc"
     write_config(config_dir, service_port, zenoh_port, "imagetest")
     autopilot = AutopilotPeer(service_port, gcs_port, system_id=SYSTEM_ID).start()

@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 import numpy as np
 import pytest
 
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_ports
 from tests.deploy_helpers import (IMAGE, host_arch, podman, podman_limits, select_and_track, status, write_config,
                                   write_target_video, zenoh_session)
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake
@@ -65,7 +65,7 @@ class Rig:
 
     def __init__(self, tmp: Path) -> None:
         self.name = f"jsar-systemd-check-{uuid.uuid4().hex[:8]}"
-        service_port, gcs_port, self.zenoh_port = free_udp_port(), free_udp_port(), free_tcp_port()
+        (service_port, gcs_port), self.zenoh_port = free_udp_ports(2), free_tcp_port()
         video_dir, config_dir = tmp / "video", tmp / "etc"
         video_dir.mkdir()
         write_target_video(video_dir)

@@ -27,7 +27,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 
 from sim.firmware import ArduPilotSitl  # noqa: E402
-from sim.ports import free_tcp_port, free_udp_port  # noqa: E402
+from sim.ports import free_tcp_port, free_udp_ports  # noqa: E402
 from tests.firmware_peers import (REPO, TRACK_RECTANGLE, DaemonProcess, FramePump, Station, WireTap,  # noqa: E402
                                   target_rectangle, terminate)
 from tests.helpers import require  # noqa: E402
@@ -70,7 +70,7 @@ class MavProxyRouter:
 def test_mavproxy_routes_autopilot_traffic_to_each_output_but_not_between_camera_and_ground_station(
         tmp_path: Path) -> None:
     with ArduPilotSitl(links=1) as firmware:
-        gcs_port, tap_port, daemon_port, zenoh_port = free_udp_port(), free_udp_port(), free_udp_port(), free_tcp_port()
+        (gcs_port, tap_port, daemon_port), zenoh_port = free_udp_ports(3), free_tcp_port()
         router = MavProxyRouter(f"udpin:127.0.0.1:{firmware.ports[0]}",
                                 [f"udpout:127.0.0.1:{tap_port}", f"udpout:127.0.0.1:{gcs_port}"], tmp_path / "mavproxy")
         gcs = Station(f"udpin:127.0.0.1:{gcs_port}").start()

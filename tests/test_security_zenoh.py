@@ -29,7 +29,7 @@ from service.config import ConfigError, ZenohConfig, ZenohTlsConfig, config_from
 from service.sources.zenoh_wire import encode_frame
 from service.telemetry import access_control_section, insecure_endpoints, open_session, zenoh_config
 from sim.daemon import Daemon
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port, free_tcp_ports
 from sim.zenoh_link import SimCamera, ZenohEndpoints
 from sim.web_station import WebStation
 from tests.helpers import LocalCamera
@@ -90,7 +90,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def drone(pki: dict[str, Path], tmp_path_factory: pytest.TempPathFactory):
     """The daemon (`--source zenoh`, TLS + access list) and its local camera; yields (daemon, camera, tls endpoint)."""
     ours = pki["ours"]
-    tls_port, local_port = free_tcp_port(), free_tcp_port()
+    tls_port, local_port = free_tcp_ports(2)
     tls_endpoint = f"tls/127.0.0.1:{tls_port}"
     overrides = {
         "source": {"kind": "zenoh"},

@@ -16,7 +16,7 @@ import cv2
 import pytest
 import yaml
 
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_port, free_udp_ports
 from tests.helpers import write_square_frames
 from tests.service_peers import AutopilotPeer, GroundStation, camera_handshake
 
@@ -81,7 +81,7 @@ def test_daemon_notifies_systemd_serves_status_and_stops_within_2s(tmp_path: Pat
     notify.bind(str(notify_path))
     env = {**os.environ, "NOTIFY_SOCKET": str(notify_path), "WATCHDOG_USEC": "400000", "MAVLINK20": "1"}
     env.pop("WATCHDOG_PID", None)
-    service_port, gcs_port = free_udp_port(), free_udp_port()
+    service_port, gcs_port = free_udp_ports(2)
     autopilot = AutopilotPeer(service_port, gcs_port, system_id=7).start()
     gcs = GroundStation(gcs_port).start()
     proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", str(frames_dir),
@@ -324,7 +324,7 @@ def test_daemon_takes_the_url_form_of_a_mavlink_link(tmp_path: Path, frames_dir:
     config_file.write_text(yaml.safe_dump({"tracker": {"name": "csrt", "range_size_band": 0},
                                            "zenoh": {"enabled": False},
                                            "source": {"loop": True}}))
-    service_port, gcs_port = free_udp_port(), free_udp_port()
+    service_port, gcs_port = free_udp_ports(2)
     autopilot = AutopilotPeer(service_port, gcs_port, system_id=7).start()
     gcs = GroundStation(gcs_port).start()
     proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", str(frames_dir),
@@ -356,7 +356,7 @@ def test_an_absent_camera_is_retried_not_a_configuration_error(tmp_path: Path) -
     config_file.write_text(yaml.safe_dump({"tracker": {"name": "csrt", "range_size_band": 0},
                                            "zenoh": {"enabled": False},
                                            "source": {"retry_initial_s": 0.1, "retry_max_s": 0.4}}))
-    autopilot = AutopilotPeer(free_udp_port(), free_udp_port()).start()
+    autopilot = AutopilotPeer(*free_udp_ports(2)).start()
     proc = subprocess.Popen([sys.executable, "-m", "service", "--config", str(config_file), "--source", device,
                              "--mavlink", f"udpout:127.0.0.1:{autopilot.links['service'].sock.getsockname()[1]}"],
                             cwd=REPO, env={**os.environ, "MAVLINK20": "1"}, stderr=subprocess.PIPE, text=True)

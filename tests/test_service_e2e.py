@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from service.app import Service
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_ports
 from tests.helpers import real_sequence
 from tests.service_peers import AutopilotPeer, GroundStation, Recorder, RunningService, service_config
 
@@ -44,7 +44,7 @@ def test_track_rectangle_on_a_real_sequence_end_to_end(data_root: Path, tmp_path
     n_frames, width, height = write_video(data_root / SEQUENCE, video)
     assert len(gt) == n_frames
 
-    service_port, gcs_port, zenoh_port = free_udp_port(), free_udp_port(), free_tcp_port()
+    (service_port, gcs_port), zenoh_port = free_udp_ports(2), free_tcp_port()
     autopilot = AutopilotPeer(service_port, gcs_port, system_id=1).start()
     gcs = GroundStation(gcs_port).start()
     config = service_config(service_port, {

@@ -10,7 +10,7 @@ import cv2
 import pytest
 
 from service.app import Service
-from sim.ports import free_udp_port
+from sim.ports import free_udp_ports
 from tests.helpers import write_square_frames
 from tests.service_peers import AutopilotPeer, GroundStation, RunningService, service_config
 from tests.test_service_sources import scene
@@ -31,7 +31,7 @@ class Rig:
     """Autopilot peer + ground station + in-process service."""
 
     def __init__(self, overrides: dict, autopilot_kwargs: dict | None = None, gcs_key: bytes | None = None) -> None:
-        service_port, gcs_port = free_udp_port(), free_udp_port()
+        service_port, gcs_port = free_udp_ports(2)
         self.gcs_port = gcs_port
         self.autopilot = AutopilotPeer(service_port, gcs_port, system_id=AP_SYSID, **(autopilot_kwargs or {})).start()
         self.gcs = GroundStation(gcs_port, key=gcs_key).start()
@@ -280,7 +280,7 @@ def test_waiting_for_the_autopilots_heartbeat_is_logged_and_reported(frames_dir:
     the log says so once at start, and the status query reports it until the heartbeat comes."""
     import logging
     caplog.set_level(logging.INFO, logger="service")
-    service_port, gcs_port = free_udp_port(), free_udp_port()
+    service_port, gcs_port = free_udp_ports(2)
     autopilot = AutopilotPeer(service_port, gcs_port, system_id=AP_SYSID)
     autopilot.heartbeats_on = False
     autopilot.start()

@@ -18,7 +18,7 @@ import yaml
 
 from bench.fuzz import zenoh_session
 from service.sources.zenoh_wire import encode_frame
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_tcp_port, free_udp_ports
 from tests.helpers import write_square_frames
 from tests.service_peers import AutopilotPeer, GroundStation
 from tests.test_service_sources import scene
@@ -80,7 +80,7 @@ def camera_heartbeat(gcs: GroundStation, timeout_s: float) -> bool:
 @pytest.fixture
 def peers() -> Iterator[tuple[AutopilotPeer, int, int]]:
     """An autopilot peer (system AP_SYSID) between the daemon's port and a ground-station port."""
-    service_port, gcs_port = free_udp_port(), free_udp_port()
+    service_port, gcs_port = free_udp_ports(2)
     autopilot = AutopilotPeer(service_port, gcs_port, system_id=AP_SYSID).start()
     yield autopilot, service_port, gcs_port
     autopilot.close()

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import socket
 import threading
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -18,7 +19,7 @@ from sim.replay import open_recording, read_groundtruth, replay
 from sim.scene import (CameraConfig, CameraPose, Scene, SceneConfig, ground_homography, procedural_ground,
                        project_ground)
 from sim.vehicle_model import VehicleConfig, VehicleModel, custom_mode_of
-from sim.ports import free_tcp_port, free_udp_port
+from sim.ports import free_ports, free_tcp_port, free_udp_ports
 
 DT = 1.0 / 30.0
 BODY_VELOCITY_MASK = 0x05C7  # velocity + yaw rate, everything else ignored
@@ -113,7 +114,7 @@ def test_bad_vehicle_config_is_rejected_with_the_key_name():
 # ----- mock autopilot over UDP ------------------------------------------------------------------
 @pytest.fixture(params=["ardupilot", "px4"])
 def autopilot_with_peers(request):
-    service_port, gcs_port = free_udp_port(), free_udp_port()
+    service_port, gcs_port = free_udp_ports(2)
     ap = MockAutopilot(VehicleConfig(flavour=request.param), service_port, gcs_port).start()
     service = mavutil.mavlink_connection(f"udpout:127.0.0.1:{service_port}", source_system=1, source_component=100)
     gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255, source_component=190)
@@ -788,3 +789,15 @@ def test_gimbal_manager_release_only_by_the_controller():
     assert model.gimbal_primary == (1, 100)
     model.configure_gimbal_manager(-3, -3, (1, 100))
     assert model.gimbal_primary == (0, 0)
+
+
+@pytest.mark.parametrize("kind", [socket.SOCK_STREAM, socket.SOCK_DGRAM])
+def test_ports_taken_together_are_distinct_and_bindable(kind):
+    """free_ports holds each socket until all are picked: ports asked for together never repeat (two separate
+    free_*_port() calls may, the first socket being closed before the second asks)."""
+    for _ in range(50):
+        ports = free_ports(kind, 3)
+        assert len(set(ports)) == 3
+    with socket.socket(socket.AF_INET, kind) as first, socket.socket(socket.AF_INET, kind) as second:
+        first.bind(("127.0.0.1", ports[0]))
+        second.bind(("127.0.0.1", ports[1]))

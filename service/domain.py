@@ -70,6 +70,10 @@ class AutopilotState(Protocol):
     def pose(self) -> VehiclePose | None:
         """Vehicle pose, None until both position and attitude were heard."""
 
+    def fresh_heading_rate(self, now_s: float) -> float | None:
+        """The vehicle's heading rate (rad/s, + = clockwise from above) if heard recently before now_s (time.monotonic()
+        seconds), else None."""
+
     def alive(self, now_s: float, timeout_s: float) -> bool:
         """Heartbeat heard within timeout_s of now_s (time.monotonic() seconds)."""
 

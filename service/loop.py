@@ -27,7 +27,8 @@ from service.control.coast import (CoastParams, CoastState, Position, TrackHisto
 from service.control.frame_clock import ClockLimits, FrameStamp, control_interval
 from service.control.geo import (GroundTarget, camera_ray_ned, gimbal_in_earth_frame, ground_px_per_m, locate_on_ground,
                                  relative_gimbal_yaw)
-from service.control.gimbal import GimbalState, PidGains, angular_error, focal_length_px, gimbal_step
+from service.control.gimbal import (GimbalState, PidGains, angular_error, focal_length_px, gimbal_step,
+                                   vehicle_frame_yaw_rate)
 from service.control.size_bound import SizeMemory, remember_side, sample_due, side_bounds_px
 from service.domain import (AutopilotState, ControlCommand, LoopState, SelectionKind, StopTracking, TrackPoint,
                             TrackRectangle, TrackSnapshot)
@@ -447,8 +448,15 @@ class TrackingLoop:
             if camera is not None:
                 self.history = remember(self.history, stamp, Position(pose.lat_deg, pose.lon_deg, pose.height_m),
                                         Position(ground.lat_deg, ground.lon_deg), camera, self.coast_params.fit_window_s)
-        return ControlCommand(state=self.state, rates=(yaw_rate, pitch_rate), bearing=bearing, ground=ground,
-                              frame_time_s=stamp)
+        return ControlCommand(state=self.state, rates=self._relative_to_vehicle((yaw_rate, pitch_rate), view),
+                              bearing=bearing, ground=ground, frame_time_s=stamp)
+
+    def _relative_to_vehicle(self, rates: tuple[float, float], view: AutopilotState) -> tuple[float, float]:
+        """The controllers' camera rates (yaw about the vertical, pitch; rad/s) as the gimbal's yaw rate relative to the
+        vehicle's nose, the frame the commands are sent in, and the pitch rate unchanged (the gimbal holds pitch
+        against the horizon)."""
+        yaw = vehicle_frame_yaw_rate(rates[0], view.fresh_heading_rate(time.monotonic()), self.gains.max_rate)
+        return yaw, rates[1]
 
     def _lost_command(self, stamp: float, view: AutopilotState) -> ControlCommand:
         """Lost: coast (service.control.coast) while the plan lasts, then hold the gimbal still.
@@ -491,7 +499,8 @@ class TrackingLoop:
             self.coast, rates = coast_step(self.coast, stamp, vehicle, camera, self.coast_params)
             if rates is not None:
                 self.counters["coast_frames"] += 1
-                return ControlCommand(state=LoopState.LOST, rates=rates, frame_time_s=stamp, coasting=True)
+                return ControlCommand(state=LoopState.LOST, rates=self._relative_to_vehicle(rates, view), frame_time_s=stamp,
+                                      coasting=True)
             log.info("event=coast_end reason=%s", "no_pose_or_gimbal_attitude" if camera is None else "coast_s_elapsed")
             self.coast = None
         return ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0), frame_time_s=stamp)

@@ -15,7 +15,7 @@ from service.config import GimbalConfig, GuidanceConfig, config_from_mapping
 from service.control.geo import (GimbalAttitude, VehiclePose, camera_ray_ned, ground_px_per_m, locate_on_ground,
                                  quaternion_to_euler)
 from service.control.gimbal import (AxisState, GimbalState, PidGains, angular_error, focal_length_px, gimbal_step,
-                                    pid_step)
+                                    pid_step, vehicle_frame_yaw_rate)
 from service.control.guidance import ZERO_VELOCITY, guidance_allowed, velocity_setpoint
 from service.control.size_bound import SizeMemory, remember_side, side_bounds_px
 from service.domain import ControlCommand, LoopState
@@ -457,6 +457,59 @@ def test_loop_places_the_target_on_the_ground_from_vehicle_and_gimbal_attitude()
     assert ground is not None and ground.ground_range_m == pytest.approx(30.0, rel=1e-6)  # 45 deg down from 30 m
     assert ground.lat_deg > 47.0 and ground.lon_deg == pytest.approx(8.0)  # north, the vehicle faces north
     assert commands[-1].bearing == pytest.approx(0.0)
+
+
+def test_vehicle_frame_yaw_rate_takes_out_the_vehicles_turn_within_the_rate_limit() -> None:
+    assert vehicle_frame_yaw_rate(0.2, None, 1.0) == 0.2  # vehicle's rate unknown: no correction
+    assert vehicle_frame_yaw_rate(0.2, 0.5, 1.0) == pytest.approx(-0.3)  # the vehicle turns right faster
+    assert vehicle_frame_yaw_rate(0.0, -0.4, 1.0) == pytest.approx(0.4)  # hold the camera still in a left turn
+    assert vehicle_frame_yaw_rate(-0.8, 0.5, 1.0) == -1.0  # the gimbal's rate limit bounds the sum
+
+
+def test_heading_rate_from_body_rates() -> None:
+    from service.control.geo import heading_rate
+    assert heading_rate(0.0, 0.0, 0.5, 0.2) == pytest.approx(0.2)  # level: the body's z rate
+    # pitched 30 deg, rolled 10 deg: the pitch rate turns the heading too, and the tilt stretches both
+    expected = (0.5 * math.sin(math.radians(10)) + 0.2 * math.cos(math.radians(10))) / math.cos(math.radians(30))
+    assert heading_rate(math.radians(10), math.radians(-30), 0.5, 0.2) == pytest.approx(expected)
+    assert heading_rate(0.0, math.radians(89.5), 0.0, 0.2) is None  # pointing straight up: no heading
+
+
+def test_attitude_keeps_the_heading_rate_and_forgets_it_when_attitude_stops() -> None:
+    from service.mavlink.autopilot import observe
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    parser = mavlink.MAVLink(None)
+    heard = observe(AutopilotView(system_id=1), parser.parse_buffer(
+        mavlink.MAVLink_attitude_message(0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.25).pack(mav))[0], 100.0, 1)
+    assert heard.fresh_heading_rate(100.1) == pytest.approx(0.25 / math.cos(0.1))  # yawspeed, pitched 0.1 rad
+    assert heard.fresh_heading_rate(105.0) is None  # ten periods of its 10 Hz stream without one: stale
+    no_rate = observe(heard, parser.parse_buffer(
+        mavlink.MAVLink_attitude_message(0, 0.0, 0.1, 1.0, 0.0, 0.0, float("nan")).pack(mav))[0], 101.0, 1)
+    assert no_rate.fresh_heading_rate(101.0) is None and no_rate.attitude == pytest.approx((0.0, 0.1, 1.0))
+
+
+def test_loop_turns_the_gimbal_against_the_vehicles_yaw() -> None:
+    """The gimbal's yaw is commanded relative to the nose: while the vehicle yaws right at 0.3 rad/s, a centred
+    target needs the gimbal turning left at 0.3 rad/s, and with the vehicle's rate unknown, nothing."""
+    import time
+
+    import numpy as np
+    from service.loop import TrackingLoop
+    from service.sources.base import Frame, LatestSlot
+
+    config = config_from_mapping({"tracker": {"name": "csrt", "range_size_band": 0}})
+    now = time.monotonic()
+    # heard "now" for the next minute: the loop reads the freshness on time.monotonic()
+    turning = AutopilotView(system_id=1, last_heartbeat_s=now + 60.0, heading_rate=0.3, attitude_heard_s=now + 60.0)
+    for view, expected in ((turning, -0.3), (dataclasses.replace(turning, heading_rate=None), 0.0)):
+        commands = _CommandLog()
+        selections: LatestSlot = LatestSlot()
+        loop = TrackingLoop(config, selections, _StillTracker, commands, lambda: view)
+        selections.put(c.TrackRectangle(0.45, 0.45, 0.55, 0.55))  # centred: the image error is zero
+        image = np.zeros((100, 100, 3), np.uint8)
+        loop.step(Frame(image, 0, 0.0, 0.0))
+        loop.step(Frame(image, 1, 0.0, 0.033))
+        assert commands[-1].rates == pytest.approx((expected, 0.0))
 
 
 def test_gimbal_controller_does_not_integrate_while_the_autopilot_is_silent() -> None:

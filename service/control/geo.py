@@ -62,6 +62,17 @@ def quaternion_to_euler(q: tuple[float, float, float, float]) -> tuple[float, fl
     return roll, pitch, yaw
 
 
+def heading_rate(roll: float, pitch: float, pitch_rate: float, yaw_rate: float) -> float | None:
+    """The rate of the Z-Y-X Euler yaw (the heading; rad/s, + = clockwise from above) from the body rates about the
+    body's y and z axes (rad/s, ATTITUDE's pitchspeed and yawspeed) at roll and pitch (rad); None when pitched
+    within 1 degree of vertical, where the heading is not defined. A tilted vehicle's heading turns with its pitch
+    rate too: yawspeed alone is the turn about the tilted body axis."""
+    cos_pitch = math.cos(pitch)
+    if abs(cos_pitch) < math.sin(math.radians(1.0)):
+        return None
+    return (pitch_rate * math.sin(roll) + yaw_rate * math.cos(roll)) / cos_pitch
+
+
 def gimbal_attitude_from_status(q: tuple[float, float, float, float], flags: int) -> GimbalAttitude:
     """GIMBAL_DEVICE_ATTITUDE_STATUS (q, flags) -> attitude; yaw is vehicle-relative unless flagged earth."""
     roll, pitch, yaw = quaternion_to_euler(q)

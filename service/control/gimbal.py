@@ -106,5 +106,19 @@ def gimbal_step(state: GimbalState, yaw_error: float, pitch_error: float, dt: fl
     return GimbalState(yaw_state, pitch_state), yaw_rate, pitch_rate
 
 
+def vehicle_frame_yaw_rate(camera_yaw_rate: float, heading_rate: float | None, max_rate: float) -> float:
+    """The gimbal's yaw rate relative to the vehicle (rad/s, what a YAW_IN_VEHICLE_FRAME command carries) that turns
+    the camera at camera_yaw_rate (rad/s, about the vertical) while the vehicle's heading turns at heading_rate
+    (rad/s, None = unknown: no correction), within +-max_rate.
+
+    A gimbal whose yaw is held relative to the nose turns with the vehicle: without this the image-error loop
+    meets every turn of the vehicle (velocity guidance turning after the target) as a disturbance, which its
+    integrator, bounded, takes seconds to cancel.
+    """
+    if heading_rate is None:
+        return camera_yaw_rate
+    return _clamp(camera_yaw_rate - heading_rate, max_rate)
+
+
 def _clamp(value: float, bound: float) -> float:
     return max(-bound, min(bound, value))

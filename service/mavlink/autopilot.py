@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20.common import MAV_AUTOPILOT_INVALID, MAV_COMP_ID_AUTOPILOT1
 
-from service.control.geo import GimbalAttitude, VehiclePose, gimbal_attitude_from_status
+from service.control.geo import GimbalAttitude, VehiclePose, gimbal_attitude_from_status, heading_rate
 
 
 @dataclass(frozen=True)
@@ -24,12 +24,22 @@ class AutopilotView:
     last_heartbeat_s: float | None = None
     position: tuple[float, float, float, float] | None = None  # lat deg, lon deg, alt AMSL m, height above home m
     attitude: tuple[float, float, float] | None = None  # roll, pitch, yaw rad
+    heading_rate: float | None = None  # the heading's rate (rad/s, + = clockwise from above) from ATTITUDE's body rates
+    attitude_heard_s: float | None = None  # when the last ATTITUDE arrived
     gimbal: GimbalAttitude | None = None
     gimbal_primary: tuple[int, int] | None = None  # (sysid, compid) in control per GIMBAL_MANAGER_STATUS
 
     def alive(self, now_s: float, timeout_s: float) -> bool:
         """Heartbeat heard within timeout_s."""
         return self.last_heartbeat_s is not None and now_s - self.last_heartbeat_s <= timeout_s
+
+    def fresh_heading_rate(self, now_s: float) -> float | None:
+        """The vehicle's heading rate (rad/s, + = clockwise from above), None when ATTITUDE has not been heard within
+        stream_late_s of its wanted rate: a stale rate would turn the camera on its own."""
+        if self.heading_rate is None or self.attitude_heard_s is None \
+                or now_s - self.attitude_heard_s > stream_late_s(WANTED_STREAMS_HZ[ATTITUDE_ID]):
+            return None
+        return self.heading_rate
 
     def pose(self) -> VehiclePose | None:
         """Vehicle pose when both position and attitude have been heard."""
@@ -69,7 +79,9 @@ def observe(view: AutopilotView, msg: object, now_s: float, expected_system: int
         angles = (msg.roll, msg.pitch, msg.yaw)  # type: ignore[attr-defined]
         if not all(math.isfinite(a) for a in angles):
             return view
-        return replace(view, attitude=angles)
+        rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)  # type: ignore[attr-defined]
+        rate = heading_rate(angles[0], angles[1], rates[1], rates[2]) if all(map(math.isfinite, rates)) else None
+        return replace(view, attitude=angles, heading_rate=rate, attitude_heard_s=now_s)
     if kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
         q = tuple(msg.q)  # type: ignore[attr-defined]
         if not all(math.isfinite(v) for v in q):
@@ -89,7 +101,8 @@ def observe(view: AutopilotView, msg: object, now_s: float, expected_system: int
 # reboot forgets what was asked; PX4's onboard link sends GIMBAL_MANAGER_STATUS about every 2-3 s, too
 # slow to see a ground station take gimbal control. ATTITUDE 30, GLOBAL_POSITION_INT 33,
 # GIMBAL_MANAGER_STATUS 281, GIMBAL_DEVICE_ATTITUDE_STATUS 285.
-WANTED_STREAMS_HZ = {30: 10.0, 33: 5.0, 281: 5.0, 285: 10.0}
+ATTITUDE_ID = 30
+WANTED_STREAMS_HZ = {ATTITUDE_ID: 10.0, 33: 5.0, 281: 5.0, 285: 10.0}
 STREAM_RETRY_S = 3.0  # at most one request per message per this many seconds
 
 

@@ -1331,3 +1331,33 @@ def test_a_coast_the_decision_filter_never_confirms_ends_after_search_coast_max_
     bounded = coasting_frames(8)
     assert len(bounded) == len(unbounded)
     assert sum(bounded) == 8 and not any(bounded[bounded.index(True) + 8:])
+
+
+def test_the_decision_filters_score_on_the_cores_detection_is_score_sample_in_sync_or_not():
+    """In sync (the core's own filter) the detection's peak is reused: the very Candidate score_sample computes, to
+    the bit; once the histories part (skip, then training of its own) it is computed."""
+    from jsar.redetect.memory import DecisionFilter
+    background = _background()
+    core = JsarTracker(JsarParams())
+    core.init(_frame(background, _path(0)), _target_box(_path(0)))
+    decision = DecisionFilter(core.params, core, 0.1, 0.1)
+    for index in range(1, 6):
+        frame = _frame(background, _path(index))
+        loc = core.locate(frame)
+        assert decision.in_sync
+        assert decision.score_detection(loc, core) == decision.score_sample(loc.sample_f, core.centre_xy,
+                                                                           loc.search_side)
+        own = decision.score_detection(loc, core)
+        core.commit(frame, loc)
+        decision.train(core, own.score)
+    for index in (6, 7):  # the core learns frame 6 without the decision filter, then both learn frame 7
+        frame = _frame(background, _path(index))
+        core.commit(frame, core.locate(frame))
+        if index == 6:
+            decision.skip()
+    decision.train(core, 1.0)  # from its own last filter: another solution than the core's
+    loc = core.locate(_frame(background, _path(8)))
+    assert decision.filter.filter_f is not core.translation.filter_f
+    computed = decision.score_detection(loc, core)
+    assert computed == decision.score_sample(loc.sample_f, core.centre_xy, loc.search_side)
+    assert computed.score != loc.peak  # its own filter: another response than the core's

@@ -327,7 +327,7 @@ class JsarReTracker:
     def _score_core_sample(self, loc: Localisation) -> Candidate:
         """The decision filter on the core's detection sample (before the core moves): peak px and score."""
         assert self.decision_filter is not None
-        return self.decision_filter.score_sample(loc.sample_f, self.core.centre_xy, loc.search_side)
+        return self.decision_filter.score_detection(loc, self.core)
 
     @staticmethod
     def _within_a_side(found: Candidate, loc: Localisation, loss: LossSearch) -> bool:

@@ -20,7 +20,7 @@ from jsar.features import patches
 from jsar.features import translation as translation_features
 from jsar.redetect.monitor import updated_reference
 from jsar.redetect.search import Candidate
-from jsar.tracking.jsar_tracker import JsarTracker
+from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.translation import TranslationFilter
 
 class DecisionFilter:
@@ -45,6 +45,17 @@ class DecisionFilter:
         px_per_cell = side_px / self.filter.shape_hw[0]
         return Candidate(centre_xy[0] + dx * px_per_cell, centre_xy[1] + dy * px_per_cell, float(peak),
                          window_xy=(float(centre_xy[0]), float(centre_xy[1])))
+
+    def score_detection(self, loc: Localisation, core: JsarTracker) -> Candidate:
+        """score_sample on the core's detection `loc` (before the core moves). While this filter is the core's own
+        (in sync: the same filter_f object) its response on the core's sample is the one the core's locate found
+        its peak on, so that peak is the score, not computed a second time: the same bits either way."""
+        shared = (self.filter.filter_f is core.translation.filter_f and self.filter.shape_hw == core.translation.shape_hw
+                  and self.params.newton_iterations == core.params.newton_iterations and loc.scale_factor == 1.0)
+        if not shared:
+            return self.score_sample(loc.sample_f, core.centre_xy, loc.search_side)
+        return Candidate(loc.centre_xy[0], loc.centre_xy[1], float(loc.peak),
+                         window_xy=(float(core.centre_xy[0]), float(core.centre_xy[1])))
 
     def score_windows(self, image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray,
                       target_side_px: float, angles_deg: np.ndarray | None = None) -> list[Candidate]:

@@ -317,12 +317,33 @@ static ALWAYS_INLINE void weigh_row(const float *restrict line, float w, float *
 static ALWAYS_INLINE void weigh_row_u8(const uint8_t *restrict line, float w, float *restrict row, Py_ssize_t n,
                                        int add)
 {
-    if (add)
+    if (add) {
+        UNROLL4
         for (Py_ssize_t t = 0; t < n; t++)
             row[t] += w * (float)line[t];
-    else
+    } else {
+        UNROLL4
         for (Py_ssize_t t = 0; t < n; t++)
             row[t] = w * (float)line[t];
+    }
+}
+
+/* One output row of three channels: each output pixel the T weighted entries of the row from its first tap, summed
+ * from 0 in tap order (a constant T unrolls the taps' loop; the same terms in the same order). */
+static ALWAYS_INLINE void row_taps_c3(const AxisTaps *tx, const float *row, Py_ssize_t xmin, float *acc, Py_ssize_t T)
+{
+    for (Py_ssize_t j = 0; j < tx->n_out; j++) {
+        const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * 3;
+        float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f;
+        for (Py_ssize_t k = 0; k < T; k++) {
+            a0 += wj[k] * rj[3 * k];
+            a1 += wj[k] * rj[3 * k + 1];
+            a2 += wj[k] * rj[3 * k + 2];
+        }
+        acc[3 * j] = a0;
+        acc[3 * j + 1] = a1;
+        acc[3 * j + 2] = a2;
+    }
 }
 
 /* One region: out (OH, OW, C) float32 or uint8 (rounded to nearest, half up, at most 255) from
@@ -384,19 +405,12 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
                 acc[3 * j + 1] = wj[0] * rj[1] + wj[1] * rj[4];
                 acc[3 * j + 2] = wj[0] * rj[2] + wj[1] * rj[5];
             }
+        } else if (C == 3 && T == 3) { /* shrinking 1-2x: the taps' loop unrolled (the same terms in order) */
+            row_taps_c3(tx, row, xmin, acc, 3);
+        } else if (C == 3 && T == 4) { /* shrinking 2-3x (a lost frame's windows of a large target) */
+            row_taps_c3(tx, row, xmin, acc, 4);
         } else if (C == 3) {
-            for (Py_ssize_t j = 0; j < OW; j++) {
-                const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * 3;
-                float a0 = 0.0f, a1 = 0.0f, a2 = 0.0f;
-                for (Py_ssize_t k = 0; k < T; k++) {
-                    a0 += wj[k] * rj[3 * k];
-                    a1 += wj[k] * rj[3 * k + 1];
-                    a2 += wj[k] * rj[3 * k + 2];
-                }
-                acc[3 * j] = a0;
-                acc[3 * j + 1] = a1;
-                acc[3 * j + 2] = a2;
-            }
+            row_taps_c3(tx, row, xmin, acc, T);
         } else {
             for (Py_ssize_t j = 0; j < OW; j++) {
                 const float *wj = tx->weight + j * T, *rj = row + (tx->first[j] - xmin) * C;

@@ -158,3 +158,23 @@ def test_kernel_gives_the_reference_loops_numbers_to_the_bit(data_root):
                                       resample_reference_loops(image, centre, sizes, out_wh))
                 assert np.array_equal(resample_regions(image, centre, sizes, out_wh).view(np.uint32),
                                       resample_reference_loops(image, centre, sizes, out_wh, np.float32).view(np.uint32))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_kernel_gives_the_reference_loops_numbers_to_the_bit_for_every_tap_count(channels):
+    """Regions shrunk 0.7-4.5x onto 200 x 200 and 28 x 20 (two to six taps an output pixel, the counts the kernel's
+    loops are specialised for among them), from an image too large for its float copy and from one small enough."""
+    from jsar.features.patches import resample_reference_loops
+
+    rng = np.random.default_rng(channels)
+    texture = np.cumsum(rng.integers(0, 256, (720, 1280, channels)), axis=1) // 30 % 256
+    large = np.ascontiguousarray(texture.astype(np.uint8).squeeze())
+    small = np.ascontiguousarray(large[100:190, 200:330])
+    for image, out_wh, sides in ((large, (200, 200), (140, 900)), (small, (28, 20), (20, 90))):
+        for _ in range(40):
+            centre = rng.uniform(0, min(image.shape[:2]), 2)
+            side = rng.uniform(*sides)
+            sizes = np.array([[side, side * rng.uniform(0.7, 1.3)]])
+            assert np.array_equal(sample_patches(image, centre, sizes, out_wh),
+                                  resample_reference_loops(image, centre, sizes, out_wh)), (side, out_wh)
+

@@ -55,6 +55,26 @@ def test_histogram_is_normalised_and_puts_each_channel_level_in_its_bin():
     assert histogram(np.empty((0, 3), np.uint8), 8) is None
 
 
+@pytest.mark.parametrize("bins", [2, 5, 8, 32])
+def test_histograms_count_each_pixel_at_its_levels_bin_and_split_by_the_mask(bins):
+    """colour_index against the levels' definition ((v * bins) >> 8 per channel, channel 0 most significant), and
+    split_histograms against two histograms of the masked pixels, to the bit, grey pixels and an empty side too."""
+    from jsar.redetect.colour_check import colour_index, split_histograms
+    rng = np.random.default_rng(bins)
+    for pixels in (rng.integers(0, 256, (500, 3), dtype=np.uint8), rng.integers(0, 256, 300, dtype=np.uint8)):
+        levels = (pixels.astype(np.int64) * bins) >> 8
+        expected = (levels if pixels.ndim == 1
+                    else np.ravel_multi_index(tuple(levels.T), (bins,) * pixels.shape[1]))
+        np.testing.assert_array_equal(colour_index(pixels, bins), expected)
+        for inside in (rng.random(len(pixels)) < 0.3, np.ones(len(pixels), bool)):
+            obj, sur = split_histograms(pixels, inside, bins)
+            np.testing.assert_array_equal(obj, histogram(pixels[inside], bins))
+            if inside.all():
+                assert sur is None and histogram(pixels[~inside], bins) is None
+            else:
+                np.testing.assert_array_equal(sur, histogram(pixels[~inside], bins))
+
+
 def test_a_colour_is_the_targets_where_it_is_likelier_in_the_box_than_in_the_surround():
     object_hist = np.array([0.5, 0.5, 0.0, 0.0])
     surround_hist = np.array([0.0, 0.2, 0.8, 0.0])

@@ -407,8 +407,6 @@ static void resample_one(const uint8_t *src, Py_ssize_t W, Py_ssize_t C, const A
             }
         } else if (C == 3 && T == 3) { /* shrinking 1-2x: the taps' loop unrolled (the same terms in order) */
             row_taps_c3(tx, row, xmin, acc, 3);
-        } else if (C == 3 && T == 4) { /* shrinking 2-3x (a lost frame's windows of a large target) */
-            row_taps_c3(tx, row, xmin, acc, 4);
         } else if (C == 3) {
             row_taps_c3(tx, row, xmin, acc, T);
         } else {

@@ -893,14 +893,6 @@ static ALWAYS_INLINE void spread_row(const float *restrict src, float w, float *
     }
 }
 
-/* fhog_one_reference's numbers to the bit (tests/test_features_fhog.py compares the two on real frames and
- * random images) with fewer instructions: the image is processed in chunks of rows, and the per-pixel loops
- * (gradients, orientation and magnitude, now also the bin and the two bins' shares) run over a whole chunk,
- * not one short row at a time; the scatter into the row histogram, the spread over cell rows and every
- * sum add the same terms in the same order as the reference. Each 2x2 block's factor 1 / sqrt(energy + eps)
- * is computed once (`norms`, (hc + 1) x (wc + 1) blocks), not once per cell that uses it, and the per-cell
- * clipping runs over the orientations so that it vectorises. */
-HOT_LOOP_CLONES
 /* min(v, 0.2): the reference's `v < 0.2f ? v : 0.2f`. On aarch64 as fminnm (one instruction; GCC keeps the compare
  * and select, as they differ for v = -0 and signalling NaNs): the same value here, where v = h n >= +0 (h a sum of
  * non-negative products, n a positive normaliser) and a quiet NaN gives 0.2 either way. */
@@ -909,13 +901,58 @@ HOT_LOOP_CLONES
 #else
 #define CLIP02(v) ((v) < 0.2f ? (v) : 0.2f)
 #endif
+/* The orientation's |gx|, |gy| and their min and max: the reference's compare-and-selects, on aarch64 as fabs,
+ * fminnm and fmaxnm (GCC keeps the selects, as they differ for -0 and NaN, and spends about 28 instructions per four
+ * pixels on that). The same values for every gradient here: a difference of two equal finite values is +0, never
+ * -0, and a finite image has no NaN gradient. */
+#if defined(__aarch64__)
+#define ABS_F(v) fabsf(v)
+#define MIN_F(a, b) fminf((a), (b))
+#define MAX_F(a, b) fmaxf((a), (b))
+#else
+#define ABS_F(v) ((v) < 0.0f ? -(v) : (v))
+#define MIN_F(a, b) ((a) < (b) ? (a) : (b))
+#define MAX_F(a, b) ((a) < (b) ? (b) : (a))
+#endif
+
+/* Each pixel's orientation as a fractional signed bin in [0, 18) and its gradient magnitude, from its gradients
+ * (fhog_one_reference's per-pixel numbers). A function of its own, not inlined: inside fhog_one GCC left this loop
+ * scalar, with branches, on aarch64. */
+static HOT_LOOP_CLONES __attribute__((noinline)) void orientations(const float *restrict gxs, const float *restrict gys,
+                                                                     float *restrict pos, float *restrict mag,
+                                                                     Py_ssize_t n)
+{
+    const float bins_per_rad = (float)N_SIGNED / TWO_PI;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const float gx = gxs[i], gy = gys[i];
+        const float ax = ABS_F(gx), ay = ABS_F(gy);
+        const float lo = MIN_F(ax, ay), hi = MAX_F(ax, ay);
+        const float z = lo / (hi + (float)(hi == 0.0f));
+        float a = atan_unit(z);
+        a = ay > ax ? HALF_PI - a : a;
+        a = gx < 0.0f ? PI_F - a : a;
+        a = gy < 0.0f ? TWO_PI - a : a;
+        float p = a * bins_per_rad;
+        p = p >= (float)N_SIGNED ? 0.0f : p;
+        pos[i] = p;
+        mag[i] = sqrtf(gx * gx + gy * gy);
+    }
+}
+
+/* fhog_one_reference's numbers to the bit (tests/test_features_fhog.py compares the two on real frames and
+ * random images) with fewer instructions: the image is processed in chunks of rows, and the per-pixel loops
+ * (gradients, orientation and magnitude, now also the bin and the two bins' shares) run over a whole chunk,
+ * not one short row at a time; the scatter into the row histogram, the spread over cell rows and every
+ * sum add the same terms in the same order as the reference. Each 2x2 block's factor 1 / sqrt(energy + eps)
+ * is computed once (`norms`, (hc + 1) x (wc + 1) blocks), not once per cell that uses it, and the per-cell
+ * clipping runs over the orientations so that it vectorises. */
+HOT_LOOP_CLONES
 
 static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
                      FhogScratch *sc, float *hist, float *energy, float *norms, float *out, Py_ssize_t step)
 {
     const Py_ssize_t hc = H / cell, wc = W / cell;
     const Py_ssize_t hv = hc * cell, wv = wc * cell;
-    const float bins_per_rad = (float)N_SIGNED / TWO_PI;
     float *restrict gxc = sc->chunk_gx, *restrict gyc = sc->chunk_gy;
     float *restrict mlo = sc->chunk_lo, *restrict mhi = sc->chunk_hi;
     float *restrict pos = sc->chunk_pos, *restrict mag = sc->chunk_mag;
@@ -938,20 +975,7 @@ static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssi
                 for (Py_ssize_t x = wv; x < W; x++)
                     gxc[(y - y0) * W + x] = gyc[(y - y0) * W + x] = 0.0f;
         }
-        for (Py_ssize_t i = 0; i < n; i++) {
-            const float gx = gxc[i], gy = gyc[i];
-            const float ax = gx < 0.0f ? -gx : gx, ay = gy < 0.0f ? -gy : gy;
-            const float lo = ax < ay ? ax : ay, hi = ax < ay ? ay : ax;
-            const float z = lo / (hi + (float)(hi == 0.0f));
-            float a = atan_unit(z);
-            a = ay > ax ? HALF_PI - a : a;
-            a = gx < 0.0f ? PI_F - a : a;
-            a = gy < 0.0f ? TWO_PI - a : a;
-            float p = a * bins_per_rad;
-            p = p >= (float)N_SIGNED ? 0.0f : p;
-            pos[i] = p;
-            mag[i] = sqrtf(gx * gx + gy * gy);
-        }
+        orientations(gxc, gyc, pos, mag, n);
         for (Py_ssize_t i = 0; i < n; i++) { /* the lower bin b0 and the magnitude's shares of b0 and b0 + 1 */
             const float m = mag[i];
             const int b0 = (int)pos[i];

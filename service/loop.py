@@ -499,8 +499,8 @@ class TrackingLoop:
             self.coast, rates = coast_step(self.coast, stamp, vehicle, camera, self.coast_params)
             if rates is not None:
                 self.counters["coast_frames"] += 1
-                return ControlCommand(state=LoopState.LOST, rates=self._relative_to_vehicle(rates, view), frame_time_s=stamp,
-                                      coasting=True)
+                return ControlCommand(state=LoopState.LOST, rates=self._relative_to_vehicle(rates, view),
+                                      frame_time_s=stamp, coasting=True)
             log.info("event=coast_end reason=%s", "no_pose_or_gimbal_attitude" if camera is None else "coast_s_elapsed")
             self.coast = None
         return ControlCommand(state=LoopState.LOST, rates=(0.0, 0.0), frame_time_s=stamp)

@@ -947,7 +947,6 @@ static HOT_LOOP_CLONES __attribute__((noinline)) void orientations(const float *
  * is computed once (`norms`, (hc + 1) x (wc + 1) blocks), not once per cell that uses it, and the per-cell
  * clipping runs over the orientations so that it vectorises. */
 HOT_LOOP_CLONES
-
 static void fhog_one(const void *img, int u8, Py_ssize_t H, Py_ssize_t W, Py_ssize_t C, Py_ssize_t cell,
                      FhogScratch *sc, float *hist, float *energy, float *norms, float *out, Py_ssize_t step)
 {

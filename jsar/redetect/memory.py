@@ -50,7 +50,8 @@ class DecisionFilter:
         """score_sample on the core's detection `loc` (before the core moves). While this filter is the core's own
         (in sync: the same filter_f object) its response on the core's sample is the one the core's locate found
         its peak on, so that peak is the score, not computed a second time: the same bits either way."""
-        shared = (self.filter.filter_f is core.translation.filter_f and self.filter.shape_hw == core.translation.shape_hw
+        shared = (self.filter.filter_f is core.translation.filter_f
+                  and self.filter.shape_hw == core.translation.shape_hw
                   and self.params.newton_iterations == core.params.newton_iterations and loc.scale_factor == 1.0)
         if not shared:
             return self.score_sample(loc.sample_f, core.centre_xy, loc.search_side)

@@ -1257,8 +1257,8 @@ static void colour_cells_one(const uint8_t *s, Py_ssize_t W, const float *tab, P
 #if defined(__GNUC__)
                 /* The ten sums as lanes of vectors of 4, 4 and 2 (each lane adds the same terms in the same order as
                  * a scalar sum; on aarch64 GCC otherwise kept four of the ten sums scalar). */
-                typedef float sums4 __attribute__((vector_size(16), aligned(4)));
-                typedef float sums2 __attribute__((vector_size(8), aligned(4)));
+                typedef float sums4 __attribute__((vector_size(16), aligned(4), may_alias)); /* read from the table's floats */
+                typedef float sums2 __attribute__((vector_size(8), aligned(4), may_alias));
                 sums4 lo = {0.0f, 0.0f, 0.0f, 0.0f}, mid = {0.0f, 0.0f, 0.0f, 0.0f};
                 sums2 hi = {0.0f, 0.0f};
                 for (Py_ssize_t dy = 0; dy < cell; dy++) {

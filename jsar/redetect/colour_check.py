@@ -12,6 +12,7 @@ histograms are joint histograms of `bins` levels per channel, normalised to sum 
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -43,10 +44,18 @@ def region_pixels(frame: np.ndarray, box: Box, scale: float = 1.0,
     return region.reshape((-1,) + frame.shape[2:]), inside.ravel()
 
 
+@functools.lru_cache(maxsize=None)
+def _levels(bins: int) -> np.ndarray:
+    """(256,) the level (v * bins) >> 8 of each uint8 value v (read-only: shared by every call)."""
+    levels = (np.arange(256, dtype=np.intp) * bins) >> 8
+    levels.flags.writeable = False
+    return levels
+
+
 def colour_index(pixels: np.ndarray, bins: int) -> np.ndarray:
     """(N,) bin of each uint8 pixel (N, C) or (N,) in a joint histogram of `bins` levels per channel: level
     (v * bins) >> 8 per channel, channel 0 most significant."""
-    levels = (np.arange(256, dtype=np.intp) * bins) >> 8  # one table lookup a value, not a cast, product and shift
+    levels = _levels(bins)  # one table lookup a value, not a cast, product and shift
     if pixels.ndim == 1:
         return levels[pixels]
     index = levels[pixels[:, 0]]

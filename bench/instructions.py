@@ -1,8 +1,8 @@
 """Machine-independent cost per frame: instructions executed per tracked frame, counted by callgrind.
 
     python -m bench.instructions DATA_ROOT [--sequences OTB_Crossing,DTB70_MountainBike6]
-                                 [--frames 20] [--redetect-frames 4] [--json out/instructions.json]
-                                 [--arm64-rootfs ROOTFS]
+                                 [--frames 20] [--redetect-frames 20] [--json out/instructions.json]
+                                 [--arm64-rootfs ROOTFS] [--params JSON]
     python -m bench.instructions DATA_ROOT --report out/instructions.json   (print a saved result)
 
 This machine's build: runs itself under `valgrind --tool=callgrind` (instrumentation off until the
@@ -18,8 +18,10 @@ nothing else. Per sequence, on the same decoded frames:
   jsar-re         `update` on frames 1..N (confident frames: locate + commit + monitor)
   jsar-re lost    `update` on frames N+1..N+M with the target hidden (bench.redetect.hide_target),
                   after an uncounted run over frames 1..N: what a lost frame costs (the core's locate,
-                  the decision filter on its sample and the lattice windows of the per-frame budget;
-                  bench.redetect.searching_tracker: warm-up 0, no candidate taken)
+                  the decision filter on its sample, the lattice windows of the per-frame budget, the
+                  verifier's looks and the core's coasts; bench.redetect.searching_tracker: warm-up 0, no
+                  candidate taken, so every frame of the loss spends its whole budget as the gate grows)
+--params: jsar-re's jsar.create keywords (JSON) for both jsar-re kinds, to count a variant.
 Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
 set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
 to size a Pi with. fps projections: fps = clock * IPC / instructions (see docs/results-cost.md).
@@ -96,7 +98,8 @@ def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, flo
                   for kind, v in kinds.items()} for seq, kinds in grouped.items()}
 
 
-def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path | None) -> None:
+def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path | None,
+           overrides: dict[str, Any] | None = None) -> None:
     """Under callgrind (helper: the client-request library) or qemu with the marks plugin (helper None):
     set up each sequence's trackers uncounted, count each measured call."""
     import cv2
@@ -119,7 +122,7 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
             print(f"MARK {mark} {label}", flush=True)
 
     for sequence in sequences:
-        states = count_frame_kinds(root, sequence, frames, redetect_frames, counted)
+        states = count_frame_kinds(root, sequence, frames, redetect_frames, counted, overrides)
         not_lost = sum(state != "lost" for state in states)
         print(f"{sequence}: counted" + (f" ({not_lost} of {len(states)} hidden frames were not lost frames)"
                                         if not_lost else ""), flush=True)
@@ -142,10 +145,12 @@ def callgrind_counter(helper: Path) -> Callable[[str, Callable[[], Any]], Any]:
 
 
 def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
-                      counted: Callable[[str, Callable[[], object]], None]) -> list[str]:
+                      counted: Callable[[str, Callable[[], object]], None],
+                      overrides: dict[str, Any] | None = None) -> list[str]:
     """Set up the trackers uncounted on `sequence` and hand each measured call to `counted` with its label
     'sequence|kind|frame': jsar, CSRT and jsar-re on frames 1..frames, then jsar-re's lost frames on the
-    next lost_frames with the target hidden; returns the states of those lost frames."""
+    next lost_frames with the target hidden; returns the states of those lost frames. `overrides`: jsar.create
+    keywords of both jsar-re trackers (--params)."""
     import cv2
 
     import jsar
@@ -161,7 +166,7 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
               for index, image in enumerate(images[frames + 1:], start=frames + 1)]
     csrt = cv2.TrackerCSRT_create()
     csrt.init(first, tuple(int(round(v)) for v in box))
-    plain, again = jsar.create("jsar"), jsar.create("jsar-re")
+    plain, again = jsar.create("jsar"), jsar.create("jsar-re", **(overrides or {}))
     plain.init(first, box)
     again.init(first, box)
     for index, image in enumerate(tracked, start=1):
@@ -170,7 +175,7 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
         counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
         # the verifier's deferred embeddings, which the service runs on a thread of its own (verify.defer_frames)
         counted(f"{sequence}|jsar-re verifier|{index}", again.run_deferred)
-    searching = searching_tracker()
+    searching = searching_tracker(overrides=overrides)
     searching.init(first, box)
     for image in tracked:
         searching.update(image)
@@ -303,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("data_root", type=Path)
     parser.add_argument("--sequences", default=DEFAULT_SEQUENCES)
     parser.add_argument("--frames", type=int, default=20, help="tracked frames counted per sequence")
-    parser.add_argument("--redetect-frames", type=int, default=4,
+    parser.add_argument("--redetect-frames", type=int, default=20,
                         help="lost frames (target hidden) counted per sequence")
     parser.add_argument("--json", type=Path, default=None, help="write the summary here")
     parser.add_argument("--arm64-rootfs", type=Path, default=None,
@@ -311,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--arm64-cpu", default="cortex-a72", help="qemu CPU model: cortex-a72 (Pi 4), cortex-a76 (Pi 5)")
     parser.add_argument("--report", type=Path, default=None, metavar="JSON",
                         help="print the counts and projections of an earlier --json result instead of counting")
+    parser.add_argument("--params", default="", metavar="JSON",
+                        help='jsar-re\'s jsar.create keywords, e.g. \'{"redetect": {"verify": {"lost_looks": 2}}}\'')
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
     parser.add_argument("--worker-marks", action="store_true", help=argparse.SUPPRESS)  # the run under qemu
     args = parser.parse_args(argv)
@@ -324,11 +331,17 @@ def main(argv: list[str] | None = None) -> int:
     for sequence in sequences:
         if not (args.data_root / sequence / "img").is_dir():
             parser.error(f"{sequence} is not a sequence under {args.data_root}")
+    try:
+        overrides = json.loads(args.params) if args.params else {}
+    except json.JSONDecodeError as exc:
+        parser.error(f"--params is not JSON: {exc}")
+    if not isinstance(overrides, dict):
+        parser.error("--params must be a JSON object of jsar-re's keywords")
     if args.worker is not None or args.worker_marks:
-        worker(args.data_root, sequences, args.frames, args.redetect_frames, args.worker)
+        worker(args.data_root, sequences, args.frames, args.redetect_frames, args.worker, overrides)
         return 0
     worker_args = [str(args.data_root.resolve()), "--sequences", ",".join(sequences), "--frames", str(args.frames),
-                   "--redetect-frames", str(args.redetect_frames)]
+                   "--redetect-frames", str(args.redetect_frames)] + (["--params", args.params] if args.params else [])
     if args.arm64_rootfs is not None:
         machine = f"aarch64 (qemu-aarch64 -cpu {args.arm64_cpu})"
         summary, native = summarise(count_arm64(args.arm64_rootfs, worker_args, args.arm64_cpu)), None
@@ -338,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     report(machine, summary, native)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"machine": machine,
+        args.json.write_text(json.dumps({"machine": machine, "params": overrides,
                                          "frames": args.frames, "redetect_frames": args.redetect_frames,
                                          "instructions": summary, "host_cpu_ms_per_frame": native}, indent=1))
     return 0

@@ -18,6 +18,7 @@ Prints the median ms per frame of both kinds, per sequence and pooled, and their
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -58,13 +59,17 @@ def hide_target(frame: np.ndarray, box: np.ndarray, margin_sides: float = 0.25) 
     return hidden
 
 
-def searching_tracker(windows_per_frame: int | None = None) -> JsarReTracker:
+def searching_tracker(windows_per_frame: int | None = None, overrides: dict[str, Any] | None = None) -> JsarReTracker:
     """jsar-re that declares a loss from the first frame on (warm-up 0) and then searches without
-    taking any candidate (hold-off 10^9 lost frames); otherwise the defaults."""
-    redetect: dict[str, Any] = {"monitor": {"warmup_frames": 0}, "accept": {"holdoff_frames": 10**9}}
+    taking any candidate (hold-off 10^9 lost frames); otherwise the defaults, or jsar.create's `overrides`
+    of jsar-re (nested dicts; the warm-up and hold-off win)."""
+    overrides = copy.deepcopy(overrides or {})
+    redetect = overrides.setdefault("redetect", {})
+    redetect.setdefault("monitor", {})["warmup_frames"] = 0
+    redetect.setdefault("accept", {})["holdoff_frames"] = 10**9
     if windows_per_frame is not None:
-        redetect["search"] = {"windows_per_frame": windows_per_frame}
-    tracker = jsar.create("jsar-re", redetect=redetect)
+        redetect.setdefault("search", {})["windows_per_frame"] = windows_per_frame
+    tracker = jsar.create("jsar-re", **overrides)
     assert isinstance(tracker, JsarReTracker)
     return tracker
 

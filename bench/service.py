@@ -1,7 +1,7 @@
 """End-to-end benchmark of the daemon: latency from frame read to gimbal command, and CPU use.
 
     python -m bench.service [--sequence UAVDT_S1301] [--trackers jsar-re,csrt] [--seconds 15] [--video off,on] [--rounds 1]
-                            [--threads-report] [--callgrind [--callgrind-fps 0.25]]
+                            [--threads-report] [--callgrind [--callgrind-fps 0.25]] [--verifier-thread]
 
 A real shared sequence (JSAR_DATA_ROOT) is resized to 640x480 and written as an MJPG video at 30 fps
 (under out/bench/, git-ignored). For each tracker the daemon runs as a subprocess on that file
@@ -345,9 +345,10 @@ def video_counters(counters: dict) -> dict:
 
 
 def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path, video_out: bool = False,
-            video_fps: float = FPS, callgrind: Path | None = None) -> dict:
+            video_fps: float = FPS, callgrind: Path | None = None, verifier_thread: bool = False) -> dict:
     """Run the daemon with `tracker` on the video, paced at video_fps (video_out: preview and RTP stream on); the
-    measured numbers. callgrind: run the daemon under callgrind, its per-thread dumps of the window in this folder."""
+    measured numbers. callgrind: run the daemon under callgrind, its per-thread dumps of the window in this folder.
+    verifier_thread: config's tracker.verifier_thread (jsar-re's deferred verifier work on a thread of its own)."""
     import zenoh
 
     patience = 1.0 if callgrind is None else CALLGRIND_PATIENCE  # every wait for the daemon is this much longer
@@ -358,7 +359,7 @@ def run_one(tracker: str, video: Path, gt: np.ndarray, seconds: float, out: Path
     config["video"]["preview"]["enabled"] = video_out
     config["video"]["stream"].update({"enabled": video_out, "host": "127.0.0.1", "port": sink.port if sink else 5600,
                                       "max_width_px": WIDTH, "max_height_px": HEIGHT, "fps": FPS})
-    config["tracker"].update({"name": tracker, "threads": 1})
+    config["tracker"].update({"name": tracker, "threads": 1, "verifier_thread": verifier_thread})
     if not isinstance(jsar.create(tracker), SideBoundedTracker):
         config["tracker"]["range_size_band"] = 0  # OpenCV's trackers take no side bounds (the service refuses them)
     config["source"].update({"kind": "file", "path": str(video), "realtime": True, "loop": False})
@@ -530,6 +531,9 @@ def main(argv: list[str] | None = None) -> int:
                              "by thread; the file is then paced at --callgrind-fps (latencies mean nothing there)")
     parser.add_argument("--callgrind-fps", type=float, default=0.25,
                         help="frame rate of the file under callgrind: slow enough that every frame is tracked")
+    parser.add_argument("--verifier-thread", action="store_true",
+                        help="tracker.verifier_thread on: jsar-re's deferred verifier work on the daemon's `verifier` "
+                             "thread (the configuration for a board with a spare core)")
     parser.add_argument("--out", default=str(REPO / "out" / "bench"))
     args = parser.parse_args(argv)
     root = os.environ.get("JSAR_DATA_ROOT")
@@ -546,7 +550,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.rounds < 1:
         parser.error(f"--rounds: must be >= 1, got {args.rounds}")
     results = [{**run_one(name, video, gt, args.seconds, out, video_out=mode == "on", video_fps=video_fps,
-                          callgrind=callgrind_folder(out, name, mode) if args.callgrind else None),
+                          callgrind=callgrind_folder(out, name, mode) if args.callgrind else None,
+                          verifier_thread=args.verifier_thread),
                 "round": index + 1}
                for index in range(args.rounds) for name in args.trackers.split(",") for mode in modes]
     print(f"640x480 @ {FPS:.0f} fps, {args.sequence}, one thread; latency = frame read -> gimbal command")

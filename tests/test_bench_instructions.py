@@ -30,3 +30,16 @@ def test_count_frame_kinds_labels_every_measured_call_of_both_benchmarks(data_ro
                       "OTB_Crossing|jsar-re verifier|2",
                       "OTB_Crossing|jsar-re lost|3", "OTB_Crossing|jsar-re lost|4"]
     assert states == ["lost", "lost"]
+
+
+def test_the_searching_tracker_takes_a_variants_overrides_and_keeps_its_own_warm_up_and_hold_off():
+    """--params counts a variant: its overrides reach jsar-re, while the searching tracker's warm-up 0 and endless
+    hold-off (every lost frame spends its whole budget) win over them."""
+    from bench.redetect import searching_tracker
+
+    overrides = {"redetect": {"verify": {"lost_looks": 1}, "accept": {"holdoff_frames": 2, "confirm_frames": 3}}}
+    tracker = searching_tracker(overrides=overrides)
+    assert tracker.redetect.verify.lost_looks == 1 and tracker.redetect.accept.confirm_frames == 3
+    assert tracker.redetect.accept.holdoff_frames == 10**9 and tracker.redetect.monitor.warmup_frames == 0
+    assert overrides["redetect"]["accept"]["holdoff_frames"] == 2  # the caller's dict is left as it was
+    assert searching_tracker(4).redetect.search.windows_per_frame == 4

@@ -67,6 +67,39 @@ def response_spectrum(filter_f: np.ndarray, sample_f: np.ndarray) -> np.ndarray:
     return product.sum(axis=0)
 
 
+def windowed_channels_last(windows: np.ndarray, cos_window: np.ndarray) -> np.ndarray:
+    """(M, H, W, C) float32 channels-last feature windows times the (H, W) cosine window, compiled: the numbers of
+    `windows * cos_window[None, :, :, None]` (one product each)."""
+    windows = np.ascontiguousarray(windows, dtype=np.float32)
+    m, h, w, c = windows.shape
+    if cos_window.shape != (h, w):
+        raise ValueError(f"cos_window {cos_window.shape} does not match the windows' {(h, w)}")
+    out = np.empty_like(windows)
+    kernels.window_channels_last(windows, np.ascontiguousarray(cos_window, dtype=np.float32), out, m, h * w, c)
+    return out
+
+
+def response_spectra_reference(filter_f: np.ndarray, spectra: np.ndarray) -> np.ndarray:
+    """(M, H, W//2+1) complex64 response spectra sum_c conj(F_c) X_mc of channels-last spectra (M, H, W//2+1, C)
+    under one channels-first filter (C, H, W//2+1): the numpy specification of `response_spectra`."""
+    filter_hwc = np.ascontiguousarray(np.moveaxis(filter_f.conj(), 0, -1))
+    return np.einsum("hwc,mhwc->mhw", filter_hwc, spectra)
+
+
+def response_spectra(filter_f: np.ndarray, spectra: np.ndarray) -> np.ndarray:
+    """`response_spectra_reference`, compiled: the same sums in the same order (channel by channel, in float),
+    without the filter's channels-last copy."""
+    filter_f = np.ascontiguousarray(filter_f, dtype=np.complex64)
+    spectra = np.ascontiguousarray(spectra, dtype=np.complex64)
+    c, h, w2 = filter_f.shape
+    m = spectra.shape[0]
+    if spectra.shape != (m, h, w2, c):
+        raise ValueError(f"spectra {spectra.shape} do not match the filter's (M, {h}, {w2}, {c})")
+    out = np.empty((m, h, w2), dtype=np.complex64)
+    kernels.response_spectra(filter_f, spectra, out, m, h * w2, c)
+    return out
+
+
 def response(filter_f: np.ndarray, sample_f: np.ndarray, shape_hw: tuple[int, int]) -> np.ndarray:
     """(H, W) float32 response IFFT(sum_c conj(F_c) X_c) in the MATLAB scaling; peak at the shift."""
     return fourier.irfft2(response_spectrum(filter_f, sample_f), shape_hw).astype(np.float32)

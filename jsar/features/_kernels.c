@@ -1922,6 +1922,108 @@ static PyObject *grid_response(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ---- The decision filter's windows (jsar/redetect/memory.py): cosine window and response spectra ---- */
+
+/* window_channels_last(x, window, out, N, P, C): out[n, p, c] = x[n, p, c] * window[p] (float32; one product each,
+ * so the numbers of numpy's broadcast multiply). */
+static void window_channels_last_run(const float *restrict x, const float *restrict window, float *restrict out,
+                                     Py_ssize_t N, Py_ssize_t P, Py_ssize_t C)
+{
+    for (Py_ssize_t n = 0; n < N; n++)
+        for (Py_ssize_t p = 0; p < P; p++) {
+            const float w = window[p];
+            const float *restrict src = x + (n * P + p) * C;
+            float *restrict dst = out + (n * P + p) * C;
+            for (Py_ssize_t c = 0; c < C; c++)
+                dst[c] = src[c] * w;
+        }
+}
+
+static PyObject *window_channels_last(PyObject *self, PyObject *args)
+{
+    (void)self;
+    enum { X, WIN, OUT, N_BUF };
+    static const char *const names[N_BUF] = {"x", "window", "out"};
+    static const char *const codes[N_BUF] = {"f", "f", "f"};
+    static const int writable[N_BUF] = {0, 0, 1};
+    PyObject *objs[N_BUF];
+    Py_ssize_t N, P, C;
+    if (!PyArg_ParseTuple(args, "OOOnnn", &objs[X], &objs[WIN], &objs[OUT], &N, &P, &C))
+        return NULL;
+    if (N < 0 || P < 0 || C < 0) {
+        PyErr_SetString(PyExc_ValueError, "window_channels_last: sizes must be non-negative");
+        return NULL;
+    }
+    const Py_ssize_t need[N_BUF] = {N * P * C * 4, P * 4, N * P * C * 4};
+    Py_buffer views[N_BUF];
+    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, 0, "window_channels_last");
+    if (held == N_BUF) {
+        Py_BEGIN_ALLOW_THREADS
+        window_channels_last_run(views[X].buf, views[WIN].buf, views[OUT].buf, N, P, C);
+        Py_END_ALLOW_THREADS
+    }
+    release_views(views, held < 0 ? N_BUF : held);
+    if (held != N_BUF)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* response_spectra(filter_f, spectra, out, M, P, C): out[m, p] = sum over c of conj(filter_f[c, p]) * spectra[m, p, c]
+ * (complex64 as float pairs), summed in channel order in float, each product as (a_re x_re - a_im x_im, a_re x_im +
+ * a_im x_re) with a = conj(f), never fused, then added to a zero: the numbers of numpy's
+ * einsum("hwc,mhwc->mhw", conj(filter) channels last, spectra), which the tests check to the bit. */
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("fp-contract=off")))
+#endif
+static void response_spectra_run(const float *restrict f, const float *restrict x, float *restrict out, Py_ssize_t M,
+                                 Py_ssize_t P, Py_ssize_t C)
+{
+    for (Py_ssize_t m = 0; m < M; m++)
+        for (Py_ssize_t p = 0; p < P; p++) {
+            const float *restrict xs = x + 2 * (m * P + p) * C;
+            float acc_re = 0.0f, acc_im = 0.0f;
+            for (Py_ssize_t c = 0; c < C; c++) {
+                const float a_re = f[2 * (c * P + p)], a_im = -f[2 * (c * P + p) + 1];
+                const float x_re = xs[2 * c], x_im = xs[2 * c + 1];
+                const float re = a_re * x_re - a_im * x_im;
+                const float im = a_re * x_im + a_im * x_re;
+                acc_re += re;
+                acc_im += im;
+            }
+            out[2 * (m * P + p)] = 0.0f + acc_re;
+            out[2 * (m * P + p) + 1] = 0.0f + acc_im;
+        }
+}
+
+static PyObject *response_spectra(PyObject *self, PyObject *args)
+{
+    (void)self;
+    enum { F, X, OUT, N_BUF };
+    static const char *const names[N_BUF] = {"filter_f", "spectra", "out"};
+    static const char *const codes[N_BUF] = {"Zf", "Zf", "Zf"};
+    static const int writable[N_BUF] = {0, 0, 1};
+    PyObject *objs[N_BUF];
+    Py_ssize_t M, P, C;
+    if (!PyArg_ParseTuple(args, "OOOnnn", &objs[F], &objs[X], &objs[OUT], &M, &P, &C))
+        return NULL;
+    if (M < 0 || P < 0 || C < 0) {
+        PyErr_SetString(PyExc_ValueError, "response_spectra: sizes must be non-negative");
+        return NULL;
+    }
+    const Py_ssize_t need[N_BUF] = {C * P * 8, M * P * C * 8, M * P * 8};
+    Py_buffer views[N_BUF];
+    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, 0, "response_spectra");
+    if (held == N_BUF) {
+        Py_BEGIN_ALLOW_THREADS
+        response_spectra_run(views[F].buf, views[X].buf, views[OUT].buf, M, P, C);
+        Py_END_ALLOW_THREADS
+    }
+    release_views(views, held < 0 ? N_BUF : held);
+    if (held != N_BUF)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"resample", resample, METH_VARARGS, "Separable sparse resampling of uint8 regions (see patches.py)."},
     {"resample_reference", resample_reference, METH_VARARGS,
@@ -1935,6 +2037,9 @@ static PyMethodDef methods[] = {
     {"grid_spectrum", grid_spectrum, METH_VARARGS, "The size filter's half spectrum over its grid (see size_filter.py)."},
     {"grid_train", grid_train, METH_VARARGS, "The size filter's DSST update (see size_filter.py)."},
     {"grid_response", grid_response, METH_VARARGS, "The size filter's response spectrum (see size_filter.py)."},
+    {"window_channels_last", window_channels_last, METH_VARARGS,
+     "Channels-last feature windows times a cosine window (see dcf.py)."},
+    {"response_spectra", response_spectra, METH_VARARGS, "Windows' response spectra under one filter (see dcf.py)."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1942,7 +2047,7 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_kernels", "Compiled
                                     NULL, NULL, NULL, NULL};
 
 /* Bumped whenever a signature or a convention changes: jsar/features/_native.py refuses a stale build. */
-#define KERNELS_ABI 7
+#define KERNELS_ABI 8
 
 PyMODINIT_FUNC PyInit__kernels(void)
 {

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 # Must equal KERNELS_ABI in _kernels.c: a build older than the sources fails loudly, not subtly.
-EXPECTED_ABI = 7
+EXPECTED_ABI = 8
 
 try:
     from jsar.features import _kernels as kernels

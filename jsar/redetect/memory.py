@@ -92,10 +92,9 @@ class DecisionFilter:
         windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
         # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
         # (docs/results-tracker.md, "Speed: where the time goes"); the spectra and responses are the same numbers.
-        spectra = fourier.rfft2_channels_last(windows * self.filter.cos_window[None, :, :, None])  # (M, H, W//2+1, C)
+        spectra = fourier.rfft2_channels_last(dcf.windowed_channels_last(windows, self.filter.cos_window))
         assert self.filter.filter_f is not None
-        filter_hwc = np.ascontiguousarray(np.moveaxis(self.filter.filter_f.conj(), 0, -1))  # (H, W//2+1, C)
-        response_f = np.einsum("hwc,mhwc->mhw", filter_hwc, spectra)
+        response_f = dcf.response_spectra(self.filter.filter_f, spectra)  # (M, H, W//2+1)
         responses = fourier.irfft2(response_f, self.filter.shape_hw)
         found = []
         for k, (centre, degrees) in enumerate(zip(window_centres, turns)):

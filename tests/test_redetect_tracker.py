@@ -191,6 +191,23 @@ def test_loss_search_windows_cycle_through_the_lattice_within_the_budget():
     assert none.windows((320, 240))[0].shape == (0, 2)
 
 
+def test_a_coasting_lost_frame_scores_coast_window_cost_fewer_windows_and_the_cycle_goes_on_from_there():
+    """The coast's commit takes part of a lost frame's budget (search.coast_window_cost): the lattice scores that many
+    fewer windows while the core coasts, never fewer than none, and the next frame continues the cycle."""
+    params = SearchParams(windows_per_frame=4, turned_angles_deg=(), coast_window_cost=3)
+    search = LossSearch((160.0, 120.0), 10.0, params, AcceptParams(), lost_frames=1)
+    ring = lattice_offsets(search.area_sides(), search.lattice.stride_sides)
+    assert np.allclose(search.windows((320, 240))[0], (160.0, 120.0) + ring[:4] * 10.0)  # not coasting: all 4
+    search.coasting = True
+    assert np.allclose(search.windows((320, 240))[0], (160.0, 120.0) + ring[4:5] * 10.0)  # coasting: 4 - 3
+    search.coasting = False
+    assert np.allclose(search.windows((320, 240))[0], (160.0, 120.0) + np.vstack([ring[5:8], ring[:1]]) * 10.0)
+    costly = LossSearch((160.0, 120.0), 10.0, SearchParams(windows_per_frame=2, turned_angles_deg=(),
+                                                           coast_window_cost=3), AcceptParams(), lost_frames=1)
+    costly.coasting = True
+    assert costly.windows((320, 240))[0].shape == (0, 2)
+
+
 def test_search_cycle_turns_the_centre_first_then_each_ring_upright_then_turned():
     entries = search_cycle(5.0, 2.5, (45.0, -45.0), turned_rings=1)
     ring = lattice_offsets(5.0, 2.5)
@@ -1093,7 +1110,9 @@ def test_the_verifier_embeds_only_candidates_whose_look_can_change_the_decision(
     it); a window's peak outside the gate and under the bar is not: its look would change nothing."""
     embedder = _PlaceEmbedder([(112.0, 112.0)])
     frame = _frame(_background(), (100, 100))
-    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True}), embedder=embedder)
+    # lost_looks 0: no bound on a frame's looks (its own test below), so every candidate whose look is used is looked at
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "lost_looks": 0}),
+                            embedder=embedder)
     tracker.init(frame, _target_box((100, 100)))
     embedded: list[tuple[float, float]] = []
     real_embed = embedder.embed
@@ -1114,13 +1133,65 @@ def test_the_verifier_embeds_only_candidates_whose_look_can_change_the_decision(
     under = Candidate(112.0 - side, 112.0, 0.9 * lowest)  # within the gate, under every bar
     refuted_near = Candidate(112.0, 112.0 - 1.8 * side, (lowest + bar) / 2)  # within the gate, at a refuted place
     loss.refuted.append(Candidate(112.0, 112.0 - 1.8 * side, bar))  # refute_margin x 0.03 to beat it (2 sides from near_low)
-    looks = tracker._looks(frame, loss, [near_low, far_low, far_high, under, refuted_near], bar)
-    assert set(looks) == {id(near_low), id(far_high)}
+    looks, unlooked = tracker._looks(frame, loss, [near_low, far_low, far_high, under, refuted_near], bar)
+    assert set(looks) == {id(near_low), id(far_high)} and not unlooked
     assert sorted(embedded) == sorted([(near_low.x, near_low.y), (far_high.x, far_high.y)])
     # Without the gate every candidate over the lowest bar that beats the refuted places is embedded.
     loss.reach_sides = math.inf
-    assert set(tracker._looks(frame, loss, [near_low, far_low, far_high, under, refuted_near], bar)) \
+    assert set(tracker._looks(frame, loss, [near_low, far_low, far_high, under, refuted_near], bar)[0]) \
         == {id(near_low), id(far_low), id(far_high)}
+
+
+def test_a_lost_frame_looks_at_most_lost_looks_candidates_the_pending_ones_first():
+    """verify.lost_looks bounds a lost frame's embeddings (its cost): the candidates near the pending one come
+    first (its confirmation), then the best; the ones left without a look are named and never taken that frame."""
+    embedder = _PlaceEmbedder([(112.0, 112.0)])
+    frame = _frame(_background(), (100, 100))
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "lost_looks": 2}),
+                            embedder=embedder)
+    tracker.init(frame, _target_box((100, 100)))
+    side = math.sqrt(tracker.core.size_wh[0] * tracker.core.size_wh[1])
+    loss = LossSearch((112.0, 112.0), side, SearchParams(), AcceptParams(), lost_frames=10)
+    bar = 0.03
+    best = Candidate(112.0 + 3 * side, 112.0, 3 * bar)
+    second = Candidate(112.0 - 3 * side, 112.0, 2 * bar)
+    at_pending = Candidate(112.0, 112.0 + 3 * side, 1.1 * bar)
+    third = Candidate(112.0, 112.0 - 3 * side, 1.5 * bar)
+    candidates = [third, second, best, at_pending]
+    looks, unlooked = tracker._looks(frame, loss, candidates, bar)
+    assert set(looks) == {id(best), id(second)} and unlooked == {id(third), id(at_pending)}
+    loss.pending = Candidate(at_pending.x + 0.1 * side, at_pending.y, 1.2 * bar)
+    looks, unlooked = tracker._looks(frame, loss, candidates, bar)
+    assert set(looks) == {id(at_pending), id(best)} and unlooked == {id(third), id(second)}
+    # Unbounded (0): every candidate over the bar is looked at.
+    unbounded = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "lost_looks": 0}),
+                              embedder=embedder)
+    unbounded.init(frame, _target_box((100, 100)))
+    looks, unlooked = unbounded._looks(frame, loss, candidates, bar)
+    assert len(looks) == 4 and not unlooked
+
+
+def test_a_candidate_left_without_a_look_by_lost_looks_is_not_taken_on_that_frame():
+    """With verify.lost_looks 1 the best-scoring candidate takes the frame's one look; the target's own window, over
+    the bar but unlooked, waits (unbounded, it is looked at, called the target and taken)."""
+    frame = _frame(_background(), (100, 100))
+
+    def taken(lost_looks: int) -> Candidate | None:
+        tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={"enabled": True, "lost_looks": lost_looks}),
+                                embedder=_PlaceEmbedder([(112.0, 112.0)]))
+        tracker.init(frame, _target_box((100, 100)))
+        side = math.sqrt(tracker.core.size_wh[0] * tracker.core.size_wh[1])
+        loss = LossSearch((112.0, 112.0), side, SearchParams(),
+                          AcceptParams(holdoff_frames=0, confirm_frames=0), lost_frames=10)
+        loss.reach_sides = 2.0
+        bar = 0.03
+        target = Candidate(112.0, 112.0, 1.5 * bar)
+        far = Candidate(112.0 + 4 * side, 112.0, 3 * bar)  # the best score, outside the motion gate
+        own = Candidate(112.0, 112.0, 0.0)
+        return tracker._take(frame, loss, [far, target], bar, own)[0]
+
+    assert taken(0) is not None and (taken(0).x, taken(0).y) == (112.0, 112.0)
+    assert taken(1) is None
 
 
 def test_a_look_alike_the_verifier_calls_another_object_is_not_taken_even_above_the_bar():

@@ -502,13 +502,14 @@ class JsarReTracker:
         """The candidate taken on this lost frame (LossSearch.decide with the colour and verifier tests), or None;
         whether the verifier called it the target."""
         minimum, over_match = self.redetect.colour.min_match, self.redetect.verify.over_colour_match
-        looks = self._looks(frame, loss, candidates, bar)
+        looks, unlooked = self._looks(frame, loss, candidates, bar)
         # The verifier's "target" stands in for the colour model's match (the embedding sees the colours too,
         # and the match refused targets whose box held other colours: a wakeboarder in spray), never for the
         # selection's colours (the drift check's: what slid onto grass must not come back through it).
         taken = loss.decide(candidates, bar, lambda c: self._colour_passes(
                                 frame, (c.x, c.y), 0.0 if self._verified(looks, c) and over_match else minimum),
-                            lambda c: self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
+                            lambda c: math.inf if id(c) in unlooked else
+                            self._candidate_bar(frame, c, bar, looks[id(c)][0] if id(c) in looks else None))
         self._learn_refused(candidates, bar, looks)
         best = max(candidates, key=lambda c: c.score)
         self.last_step = SearchStep(best, bar, len(candidates) - 1, taken is not None, own=own,
@@ -593,19 +594,33 @@ class JsarReTracker:
         return self.appearance
 
     def _looks(self, frame: np.ndarray, loss: LossSearch, candidates: list[Candidate],
-               bar: float) -> dict[int, tuple[Look, np.ndarray]]:
+               bar: float) -> tuple[dict[int, tuple[Look, np.ndarray]], set[int]]:
         """The verifier's Look at each candidate whose look is used, with its embedding (keyed by id; one batch):
         over the bar (a refused one is learnt: _learn_refused), or over the lowest bar a look can give and one the
         search may take (LossSearch.may_take). Embedding the others would change nothing: a window's peak outside
-        the motion gate is never taken (early in a loss most of the lattice's are)."""
+        the motion gate is never taken (early in a loss most of the lattice's are). With verify.lost_looks, at
+        most that many, those near the pending candidate first (its confirmation), then the best; also the ids
+        of the candidates that needed a look and got none (not to be taken on this frame)."""
         if self.appearance is None or self.embedder is None:
-            return {}
+            return {}, set()
         lowest = min(self.redetect.verify.bar_fraction, self.redetect.colour.clear_bar_fraction) * bar
         near = [c for c in candidates if c.score >= bar or (c.score >= lowest and loss.may_take(c))]
+        limit = self.redetect.verify.lost_looks
+        skipped: list[Candidate] = []
+        if 0 < limit < len(near):
+            pending = loss.pending
+            radius = self.redetect.accept.confirm_radius_sides
+
+            def order(c: Candidate) -> tuple[bool, float]:
+                at_pending = pending is not None and c.distance_sides((pending.x, pending.y), loss.side_px) <= radius
+                return not at_pending, -c.score
+            near = sorted(near, key=order)
+            near, skipped = near[:limit], near[limit:]
         if not near:
-            return {}
+            return {}, set()
         rows = self.embedder.embed(frame, np.array([self._loss_box((c.x, c.y)) for c in near]))
-        return {id(c): (look, row) for c, look, row in zip(near, self.appearance.judge(rows), rows)}
+        looks = {id(c): (look, row) for c, look, row in zip(near, self.appearance.judge(rows), rows)}
+        return looks, {id(c) for c in skipped}
 
     @staticmethod
     def _verified(looks: dict[int, tuple[Look, np.ndarray]], candidate: Candidate) -> bool:

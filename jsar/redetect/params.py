@@ -60,6 +60,7 @@ class SearchParams:
     area_max_sides: float = checked(15.0, at_least_key("area_start_sides"))  # omega's bound (target sides; the paper lets it grow without bound)
     stride_sides: float = checked(2.5, positive)  # lattice stride (target sides): half a 5-side window
     windows_per_frame: int = checked(6, non_negative)  # windows scored per lost frame, upright or turned (0: the core's sample only): a lost frame's cost
+    coast_window_cost: int = checked(3, non_negative)  # lattice windows a lost frame gives up while the core coasts (its commit is about 3 windows' work; 0: none)
     turned_angles_deg: tuple[float, ...] = checked((45.0, -45.0), _turned_angles)  # angles (degrees) windows are also scored turned by: a car that turned while hidden
     turned_rings: int = checked(2, non_negative)  # lattice rings (after the centre) scored turned too; farther rings upright only
     turned_score_factor: float = checked(0.9, UNIT)  # a turned window's score is multiplied by this: an upright match keeps the pre-loss filters
@@ -145,6 +146,7 @@ class VerifyParams:
     watch_frames: int = checked(3, non_negative)  # while tracking the box is checked once per this many frames (0: never)
     watch_count: int = checked(2, at_least(1))  # "other" on this many checks in a row is a loss (a confident slide)
     defer_frames: int = checked(3, non_negative)  # a tracked frame's learning and watch check (not on probation) take effect this many frames later: their embeddings can run on another thread meanwhile (0: at once)
+    lost_looks: int = checked(2, non_negative)  # candidates the verifier looks at per lost frame at most, those near the pending one first, then by score; one not looked at is not taken on that frame (0: no bound)
     hold_verified: bool = True  # a take called the target when taken and on every check since is not refuted by a loss on probation: a new loss starts from it
     gate_map: bool = False  # whole-gate search: one network pass over the motion gate while lost
     gate_map_frames: int = checked(1, at_least(1))  # the whole-gate search runs on one lost frame in this many

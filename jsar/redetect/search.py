@@ -139,11 +139,13 @@ class LossSearch:
 
     def windows(self, frame_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright),
-        at most windows_per_frame entries of search_cycle whose centre lies in the frame; advances
-        the cycle."""
+        at most windows_per_frame entries of search_cycle whose centre lies in the frame, coast_window_cost
+        fewer while the core coasts (it coasted on the last lost frame); advances the cycle."""
         entries = search_cycle(self.area_sides(), self.lattice.stride_sides, self.lattice.turned_angles_deg,
                                self.lattice.turned_rings)
-        budget = min(self.lattice.windows_per_frame, len(entries))
+        # A coasting frame's commit takes part of the frame's budget: a lost frame's cost stays bounded.
+        spent = self.lattice.coast_window_cost if self.coasting else 0
+        budget = min(max(self.lattice.windows_per_frame - spent, 0), len(entries))
         if budget == 0:
             return np.empty((0, 2)), np.empty(0)
         picked = entries[(self.cursor + np.arange(budget)) % len(entries)]

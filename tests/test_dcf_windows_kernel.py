@@ -54,3 +54,12 @@ def test_the_window_kernels_refuse_mismatched_shapes_and_types_naming_them():
     with pytest.raises(ValueError, match="out"):
         kernels.response_spectra(np.zeros((3, 5, 4), np.complex64), np.zeros((2, 5, 4, 3), np.complex64),
                                  np.zeros((1, 5, 4), np.complex64), 2, 20, 3)
+
+
+def test_the_response_kernel_refuses_an_output_that_is_also_an_input():
+    """The sums read every channel of a window before writing its output: an output on an input's memory would
+    overwrite spectra still to be read."""
+    from jsar.features._native import kernels
+    spectra = np.zeros((2, 5, 4, 1), np.complex64)
+    with pytest.raises(ValueError, match="distinct"):
+        kernels.response_spectra(np.zeros((1, 5, 4), np.complex64), spectra, spectra, 2, 20, 1)

@@ -2012,7 +2012,7 @@ static PyObject *response_spectra(PyObject *self, PyObject *args)
     }
     const Py_ssize_t need[N_BUF] = {C * P * 8, M * P * C * 8, M * P * 8};
     Py_buffer views[N_BUF];
-    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, 0, "response_spectra");
+    const int held = acquire_views(objs, views, N_BUF, need, codes, writable, names, N_BUF, "response_spectra");
     if (held == N_BUF) {
         Py_BEGIN_ALLOW_THREADS
         response_spectra_run(views[F].buf, views[X].buf, views[OUT].buf, M, P, C);

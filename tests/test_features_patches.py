@@ -177,4 +177,3 @@ def test_kernel_gives_the_reference_loops_numbers_to_the_bit_for_every_tap_count
             sizes = np.array([[side, side * rng.uniform(0.7, 1.3)]])
             assert np.array_equal(sample_patches(image, centre, sizes, out_wh),
                                   resample_reference_loops(image, centre, sizes, out_wh)), (side, out_wh)
-

@@ -138,18 +138,23 @@ class LossSearch:
         return min(s.area_start_sides * s.area_growth ** max(self.lost_frames - 1, 0), s.area_max_sides)
 
     def windows(self, frame_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright),
-        at most windows_per_frame entries of search_cycle whose centre lies in the frame, coast_window_cost
-        fewer while the core coasts (it coasted on the last lost frame); advances the cycle."""
+        """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright), the next
+        entries of search_cycle whose centre lies in the frame; advances the cycle. The entries taken cost
+        at most windows_per_frame units (an upright entry 1, a turned one turned_window_cost; coast_window_cost
+        fewer while the core coasts, as it did on the last lost frame), and at least one entry is taken while
+        any unit is left (the cycle never stalls on a turned entry); at most one cycle."""
         entries = search_cycle(self.area_sides(), self.lattice.stride_sides, self.lattice.turned_angles_deg,
                                self.lattice.turned_rings)
         # A coasting frame's commit takes part of the frame's budget: a lost frame's cost stays bounded.
         spent = self.lattice.coast_window_cost if self.coasting else 0
-        budget = min(max(self.lattice.windows_per_frame - spent, 0), len(entries))
-        if budget == 0:
+        budget = max(self.lattice.windows_per_frame - spent, 0)
+        if budget == 0 or len(entries) == 0:
             return np.empty((0, 2)), np.empty(0)
-        picked = entries[(self.cursor + np.arange(budget)) % len(entries)]
-        self.cursor = (self.cursor + budget) % len(entries)
+        order = (self.cursor + np.arange(len(entries))) % len(entries)
+        costs = np.where(entries[order, 2] == 0, 1, self.lattice.turned_window_cost)
+        count = max(int(np.searchsorted(np.cumsum(costs), budget, side="right")), 1)
+        picked = entries[order[:count]]
+        self.cursor = (self.cursor + count) % len(entries)
         centres = np.asarray(self.anchor_xy) + picked[:, :2] * self.side_px
         inside = ((centres[:, 0] >= 0) & (centres[:, 0] < frame_wh[0])
                   & (centres[:, 1] >= 0) & (centres[:, 1] < frame_wh[1]))

@@ -208,6 +208,24 @@ def test_a_coasting_lost_frame_scores_coast_window_cost_fewer_windows_and_the_cy
     assert costly.windows((320, 240))[0].shape == (0, 2)
 
 
+def test_a_turned_window_takes_turned_window_cost_units_of_the_budget_and_the_cycle_never_stalls():
+    """A turned window's warp and features are its own (search.turned_window_cost units against an upright window's 1):
+    a frame takes the cycle's entries while their units fit windows_per_frame, and at least one."""
+    params = SearchParams(windows_per_frame=4, turned_angles_deg=(45.0, -45.0), turned_rings=1, turned_window_cost=2)
+    search = LossSearch((160.0, 120.0), 10.0, params, AcceptParams(), lost_frames=1)
+    entries = search_cycle(search.area_sides(), 2.5, (45.0, -45.0), turned_rings=1)
+    taken = [search.windows((320, 240)) for _ in range(5)]
+    assert [len(angles) for _, angles in taken] == [2, 4, 4, 2, 2]  # 2 turned, 4 + 4 upright, then turned by twos
+    assert np.allclose(np.concatenate([angles for _, angles in taken]), entries[:14, 2])  # in the cycle's order
+    assert np.allclose(taken[3][0], (160.0, 120.0) + entries[10:12, :2] * 10.0)
+    search.coasting = True  # 4 - 3 = 1 unit left, the next entry turned (2 units): taken all the same
+    centres, angles = search.windows((320, 240))
+    assert len(angles) == 1 and angles[0] == 45.0 and search.cursor == 15
+    same = LossSearch((160.0, 120.0), 10.0, dataclasses.replace(params, turned_window_cost=1), AcceptParams(),
+                      lost_frames=1)
+    assert [len(same.windows((320, 240))[1]) for _ in range(3)] == [4, 4, 4]  # cost 1: entries as before
+
+
 def test_search_cycle_turns_the_centre_first_then_each_ring_upright_then_turned():
     entries = search_cycle(5.0, 2.5, (45.0, -45.0), turned_rings=1)
     ring = lattice_offsets(5.0, 2.5)
@@ -715,8 +733,8 @@ def test_a_verified_take_lost_again_within_probation_starts_a_new_loss_instead_o
     """verify.hold_verified (the default): the look-alike of _run_with_a_passing_look_alike, in the target's colours,
     is called the target when taken and on every watch check, so its loss on probation is a new loss from where the
     track is, with no refuted place: a target lost again as it went further under an occluder must not be barred
-    from its own place (bench.occlusions). The target, back at 60, is re-acquired on the same frame as when the take
-    is refuted."""
+    from its own place (bench.occlusions). The target, back at 60, is re-acquired within two frames of when the
+    refuted take's search re-acquires it (the new loss's lattice cycle may reach its place later)."""
     look_alike_centre, target_centre = (162.0, 112.0), (112.0, 112.0)
     held, places = _run_with_a_passing_look_alike(RedetectParams())
     refuting, _ = _run_with_a_passing_look_alike(_redetect(**REFUTING))
@@ -727,8 +745,10 @@ def test_a_verified_take_lost_again_within_probation_starts_a_new_loss_instead_o
     assert math.dist(_centre(held[relost][1]), look_alike_centre) < 6  # searched from the take, not the old search
     assert math.dist(_centre(refuting[relost][1]), target_centre) < 3  # (refuted: back where the old search waited)
     assert all(not places[i] for i in range(1, 75))
-    assert held[61][0] == refuting[61][0] == "recovered" and math.dist(_centre(held[61][1]), target_centre) < 3
-    assert all(held[i][0] == "tracking" for i in range(62, 75))
+    assert refuting[61][0] == "recovered"
+    back = min(i for i in range(60, 75) if held[i][0] == "recovered")  # where the new loss's lattice cycle reaches it
+    assert back - 61 <= 2 and math.dist(_centre(held[back][1]), target_centre) < 3
+    assert all(held[i][0] == "tracking" for i in range(back + 1, 75))
 
 
 def test_a_refuted_take_restarts_the_cores_count_towards_its_own_way_out():

@@ -59,9 +59,9 @@ class SearchParams:
     area_growth: float = checked(1.05, at_least(1))  # omega's growth factor per lost frame (paper)
     area_max_sides: float = checked(15.0, at_least_key("area_start_sides"))  # omega's bound (target sides; the paper lets it grow without bound)
     stride_sides: float = checked(2.5, positive)  # lattice stride (target sides): half a 5-side window
-    windows_per_frame: int = checked(6, non_negative)  # windows scored per lost frame, upright or turned (0: the core's sample only): a lost frame's cost
+    windows_per_frame: int = checked(8, non_negative)  # a lost frame's window budget in units of an upright window (0: the core's sample only): its cost
     coast_window_cost: int = checked(3, non_negative)  # windows_per_frame units a lost frame gives up while the core coasts (its commit is about 3 windows' work; 0: none)
-    turned_window_cost: int = checked(1, at_least(1))  # windows_per_frame units a turned window takes (an upright one takes 1): its warp and features are its own
+    turned_window_cost: int = checked(2, at_least(1))  # windows_per_frame units a turned window takes (an upright one takes 1): its warp and features are its own
     turned_angles_deg: tuple[float, ...] = checked((45.0, -45.0), _turned_angles)  # angles (degrees) windows are also scored turned by: a car that turned while hidden
     turned_rings: int = checked(2, non_negative)  # lattice rings (after the centre) scored turned too; farther rings upright only
     turned_score_factor: float = checked(0.9, UNIT)  # a turned window's score is multiplied by this: an upright match keeps the pre-loss filters

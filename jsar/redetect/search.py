@@ -6,8 +6,9 @@ pixels (x right, y down), scores are raw decision-filter peaks (MATLAB FFT conve
 The lattice holds window centres at stride x (i, j) != (0, 0) (the centre window is the core's own
 detection sample, scored apart) within a square of side area + stride, nearest ring first. The cycle:
 the centre's turned windows, then ring by ring its upright windows followed (first `turned_rings` rings
-only) by its turned ones. Each lost frame scores `windows_per_frame` entries of the cycle; the area
-grows per lost frame (the paper's omega), so farther rings join as the loss goes on.
+only) by its turned ones. Each lost frame scores the next entries of the cycle worth `windows_per_frame`
+units (an upright window 1, a turned one `turned_window_cost`: it warps and extracts alone); the area grows
+per lost frame (the paper's omega), so farther rings join as the loss goes on.
 """
 from __future__ import annotations
 

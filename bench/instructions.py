@@ -15,6 +15,7 @@ way each count is the instructions of one call, the Python interpreter, numpy an
 nothing else. Per sequence, on the same decoded frames:
   jsar            `update` on frames 1..N
   csrt            OpenCV's CSRT `update` on frames 1..N
+  kcf             OpenCV's KCF `update` on frames 1..N (its default parameters: grey and colour names, no HOG)
   jsar-re         `update` on frames 1..N (confident frames: locate + commit + monitor)
   jsar-re lost    `update` on frames N+1..N+M with the target hidden (bench.redetect.hide_target),
                   after an uncounted run over frames 1..N: what a lost frame costs (the core's locate,
@@ -60,7 +61,7 @@ MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
 # figures: A73 ~ A72, A75 +22 %, A76 +35 %). fps = clock * IPC / instructions per frame.
 CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2.4 GHz, IPC 1.7)": (2.4e9, 1.7)}
 # the last two: kinds of results saved before the search rework (--report still prints them)
-KINDS = ("jsar", "csrt", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re redetect omega 5",
+KINDS = ("jsar", "csrt", "kcf", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re redetect omega 5",
          "jsar-re redetect omega 12")
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
@@ -148,7 +149,7 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
                       counted: Callable[[str, Callable[[], object]], None],
                       overrides: dict[str, Any] | None = None) -> list[str]:
     """Set up the trackers uncounted on `sequence` and hand each measured call to `counted` with its label
-    'sequence|kind|frame': jsar, CSRT and jsar-re on frames 1..frames, then jsar-re's lost frames on the
+    'sequence|kind|frame': jsar, CSRT, KCF and jsar-re on frames 1..frames, then jsar-re's lost frames on the
     next lost_frames with the target hidden; returns the states of those lost frames. `overrides`: jsar.create
     keywords of both jsar-re trackers (--params)."""
     import cv2
@@ -164,14 +165,16 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
     first, tracked = images[0], images[1:frames + 1]
     hidden = [hide_target(image, groundtruth[index])
               for index, image in enumerate(images[frames + 1:], start=frames + 1)]
-    csrt = cv2.TrackerCSRT_create()
+    csrt, kcf = cv2.TrackerCSRT_create(), cv2.TrackerKCF_create()
     csrt.init(first, tuple(int(round(v)) for v in box))
+    kcf.init(first, tuple(int(round(v)) for v in box))
     plain, again = jsar.create("jsar"), jsar.create("jsar-re", **(overrides or {}))
     plain.init(first, box)
     again.init(first, box)
     for index, image in enumerate(tracked, start=1):
         counted(f"{sequence}|jsar|{index}", lambda: plain.update(image))
         counted(f"{sequence}|csrt|{index}", lambda: csrt.update(image))
+        counted(f"{sequence}|kcf|{index}", lambda: kcf.update(image))
         counted(f"{sequence}|jsar-re confident|{index}", lambda: again.update(image))
         # the verifier's deferred embeddings, which the service runs on a thread of its own (verify.defer_frames)
         counted(f"{sequence}|jsar-re verifier|{index}", again.run_deferred)

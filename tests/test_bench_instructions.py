@@ -24,10 +24,10 @@ def test_count_frame_kinds_labels_every_measured_call_of_both_benchmarks(data_ro
         call()
 
     states = count_frame_kinds(data_root, "OTB_Crossing", 2, 2, counted)
-    assert labels == ["OTB_Crossing|jsar|1", "OTB_Crossing|csrt|1", "OTB_Crossing|jsar-re confident|1",
-                      "OTB_Crossing|jsar-re verifier|1",
-                      "OTB_Crossing|jsar|2", "OTB_Crossing|csrt|2", "OTB_Crossing|jsar-re confident|2",
-                      "OTB_Crossing|jsar-re verifier|2",
+    assert labels == ["OTB_Crossing|jsar|1", "OTB_Crossing|csrt|1", "OTB_Crossing|kcf|1",
+                      "OTB_Crossing|jsar-re confident|1", "OTB_Crossing|jsar-re verifier|1",
+                      "OTB_Crossing|jsar|2", "OTB_Crossing|csrt|2", "OTB_Crossing|kcf|2",
+                      "OTB_Crossing|jsar-re confident|2", "OTB_Crossing|jsar-re verifier|2",
                       "OTB_Crossing|jsar-re lost|3", "OTB_Crossing|jsar-re lost|4"]
     assert states == ["lost", "lost"]
 

@@ -219,7 +219,7 @@ def test_a_turned_window_takes_turned_window_cost_units_of_the_budget_and_the_cy
     assert np.allclose(np.concatenate([angles for _, angles in taken]), entries[:14, 2])  # in the cycle's order
     assert np.allclose(taken[3][0], (160.0, 120.0) + entries[10:12, :2] * 10.0)
     search.coasting = True  # 4 - 3 = 1 unit left, the next entry turned (2 units): taken all the same
-    centres, angles = search.windows((320, 240))
+    _, angles = search.windows((320, 240))
     assert len(angles) == 1 and angles[0] == 45.0 and search.cursor == 15
     same = LossSearch((160.0, 120.0), 10.0, dataclasses.replace(params, turned_window_cost=1), AcceptParams(),
                       lost_frames=1)

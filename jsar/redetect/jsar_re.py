@@ -404,7 +404,7 @@ class JsarReTracker:
         spent = limit > 0 and loss.coasted_frames >= limit
         if near and not refused and not spent and not (self.redetect.search.coast_unless_other
                                                        and self._looks_other(frame, loc.centre_xy)):
-            self.core.commit(frame, loc)
+            self.core.commit(frame, loc, learn_size=self.redetect.search.coast_learns_size)
             self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
             loss.coasting = True

@@ -138,8 +138,9 @@ class JsarTracker:
         assert best is not None
         return best
 
-    def commit(self, frame: np.ndarray, loc: Localisation) -> None:
-        """Accept `loc`: move there, estimate the size, train both filters from that sample."""
+    def commit(self, frame: np.ndarray, loc: Localisation, learn_size: bool = True) -> None:
+        """Accept `loc`: move there, estimate the size, train both filters from that sample (learn_size False:
+        the size filter estimates but does not learn, nor sample the new size's grid to learn from)."""
         image = self._prepare_checked(frame)
         height, width = image.shape[:2]
         # Keep the centre on the image: a target leaving the view is followed to the border.
@@ -147,7 +148,7 @@ class JsarTracker:
         cy = min(max(loc.centre_xy[1], 0.0), float(height))
         self.centre_xy = (cx, cy)
         if self.use_size_filter:
-            self._update_size(image)
+            self._update_size(image, learn_size)
         else:
             w, h = self.size_wh
             self.size_wh = self._clamp((w * loc.scale_factor, h * loc.scale_factor), image)
@@ -225,9 +226,9 @@ class JsarTracker:
             self.size_filter.train(self.size_filter.spectrum(size_sample))
         self._initialised = True
 
-    def _update_size(self, image: np.ndarray) -> None:
+    def _update_size(self, image: np.ndarray, learn: bool = True) -> None:
         """Estimate scale and aspect at the new centre; train the size filter at the new size (at the
-        old one during a hold: hold_size_until_recognised)."""
+        old one during a hold: hold_size_until_recognised; not at all with learn False)."""
         assert self.size_filter is not None
         sample = self.size_filter.sample(image, self.centre_xy, self.size_wh)
         sample_f = self.size_filter.spectrum(sample)
@@ -236,7 +237,8 @@ class JsarTracker:
         self.size_peak_mean = updated_mean(mean, peak, self.params.size_peak_rate)
         if self.size_hold_fraction is not None:
             if mean is not None and peak < self.size_hold_fraction * mean:
-                self.size_filter.train(sample_f)
+                if learn:
+                    self.size_filter.train(sample_f)
                 return
             self.size_hold_fraction = None  # recognised: estimate from here on
         if self.params.size_subcell_peak:
@@ -246,14 +248,19 @@ class JsarTracker:
             new_size = self._clamp((w * fw, h * fh), image)
             if new_size != self.size_wh:
                 self.size_wh = new_size
-                sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.centre_xy, new_size))
-            self.size_filter.train(sample_f)
+                if learn:
+                    sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.centre_xy, new_size))
+            if learn:
+                self.size_filter.train(sample_f)
             return
         i, j = best_cell(resp)
         fw, fh = self.size_filter.cell_factors(i, j)
         w, h = self.size_wh
         grid_size = (w * fw, h * fh)
         new_size = self._clamp(grid_size, image)
+        if not learn:
+            self.size_wh = new_size
+            return
         if new_size != self.size_wh:
             centre_i = (self.size_filter.grid_shape[0] - 1) // 2
             centre_j = (self.size_filter.grid_shape[1] - 1) // 2

@@ -329,3 +329,17 @@ def test_a_relocated_take_holds_the_size_until_the_size_filter_recognises_the_ta
     assert after == before and hold == 0.75
     before, after, hold = sizes[0.0]
     assert after != before and hold is None
+
+
+def test_a_commit_that_does_not_learn_the_size_estimates_it_as_one_that_does_and_leaves_the_size_model():
+    """commit(..., learn_size=False) (a coasting JSAR-Re core: the target may be hidden): the same size estimate as a
+    learning commit on the same frame, the size filter's model untouched; the translation filter still learns."""
+    learning, estimating = _tracked_car(), _tracked_car()
+    smaller = _textured_scene((80.0, 36.0))
+    numerator, filter_f = estimating.size_filter.numerator.copy(), estimating.translation.filter_f.copy()
+    learning.commit(smaller, learning.locate(smaller))
+    estimating.commit(smaller, estimating.locate(smaller), learn_size=False)
+    assert estimating.size_wh == learning.size_wh != (90.0, 40.0)
+    np.testing.assert_array_equal(estimating.size_filter.numerator, numerator)
+    assert not np.array_equal(learning.size_filter.numerator, numerator)
+    assert not np.array_equal(estimating.translation.filter_f, filter_f)

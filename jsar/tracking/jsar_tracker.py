@@ -246,10 +246,9 @@ class JsarTracker:
             fw, fh = self.size_filter.cell_factors(*refined_position(resp, self.params.size_deadband_cells))
             w, h = self.size_wh
             new_size = self._clamp((w * fw, h * fh), image)
-            if new_size != self.size_wh:
-                self.size_wh = new_size
-                if learn:
-                    sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.centre_xy, new_size))
+            if learn and new_size != self.size_wh:
+                sample_f = self.size_filter.spectrum(self.size_filter.sample(image, self.centre_xy, new_size))
+            self.size_wh = new_size
             if learn:
                 self.size_filter.train(sample_f)
             return

@@ -138,9 +138,11 @@ class JsarTracker:
         assert best is not None
         return best
 
-    def commit(self, frame: np.ndarray, loc: Localisation, learn_size: bool = True) -> None:
+    def commit(self, frame: np.ndarray, loc: Localisation, learn_size: bool = True,
+               learn_translation: bool = True) -> None:
         """Accept `loc`: move there, estimate the size, train both filters from that sample (learn_size False:
-        the size filter estimates but does not learn, nor sample the new size's grid to learn from)."""
+        the size filter estimates but does not learn, nor sample the new size's grid to learn from;
+        learn_translation False: the translation filter is kept as it is, its last training sample too)."""
         image = self._prepare_checked(frame)
         height, width = image.shape[:2]
         # Keep the centre on the image: a target leaving the view is followed to the border.
@@ -152,12 +154,13 @@ class JsarTracker:
         else:
             w, h = self.size_wh
             self.size_wh = self._clamp((w * loc.scale_factor, h * loc.scale_factor), image)
-        # Training sample: the detection sample re-centred on the found position (no second crop).
-        dy, dx = loc.displacement_cells
-        sample_f = loc.sample_f * fourier.shift_phase(self.translation.shape_hw, dy, dx)[None]
-        self.translation.set_target_cells(self._target_cells())
-        self.translation.train(sample_f)
-        self.last_training_sample_f = sample_f
+        if learn_translation:
+            # Training sample: the detection sample re-centred on the found position (no second crop).
+            dy, dx = loc.displacement_cells
+            sample_f = loc.sample_f * fourier.shift_phase(self.translation.shape_hw, dy, dx)[None]
+            self.translation.set_target_cells(self._target_cells())
+            self.translation.train(sample_f)
+            self.last_training_sample_f = sample_f
         self.last_localisation = loc
         self.frame_index += 1
 

@@ -343,19 +343,3 @@ def test_a_commit_that_does_not_learn_the_size_estimates_it_as_one_that_does_and
     np.testing.assert_array_equal(estimating.size_filter.numerator, numerator)
     assert not np.array_equal(learning.size_filter.numerator, numerator)
     assert not np.array_equal(estimating.translation.filter_f, filter_f)
-
-
-def test_a_commit_that_does_not_learn_the_translation_moves_and_sizes_as_one_that_does_and_keeps_the_filter():
-    """commit(..., learn_translation=False) (a coasting JSAR-Re core): the same centre and size as a learning commit
-    on the same frame, the translation filter and its last training sample untouched; the size filter still learns."""
-    learning, keeping = _tracked_car(), _tracked_car()
-    smaller = _textured_scene((80.0, 36.0))
-    filter_f, sample_f = keeping.translation.filter_f.copy(), keeping.last_training_sample_f
-    numerator = keeping.size_filter.numerator.copy()
-    learning.commit(smaller, learning.locate(smaller))
-    keeping.commit(smaller, keeping.locate(smaller), learn_translation=False)
-    assert keeping.centre_xy == learning.centre_xy and keeping.size_wh == learning.size_wh != (90.0, 40.0)
-    np.testing.assert_array_equal(keeping.translation.filter_f, filter_f)
-    assert keeping.last_training_sample_f is sample_f
-    assert not np.array_equal(learning.translation.filter_f, filter_f)
-    assert not np.array_equal(keeping.size_filter.numerator, numerator)

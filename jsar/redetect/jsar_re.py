@@ -404,11 +404,8 @@ class JsarReTracker:
         spent = limit > 0 and loss.coasted_frames >= limit
         if near and not refused and not spent and not (self.redetect.search.coast_unless_other
                                                        and self._looks_other(frame, loc.centre_xy)):
-            learn_translation = self.redetect.search.coast_learns_translation
-            self.core.commit(frame, loc, learn_size=self.redetect.search.coast_learns_size,
-                             learn_translation=learn_translation)
-            if learn_translation:
-                self.decision_filter.skip()  # the core's filter learnt a frame the decision filter does not
+            self.core.commit(frame, loc, learn_size=self.redetect.search.coast_learns_size)
+            self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
             loss.coasting = True
             loss.coasted_frames += 1

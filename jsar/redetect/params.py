@@ -68,7 +68,6 @@ class SearchParams:
     coast_radius_sides: float = checked(0.5, non_negative)  # while lost the core commits its detection within this of the predicted centre (target sides; 0: never)
     coast_unless_other: bool = False  # ... and not where the verifier calls the core's box another object (a coast on still ground holds the prediction on itself)
     coast_after_drift: bool = False  # a drift or appearance loss may coast too (its core sits where the target was judged absent)
-    coast_learns_translation: bool = True  # a coasting commit trains the translation filter (False: the core moves with its pre-loss model, learning nothing of what covers the target)
     coast_learns_size: bool = True  # a coasting commit trains the size filter (False: it estimates the size only, learning nothing of a hidden target's size)
     coast_max_frames: int = checked(30, non_negative)  # lost frames one loss's core may coast at most, then it waits at the prediction (0: no bound)
     motion_frames: int = checked(5, at_least(2))  # committed frames the target's velocity is measured over

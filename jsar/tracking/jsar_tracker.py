@@ -138,11 +138,9 @@ class JsarTracker:
         assert best is not None
         return best
 
-    def commit(self, frame: np.ndarray, loc: Localisation, learn_size: bool = True,
-               learn_translation: bool = True) -> None:
+    def commit(self, frame: np.ndarray, loc: Localisation, learn_size: bool = True) -> None:
         """Accept `loc`: move there, estimate the size, train both filters from that sample (learn_size False:
-        the size filter estimates but does not learn, nor sample the new size's grid to learn from;
-        learn_translation False: the translation filter is kept as it is, its last training sample too)."""
+        the size filter estimates but does not learn, nor sample the new size's grid to learn from)."""
         image = self._prepare_checked(frame)
         height, width = image.shape[:2]
         # Keep the centre on the image: a target leaving the view is followed to the border.
@@ -154,13 +152,12 @@ class JsarTracker:
         else:
             w, h = self.size_wh
             self.size_wh = self._clamp((w * loc.scale_factor, h * loc.scale_factor), image)
-        if learn_translation:
-            # Training sample: the detection sample re-centred on the found position (no second crop).
-            dy, dx = loc.displacement_cells
-            sample_f = loc.sample_f * fourier.shift_phase(self.translation.shape_hw, dy, dx)[None]
-            self.translation.set_target_cells(self._target_cells())
-            self.translation.train(sample_f)
-            self.last_training_sample_f = sample_f
+        # Training sample: the detection sample re-centred on the found position (no second crop).
+        dy, dx = loc.displacement_cells
+        sample_f = loc.sample_f * fourier.shift_phase(self.translation.shape_hw, dy, dx)[None]
+        self.translation.set_target_cells(self._target_cells())
+        self.translation.train(sample_f)
+        self.last_training_sample_f = sample_f
         self.last_localisation = loc
         self.frame_index += 1
 

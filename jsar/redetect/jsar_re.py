@@ -27,7 +27,8 @@ from jsar.redetect.colour_check import AnchorColours, ColourModel
 from jsar.redetect.memory import DecisionFilter
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
-from jsar.redetect.search import Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed
+from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed,
+                                  track_velocity)
 from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.size_filter import bound_side
 
@@ -425,7 +426,9 @@ class JsarReTracker:
             angles = np.append(angles, np.zeros(len(peaks)))
         focus = loss.pending if loss.pending is not None else loss.lead
         if focus is not None:
-            centres = np.vstack([centres, [[focus.x, focus.y]]])
+            # found on the last frame: a target that moves on is one frame's motion further now
+            vx, vy = track_velocity(list(self.recent_centres)) if self.redetect.search.focus_follows_motion else (0, 0)
+            centres = np.vstack([centres, [[focus.x + vx, focus.y + vy]]])
             angles = np.append(angles, focus.angle_deg)
         side = loss.side_px  # the last confident size (a coasting core's may have drifted)
         found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles)

@@ -42,6 +42,16 @@ class Candidate:
         return math.inf if self.window_xy is None else self.distance_sides(self.window_xy, side_px)
 
 
+def track_velocity(track: list[tuple[int, float, float]]) -> tuple[float, float]:
+    """Mean velocity (vx, vy) px per frame over committed (frame index, x px, y px) rows, oldest first
+    ((0, 0) with fewer than two)."""
+    if len(track) < 2:
+        return 0.0, 0.0
+    (first_index, x0, y0), (index, x, y) = track[0], track[-1]
+    frames = index - first_index
+    return (x - x0) / frames, (y - y0) / frames
+
+
 def predicted_centre(track: list[tuple[int, float, float]], frame_index: int, max_frames: int) -> tuple[float, float]:
     """Constant-velocity prediction (px) for `frame_index` from the last committed (frame index, x px,
     y px) rows (oldest first): the last centre moved by the mean velocity over the rows for at most
@@ -49,10 +59,9 @@ def predicted_centre(track: list[tuple[int, float, float]], frame_index: int, ma
     index, x, y = track[-1]
     if len(track) < 2 or max_frames <= 0:
         return x, y
-    first_index, x0, y0 = track[0]
-    frames = index - first_index
+    vx, vy = track_velocity(track)
     steps = min(frame_index - index, max_frames)
-    return x + (x - x0) / frames * steps, y + (y - y0) / frames * steps
+    return x + vx * steps, y + vy * steps
 
 
 def gate_reach(speed_sides: float, lost_frames: int, accept: AcceptParams) -> float:

@@ -18,10 +18,10 @@ import jsar
 from jsar.config import JsarParams
 from jsar.redetect.jsar_re import TRANSITIONS, JsarReTracker, Phase
 from jsar.features.patches import sample_patch
-from jsar.redetect.memory import turned_patch, window_features
+from jsar.redetect.memory import DecisionFilter, turned_patch, window_features
 from jsar.redetect.params import AcceptParams, ColourParams, RedetectParams, SearchParams, VerifyParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
-                                  search_cycle, track_speed)
+                                  search_cycle, track_speed, track_velocity)
 from jsar.tracking.jsar_tracker import JsarTracker
 from tests.helpers import real_sequence
 
@@ -156,6 +156,12 @@ def test_track_speed_in_sides_per_frame_and_gate_reach_in_sides():
     assert gate_reach(0.5, 4, accept) == pytest.approx(1.5 + 3.0 * 0.5 * 4)
     assert gate_reach(0.0, 4, accept) == pytest.approx(1.5 + 3.0 * 0.05 * 4)  # a still target: min speed
     assert gate_reach(0.01, 0, accept) == pytest.approx(1.5)
+
+
+def test_track_velocity_is_the_mean_over_the_rows_in_px_per_frame():
+    track = [(0, 100.0, 50.0), (2, 104.0, 50.0), (4, 108.0, 46.0)]
+    assert track_velocity(track) == (2.0, -1.0)
+    assert track_velocity(track[-1:]) == (0.0, 0.0)
 
 
 def test_predicted_centre_follows_the_last_velocity_for_a_while_then_holds():
@@ -1452,3 +1458,36 @@ def test_the_decision_filters_score_on_the_cores_detection_is_score_sample_in_sy
     computed = decision.score_detection(loc, core)
     assert computed == decision.score_sample(loc.sample_f, core.centre_xy, loc.search_side)
     assert computed.score != loc.peak  # its own filter: another response than the core's
+
+
+@pytest.mark.parametrize("follows", [True, False])
+def test_the_window_on_the_focus_is_moved_by_the_tracks_velocity_when_asked(monkeypatch, follows):
+    """search.focus_follows_motion: the window on the pending candidate (or the lead) found on the last frame is
+    centred one frame's motion further on (the track's mean velocity, px per frame); off, on the candidate itself."""
+    background = _background()
+    step = 3  # px per frame, to the right
+
+    def moving(index: int) -> tuple[int, int]:
+        return 60 + step * index, 100
+
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(search={"focus_follows_motion": follows}))
+    tracker.init(_frame(background, moving(0)), _target_box(moving(0)))
+    focus_windows: list[tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = []
+    original = DecisionFilter.score_windows
+
+    def spy(decision, image, table, centres, side, angles=None):  # type: ignore[no-untyped-def]
+        loss = tracker.loss
+        focus = None if loss is None else (loss.pending if loss.pending is not None else loss.lead)
+        if focus is not None:
+            focus_windows.append(((focus.x, focus.y), tuple(np.asarray(centres)[-1]),
+                                  track_velocity(list(tracker.recent_centres))))
+        return original(decision, image, table, centres, side, angles)
+
+    monkeypatch.setattr(DecisionFilter, "score_windows", spy)
+    for index in range(1, 50):
+        tracker.update(_frame(background, moving(index) if not 35 <= index < 45 else None))
+    assert focus_windows, "no lost frame had a pending candidate or a lead"
+    for (fx, fy), (wx, wy), (vx, vy) in focus_windows:
+        assert vx == pytest.approx(step, abs=1.0) and abs(vy) < 1.0  # the track's own motion
+        expected = (fx + vx, fy + vy) if follows else (fx, fy)
+        assert (wx, wy) == pytest.approx(expected)

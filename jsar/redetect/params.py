@@ -71,7 +71,7 @@ class SearchParams:
     coast_learns_size: bool = True  # a coasting commit trains the size filter (False: it estimates the size only, learning nothing of a hidden target's size)
     coast_max_frames: int = checked(30, non_negative)  # lost frames one loss's core may coast at most, then it waits at the prediction (0: no bound)
     motion_frames: int = checked(5, at_least(2))  # committed frames the target's velocity is measured over
-    focus_follows_motion: bool = False  # the window on the pending candidate (or the lead) is centred where it moved to since the last frame, at the track's velocity
+    focus_follows_motion: bool = True  # the window on the pending candidate (or the lead) is centred where it moved to since the last frame, at the track's mean velocity (False: on the candidate)
     predict_max_frames: int = checked(3, non_negative)  # lost frames the search centre follows that velocity for, then holds (0: the last centre)
 
     def validate(self, prefix: str = "search") -> None:

@@ -416,7 +416,8 @@ class JsarReTracker:
 
     def _candidates(self, frame: np.ndarray, loss: LossSearch, own: Candidate) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a
-        window on the pending candidate, or else on the last frame's best (at its angle)."""
+        window on the pending candidate, or else on the last frame's best (at its angle; moved on by the
+        track's velocity with search.focus_follows_motion)."""
         assert self.decision_filter is not None
         image = self.core.prepare(frame)
         centres, angles = loss.windows((frame.shape[1], frame.shape[0]))
@@ -427,7 +428,8 @@ class JsarReTracker:
         focus = loss.pending if loss.pending is not None else loss.lead
         if focus is not None:
             # found on the last frame: a target that moves on is one frame's motion further now
-            vx, vy = track_velocity(list(self.recent_centres)) if self.redetect.search.focus_follows_motion else (0, 0)
+            follows = self.redetect.search.focus_follows_motion
+            vx, vy = track_velocity(list(self.recent_centres)) if follows else (0.0, 0.0)
             centres = np.vstack([centres, [[focus.x + vx, focus.y + vy]]])
             angles = np.append(angles, focus.angle_deg)
         side = loss.side_px  # the last confident size (a coasting core's may have drifted)

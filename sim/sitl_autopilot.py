@@ -188,6 +188,11 @@ class SitlAutopilot:
         """Boot the firmware, take off to altitude_m, point the camera down, fix the scene's origin, start the tap."""
         fw = self.firmware
         deadline = time.monotonic() + self.start_timeout_s
+        # Held from now on: gcs_port was free when it was picked, and the firmware's boot opens sockets of its
+        # own for tens of seconds (a port bound only after the take-off was once taken meanwhile).
+        self._sock_gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock_gcs.bind(("127.0.0.1", self.gcs_port))
+        self._sock_gcs.setblocking(False)
         conn = self._conn = connect(fw.gcs_url, TAP_SYSTEM, TAP_COMPONENT)
         self._boot(conn)
         fw.arm_takeoff(conn, self.altitude_m, max(10.0, deadline - time.monotonic()))
@@ -204,9 +209,6 @@ class SitlAutopilot:
         self.origin = SceneOrigin(position.x, position.y, attitude.yaw)
         self.local, self.attitude = position, attitude
         self._boot_ms = max(position.time_boot_ms, attitude.time_boot_ms)
-        self._sock_gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock_gcs.bind(("127.0.0.1", self.gcs_port))
-        self._sock_gcs.setblocking(False)
         self._t0 = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"sitl-tap-{self.flavour}", daemon=True)
         self._thread.start()

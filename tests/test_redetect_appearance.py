@@ -89,7 +89,8 @@ def test_ring_boxes_surround_the_box_at_its_size_and_drop_centres_outside_the_fr
 
 
 @pytest.mark.parametrize("key, value", [("margin", -0.1), ("bar_fraction", 0.0), ("target_slots", 0),
-                                        ("ring_sides", 0.0), ("min_similarity", 1.5)])
+                                        ("ring_sides", 0.0), ("min_similarity", 1.5),
+                                        ("anchor_similarity", -1.5)])
 def test_an_invalid_verifier_setting_is_named(key, value):
     with pytest.raises(ValueError, match=rf"redetect\.verify\.{key}"):
         RedetectParams.from_mapping({"verify": {key: value}})
@@ -109,6 +110,19 @@ def test_the_target_memory_does_not_learn_a_look_it_would_call_another_object():
     memory.learn_others(unit(0.1, 1, 0)[None])  # a look-alike seen beside it
     assert not memory.learn_target(unit(0, 1, 0))  # cos 0.45 to the target, 0.99 to the look-alike: a slide onto it
     assert len(memory.target_rows()) == 2
+
+
+@pytest.mark.parametrize("anchor, kept_up_to_degrees", [(0.55, 50), (-1.0, 80)])
+def test_the_target_memory_does_not_follow_a_slow_slide_away_from_the_selection(anchor, kept_up_to_degrees):
+    """Looks 10 degrees apart, each near the last one learnt (cos 0.98) but ever further from the selection:
+    bounded by the selection (anchor_similarity), the memory stops where the cosine to it falls under the
+    bound (cos 60 degrees = 0.5); unbounded (-1), it follows the slide to the end."""
+    memory = AppearanceMemory(VerifyParams(anchor_similarity=anchor, target_slots=3), unit(1, 0, 0))
+    degrees = range(10, 90, 10)
+    learnt = [memory.learn_target(unit(np.cos(np.radians(d)), np.sin(np.radians(d)), 0)) for d in degrees]
+    assert learnt == [d <= kept_up_to_degrees for d in degrees]
+    last = memory.target_rows()[-1]
+    assert np.degrees(np.arccos(np.clip(last[0], -1, 1))) == pytest.approx(kept_up_to_degrees, abs=1e-3)
 
 
 class _MeanEmbedder:

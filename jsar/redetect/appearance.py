@@ -1,7 +1,8 @@
 """The verifier: a learnt appearance check of re-detection candidates (VerifyParams).
 
 It compares embeddings (unit vectors from an ImageNet network, jsar.learnt) with two memories:
-- the target's: the selection's embedding, kept for good, and those of a few recent reliable frames;
+- the target's: the selection's embedding, kept for good, and those of a few recent reliable frames
+  (each within `anchor_similarity` of the selection's);
 - the look-alikes': windows around the tracked target on reliable frames (TLD's negative expert) and
   candidates the verifier refused while lost.
 A candidate's similarity to a memory is its largest cosine there; it is "target" when its target
@@ -90,9 +91,15 @@ class AppearanceMemory:
 
     def learn_target(self, embedding: np.ndarray) -> bool:
         """Add one reliable frame's target embedding (D,) (the oldest recent one goes) unless it would be
-        judged another object (a box that slid must not teach the memory its new look); whether it was added."""
+        judged another object or lies under anchor_similarity from the selection's; whether it was added.
+
+        A box that slid must not teach the memory its new look. Judged against the recent looks alone, a slow
+        slide passes (each look near the last learnt one) and the memory follows it; the selection's bound
+        keeps the memory where the operator put it."""
         row = np.asarray(embedding, np.float32).reshape(-1)
-        if not self.recent.maxlen or self.judge(row[None])[0].verdict is Verdict.OTHER:
+        if not self.recent.maxlen or float(row @ self.first[0]) < self.params.anchor_similarity:
+            return False
+        if self.judge(row[None])[0].verdict is Verdict.OTHER:
             return False
         self.recent.append(row)
         return True

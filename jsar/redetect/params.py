@@ -142,6 +142,7 @@ class VerifyParams:
     bar_fraction: float = checked(0.6, UNIT)  # a "target" candidate's bar: this x the acceptance bar (1: no lower bar)
     over_colour_match: bool = True  # a "target" candidate needs no colour-model match (the selection's colours still)
     target_slots: int = checked(6, at_least(1))  # target memory: the selection plus this many minus one recent reliable frames
+    anchor_similarity: float = checked(0.5, COSINE)  # a reliable frame's look joins the target memory only at least this near the selection's (cosine; -1: no bound)
     learn_frames: int = checked(10, at_least(1))  # the verifier learns one reliable frame in this many, with the look-alikes around it
     other_slots: int = checked(32, non_negative)  # look-alike memory size (oldest out first)
     ring_sides: float = checked(2.0, positive)  # look-alike windows' distance from the target (target sides)

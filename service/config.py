@@ -124,8 +124,9 @@ class GimbalConfig:
     # while lost: point at the target's predicted ground position for coast_s, then hold (control.coast)
     coast_s: float = _checked(3.0, _in_range(0.0, 10.0))  # 0 = hold at once (no coasting)
     coast_fit_s: float = _checked(1.0, _in_range(0.1, 5.0))  # confident history the rate is fitted on
-    # a loss within coast_fit_s of the re-acquisition that ended a coast resumes that coast when the velocity fitted
-    # now differs from its velocity by more than this (m/s, ground): the short track followed something else
+    # a loss within coast_fit_s of the re-acquisition that ended a coast, or one whose cause refutes the track (drift,
+    # appearance), resumes that coast when the velocity fitted now differs from its velocity by more than this (m/s,
+    # ground): the track followed something else
     coast_resume_change_m_s: float = _checked(2.0, _in_range(0.1, 100.0))
 
 

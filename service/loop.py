@@ -40,6 +40,7 @@ log = logging.getLogger("service.loop")
 CLOCK_LIMITS = ClockLimits()  # controller time step bounds, capture-clock seconds
 FRAME_GAP_S = 0.5  # no frame for this long after a step, while tracking: hold gimbal and vehicle
 SEARCH_LOG_EVERY_S = 1.0  # while lost, the re-detection's best candidate is logged at most this often (s)
+REFUTING_CAUSES = ("drift", "appearance")  # loss causes that say the track before them followed something else
 
 
 class Outputs(Protocol):
@@ -114,6 +115,7 @@ class TrackingLoop:
         self.coast_decided = False  # this loss's coast was planned (or found impossible) already
         self.interrupted: CoastState | None = None  # the last coast, ended by a re-acquisition (_lost_command)
         self.reacquired_s = -math.inf  # capture time (s) of the frame whose re-acquisition ended that coast
+        self.loss_cause: str | None = None  # why the current loss began, where the tracker says (_set_state)
         self.search_logged_s = -math.inf  # time.monotonic() of the last event=search line
         self.size_memory = SizeMemory()  # the track's ground sizes: the range size bound's reference
         self.view: AutopilotState | None = None  # the last frame's autopilot snapshot (the next size bound's)
@@ -402,6 +404,7 @@ class TrackingLoop:
         # Why a loss began, where the tracker says (JSAR-Re: "peak", "drift" for a box off the target's colours,
         # "appearance" for a box the verifier calls another object).
         cause = getattr(self.tracker, "loss_cause", None) if state == LoopState.LOST else None
+        self.loss_cause = cause
         if state == LoopState.LOST:
             self.counters["lost"] += 1
             self.counters["lost_drift"] += cause == "drift"
@@ -474,8 +477,13 @@ class TrackingLoop:
             # A re-acquisition too short to fit a velocity on (a take refuted, a flicker) ends one loss episode, not
             # the coast: holding instead would let the target drive out of view. One shorter than the fit window
             # whose fit contradicts the coast it ended followed something else (the soak's canopy: a car at 5 m/s
-            # fitted at 0.9 m/s from half a second on the canopy, and the camera stopped).
-            contradicted = (resumable and plan is not None and stamp - self.reacquired_s < self.coast_params.fit_window_s
+            # fitted at 0.9 m/s from half a second on the canopy, and the camera stopped). A loss whose cause
+            # refutes the track ("drift", "appearance": the tracker rolls it back) is tested so at any length: in
+            # the hour's soak the watch ended a take on a canopy after 1.0 s, and a coast fitted on it drove the
+            # camera away from the car.
+            refuted = self.loss_cause in REFUTING_CAUSES
+            contradicted = (resumable and plan is not None
+                            and (refuted or stamp - self.reacquired_s < self.coast_params.fit_window_s)
                             and velocity_change(plan, interrupted.plan) > self.coast_params.resume_change_m_s)
             if resumable and (plan is None or contradicted):
                 self.coast = interrupted

@@ -297,15 +297,18 @@ def test_while_lost_the_search_s_best_candidate_is_logged_once_a_second(monkeypa
     assert len(lines) == 2 and "best_centre_px=60,52" in lines[1]  # the selection frame is init, not an update
 
 
-@pytest.mark.parametrize("back_frames, back_moves, resumed",
-                         [(3, False, True), (20, False, True), (20, True, False), (40, False, False)])
+@pytest.mark.parametrize("back_frames, back_moves, cause, resumed",
+                         [(3, False, "peak", True), (20, False, "peak", True), (20, True, "peak", False),
+                          (40, False, "peak", False), (40, False, "appearance", True), (40, False, "drift", True),
+                          (40, True, "appearance", False)])
 def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast(back_frames: int, back_moves: bool,
-                                                                              resumed: bool) -> None:
+                                                                              cause: str, resumed: bool) -> None:
     """A re-acquisition lost again resumes the coast it interrupted, until that coast's coast_s is over, when it was
     too short to fit a new velocity on (3 frames), or shorter than coast_fit_s (20 frames, 0.67 s) and its fit
     contradicts the interrupted coast (a place that does not move, where the target moved at about 4 m/s). One
     that moves on with the target (20 frames), or that lasted longer than coast_fit_s (40 frames), starts a coast
-    of its own."""
+    of its own, unless the tracker refuted it (cause "appearance" or "drift"): then a contradicting fit resumes the
+    interrupted coast at any length."""
     from jsar.api import TrackResult
     from service.control.geo import GimbalAttitude
     from service.domain import ControlCommand
@@ -326,9 +329,11 @@ def test_a_loss_soon_after_a_short_reacquisition_resumes_the_interrupted_coast(b
     class Scripted:
         def init(self, image, box):
             self.box, self.frames = box, 0
+            self.loss_cause: str | None = None
 
         def update(self, image):
             self.frames += 1
+            self.loss_cause = cause if self.frames >= 80 else "peak"  # why each loss began (JSAR-Re's attribute)
             if self.frames < 40 or (back_moves and self.frames in back):
                 x, y, w, h = self.box
                 self.box = (x + 0.2, y, w, h)

@@ -21,7 +21,11 @@ nothing else. Per sequence, on the same decoded frames:
                   after an uncounted run over frames 1..N: what a lost frame costs (the core's locate,
                   the decision filter on its sample, the lattice windows of the per-frame budget, the
                   verifier's looks and the core's coasts; bench.redetect.searching_tracker: warm-up 0, no
-                  candidate taken, so every frame of the loss spends its whole budget as the gate grows)
+                  candidate taken, so every frame of the loss spends its whole budget as the gate grows),
+                  on the tracking thread: with a verifier worker (the service's `tracker.verifier_thread`) a lost
+                  frame's turned windows' features and its looks after the first are made on the verifier's
+                  thread while this one goes on; here the worker runs them at once, counted apart as
+  jsar-re lost, verifier thread   (cut out of the lost frame's count; near 0 on a frame that gave it none)
 --params: jsar-re's jsar.create keywords (JSON) for both jsar-re kinds, to count a variant.
 Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
 set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
@@ -35,6 +39,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # before numpy loads BLAS: one thread, as measured everywhere
 
 import argparse  # noqa: E402
+import concurrent.futures  # noqa: E402
 import ctypes  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
@@ -61,8 +66,9 @@ MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
 # figures: A73 ~ A72, A75 +22 %, A76 +35 %). fps = clock * IPC / instructions per frame.
 CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2.4 GHz, IPC 1.7)": (2.4e9, 1.7)}
 # the last two: kinds of results saved before the search rework (--report still prints them)
-KINDS = ("jsar", "csrt", "kcf", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re redetect omega 5",
-         "jsar-re redetect omega 12")
+KINDS = ("jsar", "csrt", "kcf", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re lost, verifier thread",
+         "jsar-re redetect omega 5", "jsar-re redetect omega 12")
+Counted = Callable[[str, Callable[[], Any]], Any]  # counted(label, call): call()'s instructions under `label`
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
 
@@ -89,9 +95,13 @@ def parse_dumps(folder: Path) -> list[tuple[str, int]]:
 
 def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, float]]]:
     """{sequence: {kind: {frames, mean, median, max, counts}}} from labels 'sequence|kind|frame' (counts: per
-    frame, in frame order: jsar-re's verifier watches every verify.watch_frames-th frame)."""
-    grouped: dict[str, dict[str, list[int]]] = {}
+    frame, in frame order: jsar-re's verifier watches every verify.watch_frames-th frame). The segments of one
+    label (a call another was counted inside) add up."""
+    frames: dict[str, int] = {}
     for label, count in dumps:
+        frames[label] = frames.get(label, 0) + count
+    grouped: dict[str, dict[str, list[int]]] = {}
+    for label, count in frames.items():
         sequence, kind, _ = label.split("|")
         grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
     return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v),
@@ -108,50 +118,91 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
 
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
-    if helper is not None:
-        counted = callgrind_counter(helper)
-    else:
-        libc = ctypes.CDLL(None, use_errno=True)
-        marks = [0]
-
-        def counted(label: str, call) -> None:  # type: ignore[no-untyped-def]
-            mark = marks[0]
-            marks[0] += 2
-            libc.syscall(MARK_SYSCALL, ctypes.c_long(mark))
-            call()
-            libc.syscall(MARK_SYSCALL, ctypes.c_long(mark + 1))
-            print(f"MARK {mark} {label}", flush=True)
-
+    counted = callgrind_counter(helper) if helper is not None else marks_counter()
     for sequence in sequences:
-        states = count_frame_kinds(root, sequence, frames, redetect_frames, counted, overrides)
+        states = count_frame_kinds(root, sequence, frames, redetect_frames, counted, overrides, share_lost_work=True)
         not_lost = sum(state != "lost" for state in states)
         print(f"{sequence}: counted" + (f" ({not_lost} of {len(states)} hidden frames were not lost frames)"
                                         if not_lost else ""), flush=True)
 
 
-def callgrind_counter(helper: Path) -> Callable[[str, Callable[[], Any]], Any]:
-    """Under callgrind: load the client-request helper, start instrumenting, and return counted(label, call), which
-    runs call() between a zero and a dump of the counters named `label` and returns its result."""
-    cg = ctypes.CDLL(str(helper))
-    cg.cg_dump.argtypes = [ctypes.c_char_p]
-    cg.cg_start()
+def nesting_counter(begin: Callable[[], None], boundary: Callable[[str], None]) -> Counted:
+    """counted(label, call) -> call()'s result, from two primitives: begin() starts counting, boundary(label) ends
+    the segment counted since the last begin or boundary under `label` (and starts the next). A call counted inside
+    another is cut out of it: the outer label's segments before and after it add up (summarise)."""
+    open_labels: list[str] = []
 
     def counted(label: str, call: Callable[[], Any]) -> Any:
-        cg.cg_zero()
-        result = call()
-        cg.cg_dump(label.encode())
-        return result
+        if open_labels:
+            boundary(open_labels[-1])  # the outer call's segment so far
+        else:
+            begin()
+        open_labels.append(label)
+        try:
+            return call()
+        finally:
+            boundary(open_labels.pop())
 
     return counted
 
 
-def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
-                      counted: Callable[[str, Callable[[], object]], None],
-                      overrides: dict[str, Any] | None = None) -> list[str]:
+def callgrind_counter(helper: Path) -> Counted:
+    """Under callgrind: load the client-request helper, start instrumenting, and return counted(label, call)
+    (nesting_counter): a zero of the counters begins, a dump named by the label ends a segment (a dump zeroes)."""
+    cg = ctypes.CDLL(str(helper))
+    cg.cg_dump.argtypes = [ctypes.c_char_p]
+    cg.cg_start()
+    return nesting_counter(cg.cg_zero, lambda label: cg.cg_dump(label.encode()))
+
+
+def marks_counter() -> Counted:
+    """Under qemu with the marks plugin: counted(label, call) (nesting_counter) sets a mark at every segment's end
+    and prints 'SEGMENT first last label' for the count_arm64 side."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    marks = [-1]
+
+    def mark() -> int:
+        marks[0] += 1
+        libc.syscall(MARK_SYSCALL, ctypes.c_long(marks[0]))
+        return marks[0]
+
+    def boundary(label: str) -> None:
+        last = mark()
+        print(f"SEGMENT {last - 1} {last} {label}", flush=True)
+
+    def begin() -> None:
+        mark()
+
+    return nesting_counter(begin, boundary)
+
+
+class CountedWorker(concurrent.futures.Executor):
+    """A verifier worker for a count: each job runs at once on this thread, counted under `label` (the share of a
+    lost frame the service's verifier thread does, cut out of the frame's own count)."""
+
+    def __init__(self, counted: Counted) -> None:
+        self.counted = counted
+        self.label = "unlabelled|jsar-re lost, verifier thread|0"
+        self.jobs = 0
+
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def, override]
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        self.jobs += 1
+        try:
+            future.set_result(self.counted(self.label, lambda: fn(*args, **kwargs)))
+        except BaseException as exc:  # noqa: BLE001 - the job's error is its future's, as on a real executor
+            future.set_exception(exc)
+        return future
+
+
+def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int, counted: Counted,
+                      overrides: dict[str, Any] | None = None, share_lost_work: bool = False) -> list[str]:
     """Set up the trackers uncounted on `sequence` and hand each measured call to `counted` with its label
     'sequence|kind|frame': jsar, CSRT, KCF and jsar-re on frames 1..frames, then jsar-re's lost frames on the
     next lost_frames with the target hidden; returns the states of those lost frames. `overrides`: jsar.create
-    keywords of both jsar-re trackers (--params)."""
+    keywords of both jsar-re trackers (--params). share_lost_work: the lost frames have a verifier worker
+    (CountedWorker), whose jobs `counted` gets inside the frame's call as 'sequence|jsar-re lost, verifier
+    thread|frame' (once more after the frame with nothing, so that every frame has that kind)."""
     import cv2
 
     import jsar
@@ -183,9 +234,15 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int,
     for image in tracked:
         searching.update(image)
     searching.run_deferred()  # the tracked frames' deferred work: the verifier thread's, not a lost frame's
+    worker = CountedWorker(counted) if share_lost_work else None
+    searching.set_verifier_worker(worker)
     states: list[str] = []
     for index, image in enumerate(hidden, start=frames + 1):
+        if worker is not None:
+            worker.label = f"{sequence}|jsar-re lost, verifier thread|{index}"
         counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))
+        if worker is not None:
+            counted(worker.label, lambda: None)
     return states
 
 
@@ -219,8 +276,8 @@ def count_arm64(rootfs: Path, worker_args: list[str], cpu: str) -> list[tuple[st
     OpenBLAS and OpenCV pick their SIMD paths from the CPU's features: cortex-a72 has plain NEON,
     cortex-a76 adds fp16 and dot product, qemu's default "max" more) with the marks plugin."""
     out, counts = run_arm64_marks(rootfs, "bench.instructions", [*worker_args, "--worker-marks"], cpu)
-    labels = [line.split(" ", 2)[1:] for line in out.splitlines() if line.startswith("MARK ")]
-    return [(label, counts[int(mark) + 1] - counts[int(mark)]) for mark, label in labels]
+    segments = [line.split(" ", 3)[1:] for line in out.splitlines() if line.startswith("SEGMENT ")]
+    return [(label, counts[int(last)] - counts[int(first)]) for first, last, label in segments]
 
 
 def run_arm64_marks(rootfs: Path, module: str, module_args: list[str], cpu: str) -> tuple[str, dict[int, int]]:

@@ -49,7 +49,7 @@ class TrackerConfig:
     name: str = "jsar-re"
     params: Mapping[str, Any] = field(default_factory=lambda: types.MappingProxyType({}))
     threads: int = _checked(1, _positive)  # OpenCV and BLAS/OpenMP threads for the tracker
-    verifier_thread: bool = False  # jsar-re's deferred verifier work (learning, watch checks) on a thread of its own, another core (docs/service.md: when)
+    verifier_thread: bool = False  # jsar-re's deferred verifier work (learning, watch checks) and part of a lost frame's search on a thread of its own, another core (docs/service.md: when)
     # Box side held within [1/band, band] x the track's median ground size at the current range (flat
     # ground, pose and gimbal attitude from the autopilot); 0 = off. See service.control.size_bound.
     range_size_band: float = _checked(1.6, lambda v: None if v == 0 or v >= 1 else f"must be 0 (off) or >= 1, got {v}")

@@ -54,9 +54,9 @@ def test_every_variant_runs_with_its_own_overrides_and_only_those(sequences, mon
     widest: dict[int, int] = {}  # id(decision filter) -> most windows it scored in one call
     real_score_windows = DecisionFilter.score_windows
 
-    def spy_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg=None):
+    def spy_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg=None, worker=None):
         widest[id(self)] = max(widest.get(id(self), 0), len(centres_xy))
-        return real_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg)
+        return real_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg, worker)
 
     monkeypatch.setattr(jsar, "create", spy_create)
     monkeypatch.setattr(DecisionFilter, "score_windows", spy_score_windows)

@@ -1475,13 +1475,13 @@ def test_the_window_on_the_focus_is_moved_by_the_tracks_velocity_when_asked(monk
     focus_windows: list[tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = []
     original = DecisionFilter.score_windows
 
-    def spy(decision, image, table, centres, side, angles=None):  # type: ignore[no-untyped-def]
+    def spy(decision, image, table, centres, side, angles=None, worker=None):  # type: ignore[no-untyped-def]
         loss = tracker.loss
         focus = None if loss is None else (loss.pending if loss.pending is not None else loss.lead)
         if focus is not None:
             focus_windows.append(((focus.x, focus.y), tuple(np.asarray(centres)[-1]),
                                   track_velocity(list(tracker.recent_centres))))
-        return original(decision, image, table, centres, side, angles)
+        return original(decision, image, table, centres, side, angles, worker)
 
     monkeypatch.setattr(DecisionFilter, "score_windows", spy)
     for index in range(1, 50):
@@ -1491,3 +1491,45 @@ def test_the_window_on_the_focus_is_moved_by_the_tracks_velocity_when_asked(monk
         assert vx == pytest.approx(step, abs=1.0) and abs(vy) < 1.0  # the track's own motion
         expected = (fx + vx, fy + vy) if follows else (fx, fy)
         assert (wx, wy) == pytest.approx(expected)
+
+
+class _CountingWorker(concurrent.futures.ThreadPoolExecutor):
+    """The verifier's one-thread executor, naming the jobs `tracker` gave it while lost (function names)."""
+
+    def __init__(self) -> None:
+        super().__init__(max_workers=1)
+        self.tracker: JsarReTracker | None = None
+        self.lost_jobs: list[str] = []
+
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def, override]
+        if self.tracker is not None and self.tracker.loss is not None:
+            self.lost_jobs.append(getattr(fn, "__name__", type(fn).__name__))
+        return super().submit(fn, *args, **kwargs)
+
+
+def test_a_lost_frame_shares_its_work_with_the_verifier_worker_and_finds_the_same(data_root):
+    """With a verifier worker a lost frame's turned windows' features and its looks after the first are made on the
+    worker's thread: the boxes, states and scores are those of the frame made on one thread (OTB_Crossing, the target
+    hidden for 30 frames and then back)."""
+    from bench.redetect import hide_target
+
+    sequence = real_sequence(data_root, "OTB_Crossing")
+    frames = [sequence.read_frame(index) for index in range(100)]
+    frames = [hide_target(frame, sequence.groundtruth[index]) if 40 <= index < 70 else frame
+              for index, frame in enumerate(frames)]
+
+    def run(worker: _CountingWorker | None) -> list[tuple[str, tuple[float, ...], float]]:
+        tracker = jsar.create("jsar-re")
+        tracker.set_verifier_worker(worker)
+        if worker is not None:
+            worker.tracker = tracker
+        tracker.init(frames[0], tuple(float(v) for v in sequence.groundtruth[0]))
+        results = [tracker.update(frame) for frame in frames[1:]]
+        return [(r.state, tuple(r.box), r.score) for r in results]
+
+    alone = run(None)
+    with _CountingWorker() as worker:
+        shared = run(worker)
+    assert "lost" in [state for state, _, _ in alone] and alone[-1][0] == "tracking"  # a loss, and it ended
+    assert shared == alone
+    assert "turned_windows" in worker.lost_jobs and "embed" in worker.lost_jobs  # both kinds of a lost frame's work

@@ -170,7 +170,8 @@ class JsarReTracker:
 
     def set_verifier_worker(self, worker: concurrent.futures.Executor | None) -> None:
         """Run the verifier's deferred embeddings (verify.defer_frames) on `worker`, a one-thread executor on
-        another core, while the tracker goes on; None: on the tracking thread when due. The same boxes either way."""
+        another core, while the tracker goes on, and share a lost frame's work with it (the turned windows'
+        features, the looks after the first); None: all on the tracking thread. The same boxes either way."""
         self.worker = worker
 
     def run_deferred(self) -> None:
@@ -433,7 +434,8 @@ class JsarReTracker:
             centres = np.vstack([centres, [[focus.x + vx, focus.y + vy]]])
             angles = np.append(angles, focus.angle_deg)
         side = loss.side_px  # the last confident size (a coasting core's may have drifted)
-        found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles)
+        found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles,
+                                                   self.worker)
         factor = self.redetect.search.turned_score_factor
         return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
 
@@ -623,9 +625,18 @@ class JsarReTracker:
             near, skipped = near[:limit], near[limit:]
         if not near:
             return {}, set()
-        rows = self.embedder.embed(frame, np.array([self._loss_box((c.x, c.y)) for c in near]))
+        rows = self._embed_lost(frame, np.array([self._loss_box((c.x, c.y)) for c in near]))
         looks = {id(c): (look, row) for c, look, row in zip(near, self.appearance.judge(rows), rows)}
         return looks, {id(c) for c in skipped}
+
+    def _embed_lost(self, frame: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        """(N, D) embeddings of a lost frame's boxes (N, 4) x, y, w, h px: with a verifier worker, the first on this
+        thread while the others are made there (the same rows: a box's embedding does not depend on its batch)."""
+        assert self.embedder is not None
+        if self.worker is None or len(boxes) < 2:
+            return self.embedder.embed(frame, boxes)
+        others = self.worker.submit(self.embedder.embed, frame, boxes[1:])
+        return np.vstack([self.embedder.embed(frame, boxes[:1]), others.result()])
 
     @staticmethod
     def _verified(looks: dict[int, tuple[Look, np.ndarray]], candidate: Candidate) -> bool:

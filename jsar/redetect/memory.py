@@ -9,6 +9,8 @@ pixels. `reference` is the running mean of its peaks on the samples it trains on
 """
 from __future__ import annotations
 
+import concurrent.futures
+
 import math
 
 import cv2
@@ -59,14 +61,16 @@ class DecisionFilter:
                          window_xy=(float(core.centre_xy[0]), float(core.centre_xy[1])))
 
     def score_windows(self, image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray,
-                      target_side_px: float, angles_deg: np.ndarray | None = None) -> list[Candidate]:
+                      target_side_px: float, angles_deg: np.ndarray | None = None,
+                      worker: concurrent.futures.Executor | None = None) -> list[Candidate]:
         """Candidates (peak position px, raw peak, angle) of windows of the filter's sample geometry for a
         target of side target_side_px centred on centres_xy (N, 2) px, each scored with the image turned by
         angles_deg (N,) degrees about its centre (cv2's sign: counter-clockwise as displayed; 0 or None:
         upright). Upright windows are centred to the nearest cell of one shared feature map (centres on
         the same cell share a window); a turned window's peak is mapped back to the unturned image. All
         windows go through one batched FFT. Order: the upright candidates (by cell), then the turned ones
-        as given."""
+        as given. With `worker` (a one-thread executor on another core) the turned windows' patches and features
+        are made there while this thread makes the upright ones': the same numbers."""
         centres_xy = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
         angles = np.zeros(len(centres_xy)) if angles_deg is None else np.asarray(angles_deg, dtype=np.float64)
         if angles.shape != (len(centres_xy),):
@@ -76,6 +80,13 @@ class DecisionFilter:
         cells, cell_size = self.filter.shape_hw[0], self.params.cell_size
         px_per_cell = self.params.search_area_factor * target_side_px / cells
         upright = angles == 0
+
+        def turned_windows() -> list[np.ndarray]:
+            return [translation_features.extract_features(
+                turned_patch(image, (float(centre[0]), float(centre[1])), cells * px_per_cell, cells * cell_size,
+                             float(degrees)), cell_size, colour_table)[None]
+                for centre, degrees in zip(centres_xy[~upright], angles[~upright])]
+        turned = worker.submit(turned_windows) if worker is not None and not upright.all() else None
         stacks, window_centres, turns = [], [], []
         if upright.any():
             windows, upright_centres = window_features(image, colour_table, centres_xy[upright], px_per_cell, cells,
@@ -83,12 +94,9 @@ class DecisionFilter:
             stacks.append(windows)
             window_centres.extend(upright_centres)
             turns.extend([0.0] * len(upright_centres))
-        for centre, degrees in zip(centres_xy[~upright], angles[~upright]):
-            patch = turned_patch(image, (float(centre[0]), float(centre[1])), cells * px_per_cell, cells * cell_size,
-                                 float(degrees))
-            stacks.append(translation_features.extract_features(patch, cell_size, colour_table)[None])
-            window_centres.append(centre)
-            turns.append(float(degrees))
+        stacks.extend(turned.result() if turned is not None else turned_windows())
+        window_centres.extend(centres_xy[~upright])
+        turns.extend(float(degrees) for degrees in angles[~upright])
         windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
         # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
         # (docs/results-tracker.md, "Speed: where the time goes"); the spectra and responses are the same numbers.

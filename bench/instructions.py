@@ -22,10 +22,13 @@ nothing else. Per sequence, on the same decoded frames:
                   the decision filter on its sample, the lattice windows of the per-frame budget, the
                   verifier's looks and the core's coasts; bench.redetect.searching_tracker: warm-up 0, no
                   candidate taken, so every frame of the loss spends its whole budget as the gate grows),
-                  on the tracking thread: with a verifier worker (the service's `tracker.verifier_thread`) a lost
-                  frame's turned windows' features and its looks after the first are made on the verifier's
-                  thread while this one goes on; here the worker runs them at once, counted apart as
-  jsar-re lost, verifier thread   (cut out of the lost frame's count; near 0 on a frame that gave it none)
+                  on the tracking thread: with a verifier worker (the service's `tracker.verifier_thread`) part
+                  of a lost frame's turned windows' features and half its looks are made on the verifier's thread
+                  while this one goes on; here each job runs when its result is asked for, counted apart:
+  jsar-re lost, verifier thread   the jobs (near 0 on a frame that gave none)
+  jsar-re lost, beside the verifier   the tracking thread's work from a job's start to its result: in parallel
+  jsar-re lost, critical path   the tracking thread's work outside those spans + the longer of each span's two
+                  sides: a lost frame's time on two cores ("jsar-re lost" is the tracking thread's whole work)
 --params: jsar-re's jsar.create keywords (JSON) for both jsar-re kinds, to count a variant.
 Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
 set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
@@ -67,7 +70,8 @@ MARK_SYSCALL = 4242  # bench/qemu_insn_marks.c
 CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2.4 GHz, IPC 1.7)": (2.4e9, 1.7)}
 # the last two: kinds of results saved before the search rework (--report still prints them)
 KINDS = ("jsar", "csrt", "kcf", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re lost, verifier thread",
-         "jsar-re redetect omega 5", "jsar-re redetect omega 12")
+         "jsar-re lost, critical path", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
+LOST_PARTS = ("jsar-re lost, alone", "jsar-re lost, beside the verifier", "jsar-re lost, verifier thread")
 Counted = Callable[[str, Callable[[], Any]], Any]  # counted(label, call): call()'s instructions under `label`
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
@@ -96,7 +100,9 @@ def parse_dumps(folder: Path) -> list[tuple[str, int]]:
 def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, float]]]:
     """{sequence: {kind: {frames, mean, median, max, counts}}} from labels 'sequence|kind|frame' (counts: per
     frame, in frame order: jsar-re's verifier watches every verify.watch_frames-th frame). The segments of one
-    label (a call another was counted inside) add up."""
+    label (a call another was counted inside) add up; a lost frame's three parts (LOST_PARTS, CountedWorker) become
+    "jsar-re lost" (the tracking thread's) and "jsar-re lost, critical path" beside the verifier thread's.
+    (A frame with several jobs sums each part before taking the longer side: the path is then an upper bound.)"""
     frames: dict[str, int] = {}
     for label, count in dumps:
         frames[label] = frames.get(label, 0) + count
@@ -104,6 +110,11 @@ def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, flo
     for label, count in frames.items():
         sequence, kind, _ = label.split("|")
         grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
+    for kinds in grouped.values():
+        if all(part in kinds for part in LOST_PARTS):
+            alone, beside, verifier = (kinds.pop(part) if part != LOST_PARTS[2] else kinds[part] for part in LOST_PARTS)
+            kinds["jsar-re lost"] = [a + b for a, b in zip(alone, beside)]
+            kinds["jsar-re lost, critical path"] = [a + max(b, v) for a, b, v in zip(alone, beside, verifier)]
     return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v),
                          "counts": v}
                   for kind, v in kinds.items()} for seq, kinds in grouped.items()}
@@ -126,37 +137,47 @@ def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, 
                                         if not_lost else ""), flush=True)
 
 
-def nesting_counter(begin: Callable[[], None], boundary: Callable[[str], None]) -> Counted:
-    """counted(label, call) -> call()'s result, from two primitives: begin() starts counting, boundary(label) ends
-    the segment counted since the last begin or boundary under `label` (and starts the next). A call counted inside
-    another is cut out of it: the outer label's segments before and after it add up (summarise)."""
-    open_labels: list[str] = []
+class NestingCounter:
+    """counted(label, call) -> call()'s result (also open(label) ... close()), from two primitives: begin() starts
+    counting, boundary(label) ends the segment counted since the last begin or boundary under `label` (and starts
+    the next). A span counted inside another is cut out of it: the outer label's segments before and after it add
+    up (summarise)."""
 
-    def counted(label: str, call: Callable[[], Any]) -> Any:
-        if open_labels:
-            boundary(open_labels[-1])  # the outer call's segment so far
+    def __init__(self, begin: Callable[[], None], boundary: Callable[[str], None]) -> None:
+        self.begin, self.boundary = begin, boundary
+        self.labels: list[str] = []
+
+    def open(self, label: str) -> None:
+        """Count from here under `label` (the open one's segment so far ends)."""
+        if self.labels:
+            self.boundary(self.labels[-1])
         else:
-            begin()
-        open_labels.append(label)
+            self.begin()
+        self.labels.append(label)
+
+    def close(self) -> None:
+        """End the innermost open label's segment; the one it was opened in goes on."""
+        self.boundary(self.labels.pop())
+
+    def __call__(self, label: str, call: Callable[[], Any]) -> Any:
+        self.open(label)
         try:
             return call()
         finally:
-            boundary(open_labels.pop())
-
-    return counted
+            self.close()
 
 
-def callgrind_counter(helper: Path) -> Counted:
+def callgrind_counter(helper: Path) -> NestingCounter:
     """Under callgrind: load the client-request helper, start instrumenting, and return counted(label, call)
-    (nesting_counter): a zero of the counters begins, a dump named by the label ends a segment (a dump zeroes)."""
+    (NestingCounter): a zero of the counters begins, a dump named by the label ends a segment (a dump zeroes)."""
     cg = ctypes.CDLL(str(helper))
     cg.cg_dump.argtypes = [ctypes.c_char_p]
     cg.cg_start()
-    return nesting_counter(cg.cg_zero, lambda label: cg.cg_dump(label.encode()))
+    return NestingCounter(cg.cg_zero, lambda label: cg.cg_dump(label.encode()))
 
 
-def marks_counter() -> Counted:
-    """Under qemu with the marks plugin: counted(label, call) (nesting_counter) sets a mark at every segment's end
+def marks_counter() -> NestingCounter:
+    """Under qemu with the marks plugin: counted(label, call) (NestingCounter) sets a mark at every segment's end
     and prints 'SEGMENT first last label' for the count_arm64 side."""
     libc = ctypes.CDLL(None, use_errno=True)
     marks = [-1]
@@ -173,26 +194,43 @@ def marks_counter() -> Counted:
     def begin() -> None:
         mark()
 
-    return nesting_counter(begin, boundary)
+    return NestingCounter(begin, boundary)
 
 
 class CountedWorker(concurrent.futures.Executor):
-    """A verifier worker for a count: each job runs at once on this thread, counted under `label` (the share of a
-    lost frame the service's verifier thread does, cut out of the frame's own count)."""
+    """A verifier worker for a count, on this thread: from submit() to the job's first result() the caller's work
+    is counted as 'SEQUENCE|jsar-re lost, beside the verifier|FRAME' (what the verifier thread would overlap),
+    then the job runs, counted as 'SEQUENCE|jsar-re lost, verifier thread|FRAME'. `frame` names the lost frame
+    ('SEQUENCE|FRAME'); each result() must come before the next submit() (as JsarReTracker's lost frames do)."""
 
-    def __init__(self, counted: Counted) -> None:
+    def __init__(self, counted: NestingCounter) -> None:
         self.counted = counted
-        self.label = "unlabelled|jsar-re lost, verifier thread|0"
-        self.jobs = 0
+        self.frame = "unlabelled|0"
+
+    def label(self, part: str) -> str:
+        sequence, index = self.frame.split("|")
+        return f"{sequence}|{part}|{index}"
 
     def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def, override]
-        future: concurrent.futures.Future = concurrent.futures.Future()
-        self.jobs += 1
-        try:
-            future.set_result(self.counted(self.label, lambda: fn(*args, **kwargs)))
-        except BaseException as exc:  # noqa: BLE001 - the job's error is its future's, as on a real executor
-            future.set_exception(exc)
-        return future
+        self.counted.open(self.label(LOST_PARTS[1]))
+        return _JobOnResult(self, lambda: fn(*args, **kwargs))
+
+
+class _JobOnResult(concurrent.futures.Future):
+    """CountedWorker's future: the job runs on the first result()."""
+
+    def __init__(self, worker: CountedWorker, job: Callable[[], Any]) -> None:
+        super().__init__()
+        self.worker, self.job = worker, job
+
+    def result(self, timeout: float | None = None) -> Any:
+        if not self.done():
+            self.worker.counted.close()  # the caller's work beside the job ends here
+            try:
+                self.set_result(self.worker.counted(self.worker.label(LOST_PARTS[2]), self.job))
+            except BaseException as exc:  # noqa: BLE001 - the job's error is its future's, as on a real executor
+                self.set_exception(exc)
+        return super().result(timeout)
 
 
 def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int, counted: Counted,
@@ -201,8 +239,8 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int, 
     'sequence|kind|frame': jsar, CSRT, KCF and jsar-re on frames 1..frames, then jsar-re's lost frames on the
     next lost_frames with the target hidden; returns the states of those lost frames. `overrides`: jsar.create
     keywords of both jsar-re trackers (--params). share_lost_work: the lost frames have a verifier worker
-    (CountedWorker), whose jobs `counted` gets inside the frame's call as 'sequence|jsar-re lost, verifier
-    thread|frame' (once more after the frame with nothing, so that every frame has that kind)."""
+    (CountedWorker; `counted` a NestingCounter) and are counted in its three parts (LOST_PARTS: each once more
+    after the frame with nothing, so that every frame has each part)."""
     import cv2
 
     import jsar
@@ -234,15 +272,18 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int, 
     for image in tracked:
         searching.update(image)
     searching.run_deferred()  # the tracked frames' deferred work: the verifier thread's, not a lost frame's
-    worker = CountedWorker(counted) if share_lost_work else None
-    searching.set_verifier_worker(worker)
+    worker = CountedWorker(counted) if share_lost_work else None  # type: ignore[arg-type]
     states: list[str] = []
     for index, image in enumerate(hidden, start=frames + 1):
+        kind = "jsar-re lost"
         if worker is not None:
-            worker.label = f"{sequence}|jsar-re lost, verifier thread|{index}"
-        counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))
-        if worker is not None:
-            counted(worker.label, lambda: None)
+            worker.frame, kind = f"{sequence}|{index}", LOST_PARTS[0]
+            # The first hidden frame is tracked until its loss is declared: a watch check it defers would be awaited
+            # frames later (never: the loss drops it), not within the frame as CountedWorker's jobs are.
+            searching.set_verifier_worker(worker if index > frames + 1 else None)
+        counted(f"{sequence}|{kind}|{index}", lambda: states.append(searching.update(image).state))
+        for part in LOST_PARTS[1:] if worker is not None else ():
+            counted(f"{sequence}|{part}|{index}", lambda: None)
     return states
 
 

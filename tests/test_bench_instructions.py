@@ -1,7 +1,7 @@
 """bench.instructions' pure part: the per-call counts grouped by sequence and frame kind (no callgrind, no qemu)."""
 import re
 
-from bench.instructions import nesting_counter, summarise
+from bench.instructions import NestingCounter, summarise
 
 
 def test_summarise_groups_by_sequence_and_kind_and_keeps_the_counts_in_frame_order():
@@ -13,14 +13,25 @@ def test_summarise_groups_by_sequence_and_kind_and_keeps_the_counts_in_frame_ord
     assert summary["A"]["jsar-re confident"]["counts"] == [30, 90]
     assert summary["B"]["jsar"]["frames"] == 1
     # the segments of one label (a call counted inside it cut out) add up to one frame
-    split = summarise([("A|jsar-re lost|1", 50), ("A|jsar-re lost, verifier thread|1", 20), ("A|jsar-re lost|1", 5),
-                       ("A|jsar-re lost, verifier thread|1", 0), ("A|jsar-re lost|2", 40)])
+    split = summarise([("A|jsar-re lost|1", 50), ("A|jsar|1", 20), ("A|jsar-re lost|1", 5), ("A|jsar-re lost|2", 40)])
     assert split["A"]["jsar-re lost"]["counts"] == [55, 40]
-    assert split["A"]["jsar-re lost, verifier thread"]["counts"] == [20]
+
+
+def test_a_lost_frames_three_parts_make_the_tracking_threads_count_and_the_critical_path():
+    """The tracking thread's own work, its work beside the verifier's jobs and the jobs: "jsar-re lost" is the
+    tracking thread's whole work, the critical path its own work plus the longer side of the parallel span."""
+    parts = [("A|jsar-re lost, alone|1", 50), ("A|jsar-re lost, beside the verifier|1", 10),
+             ("A|jsar-re lost, verifier thread|1", 30), ("A|jsar-re lost, alone|2", 40),
+             ("A|jsar-re lost, beside the verifier|2", 25), ("A|jsar-re lost, verifier thread|2", 5)]
+    summary = summarise(parts)["A"]
+    assert summary["jsar-re lost"]["counts"] == [60, 65]
+    assert summary["jsar-re lost, critical path"]["counts"] == [80, 65]
+    assert summary["jsar-re lost, verifier thread"]["counts"] == [30, 5]
+    assert "jsar-re lost, alone" not in summary and "jsar-re lost, beside the verifier" not in summary
 
 
 def test_a_call_counted_inside_another_is_cut_out_of_it():
-    """nesting_counter: every instruction counts once, under the innermost open label; the outer label's segments
+    """NestingCounter: every instruction counts once, under the innermost open label; the outer label's segments
     before and after the inner call are both its own (a fake counter: each segment is the events since the last)."""
     events: list[str] = []
     segments: list[tuple[str, list[str]]] = []
@@ -33,7 +44,7 @@ def test_a_call_counted_inside_another_is_cut_out_of_it():
         segments.append((label, events[since[0]:]))
         since[0] = len(events)
 
-    counted = nesting_counter(begin, boundary)
+    counted = NestingCounter(begin, boundary)
 
     def frame() -> str:
         events.append("locate")
@@ -67,41 +78,22 @@ def test_count_frame_kinds_labels_every_measured_call_of_both_benchmarks(data_ro
     assert states == ["lost", "lost"]
 
 
-def test_count_frame_kinds_counts_the_lost_frames_verifier_share_inside_the_frame(data_root):
-    """share_lost_work: the lost frames' tracker has a verifier worker (bench.instructions.CountedWorker) whose jobs
-    (turned windows' features, looks after the first) are counted inside the frame's call under the verifier
-    thread's kind, and that kind once more after every lost frame (a frame that gave it nothing counts 0)."""
-    from bench.instructions import count_frame_kinds
+def test_count_frame_kinds_counts_the_lost_frames_verifier_share_apart(data_root):
+    """share_lost_work: the lost frames' tracker has a verifier worker (bench.instructions.CountedWorker): the frame's
+    work from a job's start to its result and the job itself are counted apart from the rest of the frame, each
+    part once more after every lost frame (a frame that gave the worker nothing counts 0 there)."""
+    from bench.instructions import LOST_PARTS, count_frame_kinds
 
-    calls: list[tuple[int, str]] = []
-    depth = [0]
-
-    def counted(label, call):
-        calls.append((depth[0], label))
-        depth[0] += 1
-        try:
-            return call()
-        finally:
-            depth[0] -= 1
-
+    segments: list[str] = []
+    counted = NestingCounter(lambda: None, segments.append)
     states = count_frame_kinds(data_root, "OTB_Crossing", 2, 6, counted, share_lost_work=True)
-    lost = [(d, label) for d, label in calls if "jsar-re lost" in label]
-    assert [label for d, label in lost if d == 0] == [
-        label for index in range(3, 9) for label in (f"OTB_Crossing|jsar-re lost|{index}",
-                                                     f"OTB_Crossing|jsar-re lost, verifier thread|{index}")]
-    inside = [label for d, label in lost if d == 1]
-    assert inside and all(re.fullmatch(r"OTB_Crossing\|jsar-re lost, verifier thread\|[3-8]", label) for label in inside)
+    lost = [label for label in segments if "jsar-re lost" in label]
+    assert {label.split("|")[1] for label in lost} == set(LOST_PARTS)
+    for index in range(3, 9):
+        assert [label for label in lost if label.endswith(f"|{index}")][-3:] == [
+            f"OTB_Crossing|{part}|{index}" for part in LOST_PARTS]  # the closing three
+    # a job within the second frame (the first is tracked until its loss is declared, with no worker): the frame's
+    # own work, its work beside the job up to the job's result, the job, the frame's own again
+    parts = [label.split("|")[1] for label in lost if label.endswith("|4")]
+    assert parts[:5] == [LOST_PARTS[0], LOST_PARTS[1], LOST_PARTS[0], LOST_PARTS[2], LOST_PARTS[0]]
     assert states == ["lost"] * 6
-
-
-def test_the_searching_tracker_takes_a_variants_overrides_and_keeps_its_own_warm_up_and_hold_off():
-    """--params counts a variant: its overrides reach jsar-re, while the searching tracker's warm-up 0 and endless
-    hold-off (every lost frame spends its whole budget) win over them."""
-    from bench.redetect import searching_tracker
-
-    overrides = {"redetect": {"verify": {"lost_looks": 1}, "accept": {"holdoff_frames": 2, "confirm_frames": 3}}}
-    tracker = searching_tracker(overrides=overrides)
-    assert tracker.redetect.verify.lost_looks == 1 and tracker.redetect.accept.confirm_frames == 3
-    assert tracker.redetect.accept.holdoff_frames == 10**9 and tracker.redetect.monitor.warmup_frames == 0
-    assert overrides["redetect"]["accept"]["holdoff_frames"] == 2  # the caller's dict is left as it was
-    assert searching_tracker(4).redetect.search.windows_per_frame == 4

@@ -18,7 +18,7 @@ import jsar
 from jsar.config import JsarParams
 from jsar.redetect.jsar_re import TRANSITIONS, JsarReTracker, Phase
 from jsar.features.patches import sample_patch
-from jsar.redetect.memory import DecisionFilter, turned_patch, window_features
+from jsar.redetect.memory import DecisionFilter, turned_patch, window_features, worker_share
 from jsar.redetect.params import AcceptParams, ColourParams, RedetectParams, SearchParams, VerifyParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, lattice_offsets, predicted_centre,
                                   search_cycle, track_speed, track_velocity)
@@ -1532,4 +1532,13 @@ def test_a_lost_frame_shares_its_work_with_the_verifier_worker_and_finds_the_sam
         shared = run(worker)
     assert "lost" in [state for state, _, _ in alone] and alone[-1][0] == "tracking"  # a loss, and it ended
     assert shared == alone
-    assert "turned_windows" in worker.lost_jobs and "embed" in worker.lost_jobs  # both kinds of a lost frame's work
+    assert "turned_features" in worker.lost_jobs and "embed" in worker.lost_jobs  # both kinds of a lost frame's work
+
+
+def test_the_worker_takes_turned_windows_while_it_has_less_work_than_this_thread():
+    """worker_share balances a lost frame's window features between the tracking thread (its upright windows first)
+    and the verifier's worker, a turned window costing two upright ones; ties stay on the tracking thread."""
+    assert worker_share(0, np.array([3, 4, 5, 6, 7])) == [4, 6]  # all turned: 3 here, 2 there
+    assert worker_share(8, np.array([8])) == [8]  # eight upright windows here: the turned one there
+    assert worker_share(4, np.array([4, 5, 6])) == [4, 5]  # 4 + 2 here, 4 there
+    assert worker_share(3, np.array([], dtype=int)) == []

@@ -170,8 +170,8 @@ class JsarReTracker:
 
     def set_verifier_worker(self, worker: concurrent.futures.Executor | None) -> None:
         """Run the verifier's deferred embeddings (verify.defer_frames) on `worker`, a one-thread executor on
-        another core, while the tracker goes on, and share a lost frame's work with it (the turned windows'
-        features, the looks after the first); None: all on the tracking thread. The same boxes either way."""
+        another core, while the tracker goes on, and share a lost frame's work with it (part of the turned windows'
+        features, half of its looks); None: all on the tracking thread. The same boxes either way."""
         self.worker = worker
 
     def run_deferred(self) -> None:
@@ -630,13 +630,15 @@ class JsarReTracker:
         return looks, {id(c) for c in skipped}
 
     def _embed_lost(self, frame: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-        """(N, D) embeddings of a lost frame's boxes (N, 4) x, y, w, h px: with a verifier worker, the first on this
-        thread while the others are made there (the same rows: a box's embedding does not depend on its batch)."""
+        """(N, D) embeddings of a lost frame's boxes (N, 4) x, y, w, h px: with a verifier worker, the first half
+        on this thread while the rest are made there (the same rows: a box's embedding does not depend on its
+        batch)."""
         assert self.embedder is not None
         if self.worker is None or len(boxes) < 2:
             return self.embedder.embed(frame, boxes)
-        others = self.worker.submit(self.embedder.embed, frame, boxes[1:])
-        return np.vstack([self.embedder.embed(frame, boxes[:1]), others.result()])
+        half = (len(boxes) + 1) // 2
+        others = self.worker.submit(self.embedder.embed, frame, boxes[half:])
+        return np.vstack([self.embedder.embed(frame, boxes[:half]), others.result()])
 
     @staticmethod
     def _verified(looks: dict[int, tuple[Look, np.ndarray]], candidate: Candidate) -> bool:

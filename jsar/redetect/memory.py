@@ -25,6 +25,10 @@ from jsar.redetect.search import Candidate
 from jsar.tracking.jsar_tracker import JsarTracker, Localisation
 from jsar.tracking.translation import TranslationFilter
 
+# A turned window's warp and features cost about two upright windows' (docs/results-cost.md): a split's weights.
+TURNED_FEATURE_COST = 2.0
+
+
 class DecisionFilter:
     """The decision filter and its reference; `train` after each committed frame, `score_*` anywhere."""
 
@@ -69,8 +73,8 @@ class DecisionFilter:
         upright). Upright windows are centred to the nearest cell of one shared feature map (centres on
         the same cell share a window); a turned window's peak is mapped back to the unturned image. All
         windows go through one batched FFT. Order: the upright candidates (by cell), then the turned ones
-        as given. With `worker` (a one-thread executor on another core) the turned windows' patches and features
-        are made there while this thread makes the upright ones': the same numbers."""
+        as given. With `worker` (a one-thread executor on another core) part of the turned windows' patches and
+        features are made there meanwhile (worker_share): the same numbers."""
         centres_xy = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
         angles = np.zeros(len(centres_xy)) if angles_deg is None else np.asarray(angles_deg, dtype=np.float64)
         if angles.shape != (len(centres_xy),):
@@ -80,13 +84,15 @@ class DecisionFilter:
         cells, cell_size = self.filter.shape_hw[0], self.params.cell_size
         px_per_cell = self.params.search_area_factor * target_side_px / cells
         upright = angles == 0
+        turned_order = np.flatnonzero(~upright)
 
-        def turned_windows() -> list[np.ndarray]:
+        def turned_features(indices: list[int]) -> list[np.ndarray]:
             return [translation_features.extract_features(
-                turned_patch(image, (float(centre[0]), float(centre[1])), cells * px_per_cell, cells * cell_size,
-                             float(degrees)), cell_size, colour_table)[None]
-                for centre, degrees in zip(centres_xy[~upright], angles[~upright])]
-        turned = worker.submit(turned_windows) if worker is not None and not upright.all() else None
+                turned_patch(image, (float(centres_xy[k, 0]), float(centres_xy[k, 1])), cells * px_per_cell,
+                             cells * cell_size, float(angles[k])), cell_size, colour_table)[None] for k in indices]
+        theirs = worker_share(int(upright.sum()), turned_order) if worker is not None else []
+        mine = [int(k) for k in turned_order if int(k) not in theirs]
+        job = worker.submit(turned_features, theirs) if worker is not None and theirs else None
         stacks, window_centres, turns = [], [], []
         if upright.any():
             windows, upright_centres = window_features(image, colour_table, centres_xy[upright], px_per_cell, cells,
@@ -94,7 +100,9 @@ class DecisionFilter:
             stacks.append(windows)
             window_centres.extend(upright_centres)
             turns.extend([0.0] * len(upright_centres))
-        stacks.extend(turned.result() if turned is not None else turned_windows())
+        turned = dict(zip(mine, turned_features(mine)))
+        turned.update(zip(theirs, job.result() if job is not None else []))
+        stacks.extend(turned[int(k)] for k in turned_order)
         window_centres.extend(centres_xy[~upright])
         turns.extend(float(degrees) for degrees in angles[~upright])
         windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
@@ -132,6 +140,20 @@ class DecisionFilter:
     def skip(self) -> None:
         """The core trained on a frame this filter does not learn: their histories part."""
         self.in_sync = False
+
+
+def worker_share(upright_count: int, turned_indices: np.ndarray) -> list[int]:
+    """The turned windows (of `turned_indices`, in order) a second thread makes while this one makes the
+    `upright_count` upright windows and the rest: each goes to the side with less work so far, a turned window
+    costing TURNED_FEATURE_COST upright windows (ties: this thread), so that neither waits long for the other."""
+    work = [float(upright_count), 0.0]  # this thread's, the worker's
+    theirs = []
+    for k in turned_indices:
+        side = 1 if work[1] < work[0] else 0
+        work[side] += TURNED_FEATURE_COST
+        if side:
+            theirs.append(int(k))
+    return theirs
 
 
 def turned_patch(image: np.ndarray, centre_xy: tuple[float, float], side_px: float, out_px: int,

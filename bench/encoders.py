@@ -2,6 +2,7 @@
 stream's colour conversion, the JPEG preview and the capture's MJPG decode.
 
     python -m bench.encoders DATA_ROOT [--sequence UAVDT_S1301] [--frames 150] [--callgrind]
+                             [--arm64-rootfs ROOTFS [--arm64-cpu cortex-a72]]
 
 Frames: the shared sequence resized to 640x480 (as bench.service plays it), written as an MJPG file for the
 decode. Every call goes through the service's own code where it has one (service.video.rtp_stream.yuv420 and
@@ -12,8 +13,10 @@ encodes it: its x264_options with the preset / tune of the row, 2000 kbit/s at 3
 Natively: thread CPU ms per frame (time.thread_time). --callgrind: the same calls counted under valgrind's
 callgrind (a client request zeroes the counters before and dumps them after each call: bench.instructions'
 helper), giving instructions per frame and, against the native times, this host's instruction rate for each
-kind of work. A setting without zerolatency holds frames back (lookahead): its total over the run, the final
-flush included, is divided by the frames.
+kind of work. --arm64-rootfs: the same calls in the arm64 build that deploy/check-arm64.sh installed, counted
+under qemu-aarch64 with bench.instructions' marks plugin (the libraries' NEON paths: what a Pi runs). A setting
+without zerolatency holds frames back (lookahead): its total over the run, the final flush included, is divided by
+the frames.
 """
 from __future__ import annotations
 
@@ -158,6 +161,32 @@ def worker(sequence: Path, count: int, clip: Path, helper: Path) -> None:
     run_work(frames, clip, callgrind_counter(helper))
 
 
+def worker_marks(sequence: Path, count: int, clip: Path) -> None:
+    """Under qemu with the marks plugin: every call between two marks (bench.instructions.marks_counter)."""
+    from bench.instructions import marks_counter
+
+    frames = load_frames(sequence, count)
+    write_mjpg(frames, clip)
+    run_work(frames, clip, marks_counter())
+
+
+def count_arm64(rootfs: Path, sequence: Path, count: int, cpu: str) -> dict[str, float]:
+    """Instructions per frame by kind of work of the arm64 build in `rootfs`, under qemu-aarch64 emulating `cpu`."""
+    from bench.instructions import run_arm64_marks
+
+    with tempfile.TemporaryDirectory(prefix="jsar-encoders-") as tmp:
+        out, marks = run_arm64_marks(rootfs, "bench.encoders", [
+            str(sequence.parent.resolve()), "--sequence", sequence.name, "--frames", str(count), "--clip",
+            str(Path(tmp) / "clip.avi"), "--worker-marks"], cpu)
+    totals: dict[str, int] = {}
+    for line in out.splitlines():
+        if line.startswith("SEGMENT "):
+            first, last, label = line.split(" ", 3)[1:]
+            kind = label.split("|")[0]
+            totals[kind] = totals.get(kind, 0) + marks[int(last)] - marks[int(first)]
+    return {kind: total / count for kind, total in totals.items()}
+
+
 def count_callgrind(sequence: Path, count: int) -> dict[str, float]:
     """Instructions per frame by kind of work, under callgrind (this machine's build)."""
     from bench.instructions import parse_dumps, run_worker_under_callgrind
@@ -174,13 +203,15 @@ def count_callgrind(sequence: Path, count: int) -> dict[str, float]:
     return {kind: total / count for kind, total in totals.items()}
 
 
-def report(ms: dict[str, float], quality: dict, instructions: dict[str, float] | None) -> str:
-    """Markdown table: per kind of work, CPU ms per frame, instructions and rate (when counted), quality."""
+def report(ms: dict[str, float], quality: dict, instructions: dict[str, float] | None, native_counts: bool = True) -> str:
+    """Markdown table: per kind of work, CPU ms per frame, instructions and this host's rate (when counted here:
+    native_counts; an arm64 count has no rate), quality."""
     lines = ["| work (640x480, one thread) | CPU ms per frame | M instructions per frame | G instructions/s "
              "| PSNR Y dB | kbit/s at 30 fps |", "|---|---|---|---|---|---|"]
     for kind in (*OTHER_WORK, *X264_SETTINGS):
         count = instructions.get(kind) if instructions else None
-        counted = (f"{count / 1e6:.1f} | {count / (ms[kind] * 1e-3) / 1e9:.1f}" if count else "- | -")
+        rate = f"{count / (ms[kind] * 1e-3) / 1e9:.1f}" if count and native_counts else "-"
+        counted = f"{count / 1e6:.1f} | {rate}" if count else "- | -"
         q = quality.get(kind)
         shown = f"{q['psnr_y_db']:.2f} | {q['kbit_s']:.0f}" if q else "- | -"
         lines.append(f"| {kind} | {ms[kind]:.2f} | {counted} | {shown} |")
@@ -195,23 +226,36 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=150, help="frames of the sequence (5 s at 30 fps)")
     parser.add_argument("--callgrind", action="store_true", help="also count instructions under callgrind")
     parser.add_argument("--json", type=Path, default=None, help="write the numbers here")
+    parser.add_argument("--arm64-rootfs", type=Path, default=None,
+                        help="count the arm64 build installed in this root file system under qemu-aarch64 instead")
+    parser.add_argument("--arm64-cpu", default="cortex-a72", help="qemu CPU model: cortex-a72 (Pi 4), cortex-a76 (Pi 5)")
     parser.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # the run under callgrind
+    parser.add_argument("--worker-marks", action="store_true", help=argparse.SUPPRESS)  # the run under qemu
     parser.add_argument("--clip", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     sequence = args.data_root / args.sequence
     if args.worker is not None:
         worker(sequence, args.frames, args.clip, args.worker)
         return 0
+    if args.worker_marks:
+        worker_marks(sequence, args.frames, args.clip)
+        return 0
     frames = load_frames(sequence, args.frames)
     with tempfile.TemporaryDirectory(prefix="jsar-encoders-") as tmp:
         clip = Path(tmp) / "clip.avi"
         write_mjpg(frames, clip)
         ms, quality = native(frames, clip)
-    instructions = count_callgrind(sequence, args.frames) if args.callgrind else None
-    print(f"{args.sequence}, {args.frames} frames at {WIDTH}x{HEIGHT}; H.264 at {BITRATE_KBPS} kbit/s, {FPS:.0f} fps")
-    print(report(ms, quality, instructions))
+    if args.arm64_rootfs is not None:
+        instructions = count_arm64(args.arm64_rootfs, sequence, args.frames, args.arm64_cpu)
+    else:
+        instructions = count_callgrind(sequence, args.frames) if args.callgrind else None
+    machine = f"aarch64 (qemu-aarch64 -cpu {args.arm64_cpu}) instructions, " if args.arm64_rootfs else ""
+    print(f"{args.sequence}, {args.frames} frames at {WIDTH}x{HEIGHT}; H.264 at {BITRATE_KBPS} kbit/s, {FPS:.0f} fps; "
+          f"{machine}this host's CPU ms")
+    print(report(ms, quality, instructions, native_counts=args.arm64_rootfs is None))
     if args.json is not None:
-        args.json.write_text(json.dumps({"ms": ms, "quality": quality, "instructions": instructions}, indent=2))
+        args.json.write_text(json.dumps({"ms": ms, "quality": quality, "instructions": instructions,
+                                         "instructions_machine": machine or "this host"}, indent=2))
     return 0
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.encoders import STREAM_SETTING, X264_SETTINGS, psnr_db, setting_options
+from bench.encoders import OTHER_WORK, STREAM_SETTING, X264_SETTINGS, psnr_db, report, setting_options
 from service.config import StreamConfig
 from service.video.rtp_stream import x264_options
 
@@ -27,3 +27,14 @@ def test_psnr() -> None:
     b = a.copy()
     b[0, 0] = 104  # mse = 16 / 16 = 1
     assert psnr_db(a, b) == pytest.approx(10 * np.log10(255.0 ** 2))
+
+
+def test_the_report_gives_this_hosts_instruction_rate_only_for_counts_made_here() -> None:
+    """An arm64 count (under qemu) against this host's CPU time is no rate: the column stays empty."""
+    kinds = (*OTHER_WORK, *X264_SETTINGS)
+    ms = {kind: 2.0 for kind in kinds}
+    counts = {kind: 10e6 for kind in kinds}
+    here = report(ms, {}, counts).splitlines()[2]
+    arm64 = report(ms, {}, counts, native_counts=False).splitlines()[2]
+    assert "| 10.0 | 5.0 |" in here  # 10 M instructions in 2 ms: 5 G/s
+    assert "| 10.0 | - |" in arm64

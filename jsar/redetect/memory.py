@@ -10,7 +10,6 @@ pixels. `reference` is the running mean of its peaks on the samples it trains on
 from __future__ import annotations
 
 import concurrent.futures
-
 import math
 
 import cv2

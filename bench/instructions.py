@@ -112,7 +112,7 @@ def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, flo
         grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
     for kinds in grouped.values():
         if all(part in kinds for part in LOST_PARTS):
-            alone, beside, verifier = (kinds.pop(part) if part != LOST_PARTS[2] else kinds[part] for part in LOST_PARTS)
+            alone, beside, verifier = kinds.pop(LOST_PARTS[0]), kinds.pop(LOST_PARTS[1]), kinds[LOST_PARTS[2]]
             kinds["jsar-re lost"] = [a + b for a, b in zip(alone, beside)]
             kinds["jsar-re lost, critical path"] = [a + max(b, v) for a, b, v in zip(alone, beside, verifier)]
     return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v),

@@ -1,4 +1,4 @@
-"""Cost of a lost frame of JSAR-Re against a tracking frame, on one thread.
+"""Cost of a lost frame of JSAR-Re against a tracking frame, in time, on one thread (or beside the verifier's).
 
     python -m bench.redetect DATA_ROOT [--frames N] [--windows K] [--rounds R] [--verifier-worker]
 

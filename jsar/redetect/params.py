@@ -137,7 +137,7 @@ class VerifyParams:
     enabled: bool = True  # on: the verifier judges candidates (docs/method.md, "The verifier")
     min_similarity: float = checked(0.6, COSINE, at_least_key("reject_similarity"))  # "target": cosine to the target memory at least this, and margin above the look-alikes'
     margin: float = checked(0.05, interval(0, 2))  # "target" needs the cosine to the target memory this above the cosine to the look-alike memory
-    reject_similarity: float = checked(0.6, COSINE)  # "other": cosine to the target memory under this
+    reject_similarity: float = checked(0.55, COSINE)  # "other": cosine to the target memory under this
     reject_nearer_other: bool = True  # "other" also needs a look-alike at least as near as the target memory (a turned target unlike both stays "unsure")
     bar_fraction: float = checked(0.6, UNIT)  # a "target" candidate's bar: this x the acceptance bar (1: no lower bar)
     over_colour_match: bool = True  # a "target" candidate needs no colour-model match (the selection's colours still)

@@ -100,6 +100,29 @@ def response_spectra(filter_f: np.ndarray, spectra: np.ndarray) -> np.ndarray:
     return out
 
 
+# A chunk of windows goes through the window -> FFT -> correlation chain while its features and spectra are still
+# in the core's cache: for 50 x 50 cells of 42 channels a window is 0.42 MB of features and 0.44 MB of spectra, and a
+# lost frame's 9-window batch (7.7 MB) ran the chain from memory (docs/results-cost.md, "Lost frames in time").
+WINDOW_CHAIN_BYTES = 2 << 20
+
+
+def window_response_spectra(filter_f: np.ndarray, windows: np.ndarray, cos_window: np.ndarray,
+                            chunk_bytes: int = WINDOW_CHAIN_BYTES) -> np.ndarray:
+    """(M, H, W//2+1) complex64 response spectra of channels-last feature windows (M, H, W, C) float32 under one
+    channels-first filter (C, H, W//2+1): `response_spectra(filter_f, rfft2_channels_last(windowed_channels_last(
+    windows, cos_window)))`, run over chunks of windows of at most chunk_bytes of features and spectra (at least one
+    window): the same numbers, each window's transform being its own."""
+    m, h, w, c = windows.shape
+    per_window = h * w * c * 4 + h * (w // 2 + 1) * c * 8
+    step = max(1, chunk_bytes // per_window)
+    out = np.empty((m, h, w // 2 + 1), dtype=np.complex64)
+    for start in range(0, m, step):
+        part = windows[start:start + step]
+        out[start:start + len(part)] = response_spectra(
+            filter_f, fourier.rfft2_channels_last(windowed_channels_last(part, cos_window)))
+    return out
+
+
 def response(filter_f: np.ndarray, sample_f: np.ndarray, shape_hw: tuple[int, int]) -> np.ndarray:
     """(H, W) float32 response IFFT(sum_c conj(F_c) X_c) in the MATLAB scaling; peak at the shift."""
     return fourier.irfft2(response_spectrum(filter_f, sample_f), shape_hw).astype(np.float32)

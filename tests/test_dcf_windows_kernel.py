@@ -30,6 +30,20 @@ def test_the_window_kernels_give_the_references_numbers_to_the_bit(m, shape_hw, 
     assert np.array_equal(result.view(np.uint32), reference.view(np.uint32))  # signed zeros too
 
 
+@pytest.mark.parametrize("chunk_bytes", [1, 900_000, 2 << 20, 1 << 40])
+def test_the_window_chain_in_chunks_gives_one_batchs_numbers_to_the_bit(chunk_bytes):
+    """A lost frame's windows go through window -> FFT -> correlation a few at a time (cache-sized chunks): the
+    numbers must be those of the whole batch at once, whatever the chunk (one window, two, all)."""
+    rng = np.random.default_rng(7)
+    windows = _windows(rng, 9, (50, 50), 42)
+    cos_window = dcf.hann_window((50, 50))
+    filter_f = fourier.rfft2(rng.standard_normal((42, 50, 50)).astype(np.float32) * 1e-2)
+    batch = dcf.response_spectra(filter_f, fourier.rfft2_channels_last(dcf.windowed_channels_last(windows, cos_window)))
+    chunked = dcf.window_response_spectra(filter_f, windows, cos_window, chunk_bytes)
+    assert chunked.shape == batch.shape and chunked.dtype == np.complex64
+    assert np.array_equal(chunked.view(np.uint32), batch.view(np.uint32))
+
+
 def test_a_zero_spectrum_gives_positive_zeros_as_numpy_does():
     """numpy adds each sum to a zeroed output, so a sum of -0.0 terms comes out +0.0: the kernel too."""
     filter_f = np.zeros((3, 4, 3), np.complex64)

@@ -107,9 +107,9 @@ class DecisionFilter:
         windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
         # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
         # (docs/results-tracker.md, "Speed: where the time goes"); the spectra and responses are the same numbers.
-        spectra = fourier.rfft2_channels_last(dcf.windowed_channels_last(windows, self.filter.cos_window))
         assert self.filter.filter_f is not None
-        response_f = dcf.response_spectra(self.filter.filter_f, spectra)  # (M, H, W//2+1)
+        response_f = dcf.window_response_spectra(self.filter.filter_f, windows,
+                                                 self.filter.cos_window)  # (M, H, W//2+1)
         responses = fourier.irfft2(response_f, self.filter.shape_hw)
         found = []
         for k, (centre, degrees) in enumerate(zip(window_centres, turns)):

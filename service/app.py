@@ -14,7 +14,7 @@ from threadpoolctl import threadpool_limits
 
 import jsar
 from jsar.api import DeferringTracker, SideBoundedTracker
-from service.config import ConfigError, ServiceConfig, as_plain
+from service.config import VERIFIER_THREAD_MIN_CPUS, ConfigError, ServiceConfig, as_plain
 from service.domain import ControlCommand, LoopState
 from service.loop import FrameReport, TrackingLoop
 from service.mavlink.camera import CameraComponent
@@ -32,6 +32,14 @@ from service.video.zenoh_preview import ZenohPreview
 SIGNAL_POLL_S = 0.1  # s: how often the main thread looks for a stop signal or a stop request
 
 log = logging.getLogger("service")
+
+
+def verifier_thread_wanted(setting: bool | str, cpus: int) -> bool:
+    """tracker.verifier_thread: true or false as set; "auto" on where the service may run on `cpus` >=
+    VERIFIER_THREAD_MIN_CPUS CPUs (its affinity mask: a unit's CPUAffinity= counts, not the board's cores)."""
+    if setting == "auto":
+        return cpus >= VERIFIER_THREAD_MIN_CPUS
+    return bool(setting)
 
 
 class Service:
@@ -57,11 +65,13 @@ class Service:
             log.info("event=tracker_prepared tracker=%s load_s=%.2f", tracker_cfg.name, time.monotonic() - began)
         # One thread, named for the OS, for the tracker's deferred work (jsar-re's verifier): another core's time
         # instead of the tracking thread's, the same boxes.
+        cpus = len(os.sched_getaffinity(0))
         self.verifier_worker = (
             concurrent.futures.ThreadPoolExecutor(max_workers=1, initializer=name_os_thread, initargs=("verifier",))
-            if tracker_cfg.verifier_thread and isinstance(probe, DeferringTracker) else None)
-        log.info("event=verifier_thread tracker=%s enabled=%s", tracker_cfg.name,
-                 str(self.verifier_worker is not None).lower())
+            if verifier_thread_wanted(tracker_cfg.verifier_thread, cpus) and isinstance(probe, DeferringTracker)
+            else None)
+        log.info("event=verifier_thread tracker=%s enabled=%s setting=%s cpus=%d", tracker_cfg.name,
+                 str(self.verifier_worker is not None).lower(), str(tracker_cfg.verifier_thread).lower(), cpus)
         if tracker_cfg.range_size_band != 0 and not isinstance(probe, SideBoundedTracker):
             raise ConfigError(f"tracker.range_size_band: tracker {tracker_cfg.name!r} cannot bound its box size; "
                               "set 0 to run it without the range size bound")

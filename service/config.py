@@ -42,6 +42,11 @@ class SourceConfig:
     retry_max_s: float = _checked(8.0, _positive)  # backoff doubles up to this delay
 
 
+# A Pi 4 has four cores: the tracking thread, the verifier's, and the service's capture and video keep two busy
+# (docs/results-cost.md); on two cores the verifier's thread competes with the tracking thread (docs/service.md).
+VERIFIER_THREAD_MIN_CPUS = 4
+
+
 @dataclass(frozen=True)
 class TrackerConfig:
     """`jsar.create(name, **params)`; an unknown name is a configuration error."""
@@ -49,7 +54,10 @@ class TrackerConfig:
     name: str = "jsar-re"
     params: Mapping[str, Any] = field(default_factory=lambda: types.MappingProxyType({}))
     threads: int = _checked(1, _positive)  # OpenCV and BLAS/OpenMP threads for the tracker
-    verifier_thread: bool = False  # jsar-re's deferred verifier work (learning, watch checks) and part of a lost frame's search on a thread of its own, another core (docs/service.md: when)
+    # jsar-re's deferred verifier work (learning, watch checks) and part of a lost frame's search on a thread of its
+    # own, another core: true, false, or auto = on where the service may run on >= VERIFIER_THREAD_MIN_CPUS CPUs
+    # (docs/service.md: when)
+    verifier_thread: Literal[True, False, "auto"] = "auto"
     # Box side held within [1/band, band] x the track's median ground size at the current range (flat
     # ground, pose and gimbal attitude from the autopilot); 0 = off. See service.control.size_bound.
     range_size_band: float = _checked(1.6, lambda v: None if v == 0 or v >= 1 else f"must be 0 (off) or >= 1, got {v}")
@@ -577,8 +585,10 @@ def _coerce(hint: Any, value: object, key_path: str) -> Any:
         return _build(hint, value, key_path)
     if origin is Literal:
         choices = typing.get_args(hint)
-        if value not in choices:
-            raise ConfigError(f"{key_path}: must be one of {', '.join(map(str, choices))}, got {value!r}")
+        # By type as well as value: 1 == True, but a 1 where true or "auto" is meant is a mistake to name.
+        if not any(type(value) is type(choice) and value == choice for choice in choices):
+            shown = ", ".join(str(choice).lower() if isinstance(choice, bool) else str(choice) for choice in choices)
+            raise ConfigError(f"{key_path}: must be one of {shown}, got {value!r}")
         return value
     if hint is bool:
         if not isinstance(value, bool):

@@ -67,6 +67,8 @@ def test_documented_default_config_loads_and_matches_dataclass_defaults() -> Non
     ({"camera": {"rectangle_loose_area_ratio": 0.5}}, "camera.rectangle_loose_area_ratio: must be >= 1, got 0.5"),
     ({"camera": {"rectangle_fit_min_inside": 0.2}}, "camera.rectangle_fit_min_inside: must be in [0.5, 1.0], got 0.2"),
     ({"logging": {"level": "LOUD"}}, "logging.level: must be one of DEBUG, INFO, WARNING, ERROR"),
+    ({"tracker": {"verifier_thread": "yes"}}, "tracker.verifier_thread: must be one of true, false, auto, got 'yes'"),
+    ({"tracker": {"verifier_thread": 1}}, "tracker.verifier_thread: must be one of true, false, auto, got 1"),
     ([1, 2], "config: must be a mapping"),
 ])
 def test_bad_values_are_rejected_naming_the_key(raw: object, message: str) -> None:

@@ -232,27 +232,34 @@ def test_jsar_re_s_verifier_network_loads_at_start_not_on_the_first_selection(fr
     assert shared_embedder.cache_info().currsize == 1  # the network every later JsarReTracker shares
 
 
-def test_jsar_re_s_deferred_verifier_work_gets_a_thread_named_for_the_os(frames_dir: Path, caplog) -> None:
-    """tracker.verifier_thread (off by default): each new jsar-re runs its deferred embeddings on one executor
-    whose thread the OS knows as "verifier" (bench.service's per-thread report); off, or for a tracker without
-    deferred work, there is none, and the log says which at start."""
+def test_jsar_re_s_deferred_verifier_work_gets_a_thread_named_for_the_os(frames_dir: Path, caplog,
+                                                                          monkeypatch) -> None:
+    """tracker.verifier_thread: each new jsar-re runs its deferred embeddings on one executor whose thread the OS
+    knows as "verifier" (bench.service's per-thread report); off, or for a tracker without deferred work, there is
+    none, and the log says which at start."""
     from service.config import TrackerConfig
 
-    assert TrackerConfig().verifier_thread is False
+    assert TrackerConfig().verifier_thread == "auto"
     import logging
     import threading
 
     from service.app import Service
     from tests.service_peers import service_config
 
+    from service import app as service_app
+
     caplog.set_level(logging.INFO, logger="service")
-    for name, band, thread in (("jsar-re", 2, True), ("jsar-re", 2, False), ("jsar", 2, True)):
+    # "auto" counts the CPUs the service may run on (its affinity mask): four give the thread, two do not.
+    for name, band, thread, cpus in (("jsar-re", 2, True, 2), ("jsar-re", 2, False, 8), ("jsar", 2, True, 8),
+                                     ("jsar-re", 2, "auto", 4), ("jsar-re", 2, "auto", 2)):
         config = service_config(free_udp_port(), {"source": {"path": str(frames_dir)},
                                                   "tracker": {"name": name, "range_size_band": band,
                                                               "verifier_thread": thread}})
+        monkeypatch.setattr(service_app.os, "sched_getaffinity", lambda pid, cpus=cpus: set(range(cpus)))
         service = Service(config)
         try:
-            expected = thread and name == "jsar-re"
+            expected = (thread is True or (thread == "auto" and cpus >= 4)) and name == "jsar-re"
+            assert f"setting={str(thread).lower()} cpus={cpus}" in caplog.text
             assert (service.verifier_worker is not None) is expected
             assert f"event=verifier_thread tracker={name} enabled={str(expected).lower()}" in caplog.text
             tracker = service._new_tracker()

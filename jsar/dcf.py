@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -102,22 +103,25 @@ def response_spectra(filter_f: np.ndarray, spectra: np.ndarray) -> np.ndarray:
 
 # A chunk of windows goes through the window -> FFT -> correlation chain while its features and spectra are still
 # in the core's cache: for 50 x 50 cells of 42 channels a window is 0.42 MB of features and 0.44 MB of spectra, and a
-# lost frame's 9-window batch (7.7 MB) ran the chain from memory (docs/results-cost.md, "Lost frames in time").
+# lost frame's 9 windows, stacked whole (3.8 MB, then 4 MB of spectra), ran the chain from memory and faulted fresh
+# pages in (docs/results-cost.md, "Lost frames in time").
 WINDOW_CHAIN_BYTES = 2 << 20
 
 
-def window_response_spectra(filter_f: np.ndarray, windows: np.ndarray, cos_window: np.ndarray,
+def window_response_spectra(filter_f: np.ndarray, windows: Sequence[np.ndarray], cos_window: np.ndarray,
                             chunk_bytes: int = WINDOW_CHAIN_BYTES) -> np.ndarray:
-    """(M, H, W//2+1) complex64 response spectra of channels-last feature windows (M, H, W, C) float32 under one
-    channels-first filter (C, H, W//2+1): `response_spectra(filter_f, rfft2_channels_last(windowed_channels_last(
-    windows, cos_window)))`, run over chunks of windows of at most chunk_bytes of features and spectra (at least one
-    window): the same numbers, each window's transform being its own."""
-    m, h, w, c = windows.shape
+    """(M, H, W//2+1) complex64 response spectra of M channels-last feature windows (H, W, C) float32 (views
+    allowed) under one channels-first filter (C, H, W//2+1): `response_spectra(filter_f, rfft2_channels_last(
+    windowed_channels_last(np.stack(windows), cos_window)))`, run over chunks of at most chunk_bytes of features
+    and spectra (at least one window): the same numbers, each window's transform being its own."""
+    if not windows:
+        raise ValueError("window_response_spectra needs at least one window")
+    h, w, c = windows[0].shape
     per_window = h * w * c * 4 + h * (w // 2 + 1) * c * 8
     step = max(1, chunk_bytes // per_window)
-    out = np.empty((m, h, w // 2 + 1), dtype=np.complex64)
-    for start in range(0, m, step):
-        part = windows[start:start + step]
+    out = np.empty((len(windows), h, w // 2 + 1), dtype=np.complex64)
+    for start in range(0, len(windows), step):
+        part = np.stack(windows[start:start + step])
         out[start:start + len(part)] = response_spectra(
             filter_f, fourier.rfft2_channels_last(windowed_channels_last(part, cos_window)))
     return out

@@ -39,9 +39,17 @@ def test_the_window_chain_in_chunks_gives_one_batchs_numbers_to_the_bit(chunk_by
     cos_window = dcf.hann_window((50, 50))
     filter_f = fourier.rfft2(rng.standard_normal((42, 50, 50)).astype(np.float32) * 1e-2)
     batch = dcf.response_spectra(filter_f, fourier.rfft2_channels_last(dcf.windowed_channels_last(windows, cos_window)))
-    chunked = dcf.window_response_spectra(filter_f, windows, cos_window, chunk_bytes)
+    chunked = dcf.window_response_spectra(filter_f, list(windows), cos_window, chunk_bytes)
     assert chunked.shape == batch.shape and chunked.dtype == np.complex64
     assert np.array_equal(chunked.view(np.uint32), batch.view(np.uint32))
+    # Views into a larger feature map (the upright windows' case) give the same numbers.
+    feature_map = np.zeros((60, 60 * 9, 42), np.float32)
+    views = []
+    for k, window in enumerate(windows):
+        feature_map[5:55, 60 * k + 3:60 * k + 53] = window
+        views.append(feature_map[5:55, 60 * k + 3:60 * k + 53])
+    assert np.array_equal(dcf.window_response_spectra(filter_f, views, cos_window, chunk_bytes).view(np.uint32),
+                          batch.view(np.uint32))
 
 
 def test_a_zero_spectrum_gives_positive_zeros_as_numpy_does():

@@ -88,23 +88,23 @@ class DecisionFilter:
         def turned_features(indices: list[int]) -> list[np.ndarray]:
             return [translation_features.extract_features(
                 turned_patch(image, (float(centres_xy[k, 0]), float(centres_xy[k, 1])), cells * px_per_cell,
-                             cells * cell_size, float(angles[k])), cell_size, colour_table)[None] for k in indices]
+                             cells * cell_size, float(angles[k])), cell_size, colour_table) for k in indices]
         theirs = worker_share(int(upright.sum()), turned_order) if worker is not None else []
         mine = [int(k) for k in turned_order if int(k) not in theirs]
         job = worker.submit(turned_features, theirs) if worker is not None and theirs else None
-        stacks, window_centres, turns = [], [], []
+        windows: list[np.ndarray] = []  # (H, W, C) float32 each, the upright ones views of one feature map
+        window_centres, turns = [], []
         if upright.any():
-            windows, upright_centres = window_features(image, colour_table, centres_xy[upright], px_per_cell, cells,
-                                                       cell_size)
-            stacks.append(windows)
+            upright_windows, upright_centres = window_features(image, colour_table, centres_xy[upright], px_per_cell,
+                                                               cells, cell_size)
+            windows.extend(upright_windows)
             window_centres.extend(upright_centres)
             turns.extend([0.0] * len(upright_centres))
         turned = dict(zip(mine, turned_features(mine)))
         turned.update(zip(theirs, job.result() if job is not None else []))
-        stacks.extend(turned[int(k)] for k in turned_order)
+        windows.extend(turned[int(k)] for k in turned_order)
         window_centres.extend(centres_xy[~upright])
         turns.extend(float(degrees) for degrees in angles[~upright])
-        windows = np.concatenate(stacks) if len(stacks) > 1 else stacks[0]  # (M, H, W, C) float32
         # Channels last throughout: moving the channels first for the FFT copied the whole stack once more
         # (docs/results-tracker.md, "Speed: where the time goes"); the spectra and responses are the same numbers.
         assert self.filter.filter_f is not None
@@ -192,10 +192,10 @@ def shrunk_turned_patch(image: np.ndarray, centre_xy: tuple[float, float], side_
 
 
 def window_features(image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray, px_per_cell: float,
-                    cells: int, cell_size: int) -> tuple[np.ndarray, np.ndarray]:
-    """Translation features (M, cells, cells, C) float32 of windows centred (to the nearest cell) on
+                    cells: int, cell_size: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """Translation features of M windows, each (cells, cells, C) float32, centred (to the nearest cell) on
     centres_xy (N, 2) px, M <= N (centres on the same cell share a window), and the window centres
-    (M, 2) px. Cut from one feature map of the region covering every window when that is smaller
+    (M, 2) px. Cut (as views) from one feature map of the region covering every window when that is smaller
     than M separate windows, else one patch each."""
     half = cells // 2
     origin = centres_xy.min(axis=0) - (half + 1) * px_per_cell
@@ -207,12 +207,11 @@ def window_features(image: np.ndarray, colour_table: np.ndarray | None, centres_
         patch = patches.sample_patch(image, tuple(origin + size_px / 2.0), tuple(size_px),
                                      (int(span[0]) * cell_size, int(span[1]) * cell_size))
         feature_map = translation_features.extract_features(patch, cell_size, colour_table)
-        windows = np.stack([feature_map[cy - half:cy - half + cells, cx - half:cx - half + cells]
-                            for cx, cy in grid])
+        windows = [feature_map[cy - half:cy - half + cells, cx - half:cx - half + cells] for cx, cy in grid]
     else:
         side = cells * px_per_cell
         out = cells * cell_size
-        windows = np.stack([translation_features.extract_features(
+        windows = [translation_features.extract_features(
             patches.sample_patch(image, tuple(c), (side, side), (out, out)), cell_size, colour_table)
-            for c in window_centres])
+            for c in window_centres]
     return windows, window_centres

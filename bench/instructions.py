@@ -22,13 +22,14 @@ nothing else. Per sequence, on the same decoded frames:
                   the decision filter on its sample, the lattice windows of the per-frame budget, the
                   verifier's looks and the core's coasts; bench.redetect.searching_tracker: warm-up 0, no
                   candidate taken, so every frame of the loss spends its whole budget as the gate grows),
-                  on the tracking thread: with a verifier worker (the service's `tracker.verifier_thread`) part
-                  of a lost frame's turned windows' features and half its looks are made on the verifier's thread
-                  while this one goes on; here each job runs when its result is asked for, counted apart:
-  jsar-re lost, verifier thread   the jobs (near 0 on a frame that gave none)
-  jsar-re lost, beside the verifier   the tracking thread's work from a job's start to its result: in parallel
-  jsar-re lost, critical path   the tracking thread's work outside those spans + the longer of each span's two
-                  sides: a lost frame's time on two cores ("jsar-re lost" is the tracking thread's whole work)
+                  on the tracking thread: with a verifier worker (the service's `tracker.verifier_thread`) a
+                  coast's commit, part of a lost frame's turned windows' features and half its looks are made on
+                  the verifier's thread while this one goes on; here each job runs when its result is asked for
+                  (or at the frame's end), counted apart, and the frame's events are replayed on one worker:
+  jsar-re lost, verifier thread   the jobs (0 on a frame that gave none)
+  jsar-re lost, critical path   the tracking thread's time to the frame's end, its work plus its waits for
+                  the jobs, these run one at a time in submit order: a lost frame's time on two cores
+                  ("jsar-re lost" is the tracking thread's own work)
 --params: jsar-re's jsar.create keywords (JSON) for both jsar-re kinds, to count a variant.
 Instruction counts do not depend on the machine's load or clock; they do depend on the instruction
 set (x86-64 with AVX2 vs aarch64 NEON) and the libraries' SIMD paths: the arm64 counts are the ones
@@ -71,7 +72,9 @@ CORES = {"Pi 4 (Cortex-A72 1.8 GHz, IPC 1.0)": (1.8e9, 1.0), "Pi 5 (Cortex-A76 2
 # the last two: kinds of results saved before the search rework (--report still prints them)
 KINDS = ("jsar", "csrt", "kcf", "jsar-re confident", "jsar-re verifier", "jsar-re lost", "jsar-re lost, verifier thread",
          "jsar-re lost, critical path", "jsar-re redetect omega 5", "jsar-re redetect omega 12")
-LOST_PARTS = ("jsar-re lost, alone", "jsar-re lost, beside the verifier", "jsar-re lost, verifier thread")
+# A lost frame's segments with a CountedWorker: the tracking thread's own work, its job events (an empty segment
+# each: "... submit K", "... result K") and the jobs ("... job K"), K numbering the frame's jobs from 1.
+LOST_EVENT = re.compile(r"jsar-re lost, (submit|result|job) (\d+)$")
 Counted = Callable[[str, Callable[[], Any]], Any]  # counted(label, call): call()'s instructions under `label`
 DEFAULT_SEQUENCES = "OTB_Crossing,DTB70_MountainBike6"
 
@@ -98,26 +101,68 @@ def parse_dumps(folder: Path) -> list[tuple[str, int]]:
 
 
 def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, float]]]:
-    """{sequence: {kind: {frames, mean, median, max, counts}}} from labels 'sequence|kind|frame' (counts: per
-    frame, in frame order: jsar-re's verifier watches every verify.watch_frames-th frame). The segments of one
-    label (a call another was counted inside) add up; a lost frame's three parts (LOST_PARTS, CountedWorker) become
-    "jsar-re lost" (the tracking thread's) and "jsar-re lost, critical path" beside the verifier thread's.
-    (A frame with several jobs sums each part before taking the longer side: the path is then an upper bound.)"""
+    """{sequence: {kind: {frames, mean, median, max, counts}}} from labels 'sequence|kind|frame' in the order
+    counted (counts: per frame, in frame order: jsar-re's verifier watches every verify.watch_frames-th frame). The
+    segments of one label (a call another was counted inside) add up; a lost frame counted with a CountedWorker
+    (LOST_EVENT) becomes "jsar-re lost" (the tracking thread's work), "jsar-re lost, verifier thread" (its jobs)
+    and "jsar-re lost, critical path" (lost_frame_times)."""
     frames: dict[str, int] = {}
+    events: dict[str, list[tuple[str, int]]] = {}  # 'sequence|frame' -> its lost frame's segments in order
     for label, count in dumps:
-        frames[label] = frames.get(label, 0) + count
+        sequence, kind, index = label.split("|")
+        if kind == "jsar-re lost" or LOST_EVENT.match(kind):
+            events.setdefault(f"{sequence}|{index}", []).append((kind, count))
+        if not LOST_EVENT.match(kind):
+            frames[label] = frames.get(label, 0) + count
+    # A sequence counted with a worker: every lost frame gets the three kinds (a frame without a job too).
+    shared = {frame.split("|")[0] for frame, segments in events.items() if any(LOST_EVENT.match(k) for k, _ in segments)}
+    for frame, segments in events.items():
+        sequence, index = frame.split("|")
+        if sequence in shared:
+            own, jobs, critical = lost_frame_times(segments)
+            frames[f"{sequence}|jsar-re lost|{index}"] = own
+            frames[f"{sequence}|jsar-re lost, verifier thread|{index}"] = jobs
+            frames[f"{sequence}|jsar-re lost, critical path|{index}"] = critical
     grouped: dict[str, dict[str, list[int]]] = {}
     for label, count in frames.items():
         sequence, kind, _ = label.split("|")
         grouped.setdefault(sequence, {}).setdefault(kind, []).append(count)
-    for kinds in grouped.values():
-        if all(part in kinds for part in LOST_PARTS):
-            alone, beside, verifier = kinds.pop(LOST_PARTS[0]), kinds.pop(LOST_PARTS[1]), kinds[LOST_PARTS[2]]
-            kinds["jsar-re lost"] = [a + b for a, b in zip(alone, beside)]
-            kinds["jsar-re lost, critical path"] = [a + max(b, v) for a, b, v in zip(alone, beside, verifier)]
     return {seq: {kind: {"frames": len(v), "mean": statistics.fmean(v), "median": statistics.median(v), "max": max(v),
                          "counts": v}
                   for kind, v in kinds.items()} for seq, kinds in grouped.items()}
+
+
+def lost_frame_times(segments: list[tuple[str, int]]) -> tuple[int, int, int]:
+    """(the tracking thread's work, the worker's, the critical path) in instructions of one lost frame from its
+    segments in the order counted: "jsar-re lost" the tracking thread's work, "... submit K" / "... result K" its
+    job events (their few instructions its own), "... job K" job K's work, wherever it was counted. The worker runs
+    the jobs one at a time in submit order, each from its submission or the end of the one before it, whichever is
+    later; at a result the tracking thread waits for its job's end. The critical path is the tracking thread's time
+    at the frame's end (a job never asked for, such as a deferred watch check, delays only the jobs after it)."""
+    matches = [(LOST_EVENT.match(kind), count) for kind, count in segments]
+    costs = {int(m.group(2)): count for m, count in matches if m is not None and m.group(1) == "job"}
+    clock, queue, submitted, finished = 0, [], {}, {}
+    for m, count in matches:
+        if m is not None and m.group(1) == "job":
+            continue
+        clock += count
+        if m is None:
+            continue
+        job = int(m.group(2))
+        if m.group(1) == "submit":
+            submitted[job] = clock
+            queue.append(job)
+            continue
+        free = 0  # the worker's clock, replayed over the queue up to this job
+        for earlier in queue:
+            if earlier not in finished:
+                finished[earlier] = max(submitted[earlier], free) + costs.get(earlier, 0)
+            free = finished[earlier]
+            if earlier == job:
+                break
+        clock = max(clock, finished[job])
+    jobs = sum(costs.values())
+    return sum(count for _, count in segments) - jobs, jobs, clock
 
 
 def worker(root: Path, sequences: list[str], frames: int, redetect_frames: int, helper: Path | None,
@@ -198,38 +243,61 @@ def marks_counter() -> NestingCounter:
 
 
 class CountedWorker(concurrent.futures.Executor):
-    """A verifier worker for a count, on this thread: from submit() to the job's first result() the caller's work
-    is counted as 'SEQUENCE|jsar-re lost, beside the verifier|FRAME' (what the verifier thread would overlap),
-    then the job runs, counted as 'SEQUENCE|jsar-re lost, verifier thread|FRAME'. `frame` names the lost frame
-    ('SEQUENCE|FRAME'); each result() must come before the next submit() (as JsarReTracker's lost frames do)."""
+    """A verifier worker for a count, on this thread. submit() marks the event in the caller's count (an empty
+    segment 'SEQUENCE|jsar-re lost, submit K|FRAME'); the job runs on its first result() (marked '... result K'), or
+    at finish_frame() if nobody asked, counted as 'SEQUENCE|jsar-re lost, job K|FRAME'; a cancelled job never runs.
+    `frame` names the lost frame ('SEQUENCE|FRAME'; start_frame). summarise replays the events on one worker
+    (lost_frame_times)."""
 
     def __init__(self, counted: NestingCounter) -> None:
         self.counted = counted
         self.frame = "unlabelled|0"
+        self.jobs = 0  # this frame's jobs so far
+        self.pending: list[_JobOnResult] = []
 
     def label(self, part: str) -> str:
         sequence, index = self.frame.split("|")
         return f"{sequence}|{part}|{index}"
 
+    def start_frame(self, frame: str) -> None:
+        """Jobs from here on belong to lost frame `frame` ('SEQUENCE|FRAME'), numbered from 1."""
+        self.frame, self.jobs = frame, 0
+
     def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def, override]
-        self.counted.open(self.label(LOST_PARTS[1]))
-        return _JobOnResult(self, lambda: fn(*args, **kwargs))
+        self.jobs += 1
+        self.counted(self.label(f"jsar-re lost, submit {self.jobs}"), lambda: None)
+        job = _JobOnResult(self, self.jobs, self.label(f"jsar-re lost, job {self.jobs}"), lambda: fn(*args, **kwargs))
+        self.pending.append(job)
+        return job
+
+    def run(self, job: _JobOnResult) -> None:
+        """Run `job` now, counted under its label."""
+        self.pending.remove(job)
+        try:
+            job.set_result(self.counted(job.label, job.job))
+        except BaseException as exc:  # noqa: BLE001 - the job's error is its future's, as on a real executor
+            job.set_exception(exc)
+
+    def finish_frame(self) -> None:
+        """Run the frame's jobs nobody asked for (the worker would have): counted, not waited for."""
+        for job in list(self.pending):
+            if job.cancelled():
+                self.pending.remove(job)
+            else:
+                self.run(job)
 
 
 class _JobOnResult(concurrent.futures.Future):
-    """CountedWorker's future: the job runs on the first result()."""
+    """CountedWorker's future: the job runs on the first result() (or the frame's end)."""
 
-    def __init__(self, worker: CountedWorker, job: Callable[[], Any]) -> None:
+    def __init__(self, worker: CountedWorker, number: int, label: str, job: Callable[[], Any]) -> None:
         super().__init__()
-        self.worker, self.job = worker, job
+        self.worker, self.number, self.label, self.job = worker, number, label, job
 
     def result(self, timeout: float | None = None) -> Any:
         if not self.done():
-            self.worker.counted.close()  # the caller's work beside the job ends here
-            try:
-                self.set_result(self.worker.counted(self.worker.label(LOST_PARTS[2]), self.job))
-            except BaseException as exc:  # noqa: BLE001 - the job's error is its future's, as on a real executor
-                self.set_exception(exc)
+            self.worker.counted(self.worker.label(f"jsar-re lost, result {self.number}"), lambda: None)
+            self.worker.run(self)
         return super().result(timeout)
 
 
@@ -239,8 +307,7 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int, 
     'sequence|kind|frame': jsar, CSRT, KCF and jsar-re on frames 1..frames, then jsar-re's lost frames on the
     next lost_frames with the target hidden; returns the states of those lost frames. `overrides`: jsar.create
     keywords of both jsar-re trackers (--params). share_lost_work: the lost frames have a verifier worker
-    (CountedWorker; `counted` a NestingCounter) and are counted in its three parts (LOST_PARTS: each once more
-    after the frame with nothing, so that every frame has each part)."""
+    (CountedWorker; `counted` a NestingCounter), their jobs and job events counted apart (LOST_EVENT)."""
     import cv2
 
     import jsar
@@ -274,16 +341,13 @@ def count_frame_kinds(root: Path, sequence: str, frames: int, lost_frames: int, 
     searching.run_deferred()  # the tracked frames' deferred work: the verifier thread's, not a lost frame's
     worker = CountedWorker(counted) if share_lost_work else None  # type: ignore[arg-type]
     states: list[str] = []
+    searching.set_verifier_worker(worker)
     for index, image in enumerate(hidden, start=frames + 1):
-        kind = "jsar-re lost"
         if worker is not None:
-            worker.frame, kind = f"{sequence}|{index}", LOST_PARTS[0]
-            # The first hidden frame is tracked until its loss is declared: a watch check it defers would be awaited
-            # frames later (never: the loss drops it), not within the frame as CountedWorker's jobs are.
-            searching.set_verifier_worker(worker if index > frames + 1 else None)
-        counted(f"{sequence}|{kind}|{index}", lambda: states.append(searching.update(image).state))
-        for part in LOST_PARTS[1:] if worker is not None else ():
-            counted(f"{sequence}|{part}|{index}", lambda: None)
+            worker.start_frame(f"{sequence}|{index}")
+        counted(f"{sequence}|jsar-re lost|{index}", lambda: states.append(searching.update(image).state))
+        if worker is not None:
+            worker.finish_frame()
     return states
 
 

@@ -1475,13 +1475,13 @@ def test_the_window_on_the_focus_is_moved_by_the_tracks_velocity_when_asked(monk
     focus_windows: list[tuple[tuple[float, float], tuple[float, float], tuple[float, float]]] = []
     original = DecisionFilter.score_windows
 
-    def spy(decision, image, table, centres, side, angles=None, worker=None):  # type: ignore[no-untyped-def]
+    def spy(decision, image, table, centres, side, angles=None, worker=None, worker_busy=0.0):  # type: ignore[no-untyped-def]
         loss = tracker.loss
         focus = None if loss is None else (loss.pending if loss.pending is not None else loss.lead)
         if focus is not None:
             focus_windows.append(((focus.x, focus.y), tuple(np.asarray(centres)[-1]),
                                   track_velocity(list(tracker.recent_centres))))
-        return original(decision, image, table, centres, side, angles, worker)
+        return original(decision, image, table, centres, side, angles, worker, worker_busy)
 
     monkeypatch.setattr(DecisionFilter, "score_windows", spy)
     for index in range(1, 50):
@@ -1507,13 +1507,16 @@ class _CountingWorker(concurrent.futures.ThreadPoolExecutor):
         return super().submit(fn, *args, **kwargs)
 
 
-def test_a_lost_frame_shares_its_work_with_the_verifier_worker_and_finds_the_same(data_root):
-    """With a verifier worker a lost frame's turned windows' features and its looks after the first are made on the
-    worker's thread: the boxes, states and scores are those of the frame made on one thread (OTB_Crossing, the target
-    hidden for 30 frames and then back)."""
+@pytest.mark.parametrize("name, jobs", [("OTB_Crossing", {"turned_features", "embed"}),
+                                        ("UAV123_10fps_wakeboard10", {"turned_features", "_committed"})])
+def test_a_lost_frame_shares_its_work_with_the_verifier_worker_and_finds_the_same(data_root, name, jobs):
+    """With a verifier worker a lost frame's turned windows' features, its looks after the first and a coast's commit
+    (on a copy of the core) are made on the worker's thread: the boxes, states and scores are those of the frame made
+    on one thread (the target hidden for 30 frames and then back: OTB_Crossing's search looks, wakeboard10's core
+    coasts)."""
     from bench.redetect import hide_target
 
-    sequence = real_sequence(data_root, "OTB_Crossing")
+    sequence = real_sequence(data_root, name)
     frames = [sequence.read_frame(index) for index in range(100)]
     frames = [hide_target(frame, sequence.groundtruth[index]) if 40 <= index < 70 else frame
               for index, frame in enumerate(frames)]
@@ -1532,7 +1535,7 @@ def test_a_lost_frame_shares_its_work_with_the_verifier_worker_and_finds_the_sam
         shared = run(worker)
     assert "lost" in [state for state, _, _ in alone] and alone[-1][0] == "tracking"  # a loss, and it ended
     assert shared == alone
-    assert "turned_features" in worker.lost_jobs and "embed" in worker.lost_jobs  # both kinds of a lost frame's work
+    assert jobs <= set(worker.lost_jobs)  # the kinds of a lost frame's work each run gave the worker
 
 
 def test_the_worker_takes_turned_windows_while_it_has_less_work_than_this_thread():
@@ -1542,3 +1545,4 @@ def test_the_worker_takes_turned_windows_while_it_has_less_work_than_this_thread
     assert worker_share(8, np.array([8])) == [8]  # eight upright windows here: the turned one there
     assert worker_share(4, np.array([4, 5, 6])) == [4, 5]  # 4 + 2 here, 4 there
     assert worker_share(3, np.array([], dtype=int)) == []
+    assert worker_share(4, np.array([4, 5, 6]), worker_busy=4.5) == [5]  # a coast's commit queued there: 4 + 4 here

@@ -24,7 +24,7 @@ from jsar.config import JsarParams
 from jsar.redetect.appearance import (AppearanceMemory, DeferredEmbeddings, Embedder, Look, Verdict as Appearance,
                                      ring_boxes, shared_embedder)
 from jsar.redetect.colour_check import AnchorColours, ColourModel
-from jsar.redetect.memory import DecisionFilter
+from jsar.redetect.memory import COAST_COMMIT_COST, DecisionFilter
 from jsar.redetect.monitor import FailureMonitor, Verdict
 from jsar.redetect.params import RedetectParams
 from jsar.redetect.search import (Candidate, LossSearch, decayed_bar, gate_reach, predicted_centre, track_speed,
@@ -386,13 +386,9 @@ class JsarReTracker:
         x, y, w, h = self.core.box
         return LossSearch((x + w / 2.0, y + h / 2.0), math.sqrt(w * h), self.redetect.search, self.redetect.accept)
 
-    def _coast(self, frame: np.ndarray, loc: Localisation, loss: LossSearch) -> None:
-        """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
-        within coast_radius_sides of where the target was going (a target still there whose look
-        changed moves on as predicted; an absent one's background does not), the loss's cause is the
-        monitor's (unless search.coast_after_drift), the loss has not coasted search.coast_max_frames yet and,
-        with search.coast_unless_other, the verifier does not call it another object; else the core waits at the
-        prediction, learning nothing. The decision filter learns nothing either way."""
+    def _may_coast(self, loc: Localisation, loss: LossSearch) -> bool:
+        """Whether the core's detection `loc` may coast on this lost frame if nothing is taken (_coast), the
+        verifier's search.coast_unless_other aside: known once the search is aimed (_aim), before any window."""
         radius = self.redetect.search.coast_radius_sides * loss.side_px
         near = math.hypot(loc.centre_xy[0] - loss.anchor_xy[0], loc.centre_xy[1] - loss.anchor_xy[1]) <= radius
         # The motion model follows a coasting core: on still ground that the verifier calls another object the
@@ -404,9 +400,35 @@ class JsarReTracker:
         # it): bounded, the search is no longer held on it (_beating_the_core) nor the prediction with it.
         limit = self.redetect.search.coast_max_frames
         spent = limit > 0 and loss.coasted_frames >= limit
-        if near and not refused and not spent and not (self.redetect.search.coast_unless_other
-                                                       and self._looks_other(frame, loc.centre_xy)):
-            self.core.commit(frame, loc, learn_size=self.redetect.search.coast_learns_size)
+        return near and not refused and not spent
+
+    def _speculate_coast(self, frame: np.ndarray, loc: Localisation,
+                         loss: LossSearch) -> concurrent.futures.Future[JsarTracker] | None:
+        """With a verifier worker, a copy of the core committing `loc` as a coast would, made there while this
+        thread scores the windows (a coasting commit on top of a full window budget passed 2x a tracked frame's
+        instructions; docs/results-cost.md); None without a worker, where the frame cannot coast, or where the
+        verifier's verdict decides it (search.coast_unless_other). _coast uses it when the frame coasts: the same
+        core as committing there, since the copy and the core are the same state."""
+        if self.worker is None or self.redetect.search.coast_unless_other or not self._may_coast(loc, loss):
+            return None
+        return self.worker.submit(_committed, copy.deepcopy(self.core), frame, loc,
+                                  self.redetect.search.coast_learns_size)
+
+    def _coast(self, frame: np.ndarray, loc: Localisation, loss: LossSearch,
+               speculation: concurrent.futures.Future[JsarTracker] | None = None) -> None:
+        """A lost frame with nothing taken: the core commits its detection as plain JSAR when it lies
+        within coast_radius_sides of where the target was going (a target still there whose look
+        changed moves on as predicted; an absent one's background does not), the loss's cause is the
+        monitor's (unless search.coast_after_drift), the loss has not coasted search.coast_max_frames yet and,
+        with search.coast_unless_other, the verifier does not call it another object; else the core waits at the
+        prediction, learning nothing. The decision filter learns nothing either way. `speculation`: that commit
+        made already (_speculate_coast)."""
+        if self._may_coast(loc, loss) and not (self.redetect.search.coast_unless_other
+                                               and self._looks_other(frame, loc.centre_xy)):
+            if speculation is not None:
+                self.core = speculation.result()
+            else:
+                self.core.commit(frame, loc, learn_size=self.redetect.search.coast_learns_size)
             self.decision_filter.skip()
             self._remember_position()  # the motion model follows a coasting target
             loss.coasting = True
@@ -415,10 +437,12 @@ class JsarReTracker:
             self.core.relocate(loss.anchor_xy)
             loss.coasting = False
 
-    def _candidates(self, frame: np.ndarray, loss: LossSearch, own: Candidate) -> list[Candidate]:
+    def _candidates(self, frame: np.ndarray, loss: LossSearch, own: Candidate,
+                    worker_busy: float = 0.0) -> list[Candidate]:
         """The core sample's candidate, this frame's lattice windows (upright and turned), and a
         window on the pending candidate, or else on the last frame's best (at its angle; moved on by the
-        track's velocity with search.focus_follows_motion)."""
+        track's velocity with search.focus_follows_motion); worker_busy: the verifier worker's queued work, in
+        upright windows (DecisionFilter.score_windows)."""
         assert self.decision_filter is not None
         image = self.core.prepare(frame)
         centres, angles = loss.windows((frame.shape[1], frame.shape[0]))
@@ -435,7 +459,7 @@ class JsarReTracker:
             angles = np.append(angles, focus.angle_deg)
         side = loss.side_px  # the last confident size (a coasting core's may have drifted)
         found = self.decision_filter.score_windows(image, self.core.feature_colour_table, centres, side, angles,
-                                                   self.worker)
+                                                   self.worker, worker_busy)
         factor = self.redetect.search.turned_score_factor
         return [own] + [c if c.angle_deg == 0 else dataclasses.replace(c, score=c.score * factor) for c in found]
 
@@ -450,13 +474,16 @@ class JsarReTracker:
             self._commit(frame, loc, verdict.reliable, own)
             return "core recovered", loc.peak
         self._aim(loss)
-        candidates = self._candidates(frame, loss, own)
+        speculation = self._speculate_coast(frame, loc, loss)
+        candidates = self._candidates(frame, loss, own, COAST_COMMIT_COST if speculation is not None else 0.0)
         if loss.coasting:
             candidates = self._beating_the_core(candidates, own, loss)
         taken, verified = self._take(frame, loss, candidates, bar, own)
         if taken is None:
-            self._coast(frame, loc, loss)
+            self._coast(frame, loc, loss, speculation)
             return "searched", loc.peak
+        if speculation is not None:
+            speculation.cancel()  # not coasting: the copy is dropped (if it already runs, it finishes unused)
         if loss.coasting and self._within_a_side(taken, loc, loss):
             # The decision filter confirms the target where the coasting core already is: keep the core's
             # own detection (its box follows the target; the filter's peak is coarser) and end the loss.
@@ -740,6 +767,12 @@ class JsarReTracker:
         """Add the core's centre (px) on this frame to the motion model."""
         cx, cy = self.core.centre_xy
         self.recent_centres.append((self.frame_index, cx, cy))
+
+
+def _committed(core: JsarTracker, frame: np.ndarray, loc: Localisation, learn_size: bool) -> JsarTracker:
+    """`core` after committing `loc` on `frame` (a coast's commit, made on a verifier worker)."""
+    core.commit(frame, loc, learn_size=learn_size)
+    return core
 
 
 def make_jsar_re(redetect: Mapping[str, Any] | None = None, **overrides: Any) -> JsarReTracker:

@@ -26,6 +26,9 @@ from jsar.tracking.translation import TranslationFilter
 
 # A turned window's warp and features cost about two upright windows' (docs/results-cost.md): a split's weights.
 TURNED_FEATURE_COST = 2.0
+# A coasting commit (the core's ADMM and size update) costs about 4.5 upright windows (aarch64: 38 M against 8.2 M,
+# docs/results-cost.md): the worker's head start when it makes the commit while the windows are scored.
+COAST_COMMIT_COST = 4.5
 
 
 class DecisionFilter:
@@ -65,7 +68,7 @@ class DecisionFilter:
 
     def score_windows(self, image: np.ndarray, colour_table: np.ndarray | None, centres_xy: np.ndarray,
                       target_side_px: float, angles_deg: np.ndarray | None = None,
-                      worker: concurrent.futures.Executor | None = None) -> list[Candidate]:
+                      worker: concurrent.futures.Executor | None = None, worker_busy: float = 0.0) -> list[Candidate]:
         """Candidates (peak position px, raw peak, angle) of windows of the filter's sample geometry for a
         target of side target_side_px centred on centres_xy (N, 2) px, each scored with the image turned by
         angles_deg (N,) degrees about its centre (cv2's sign: counter-clockwise as displayed; 0 or None:
@@ -73,7 +76,8 @@ class DecisionFilter:
         the same cell share a window); a turned window's peak is mapped back to the unturned image. All
         windows go through one batched FFT. Order: the upright candidates (by cell), then the turned ones
         as given. With `worker` (a one-thread executor on another core) part of the turned windows' patches and
-        features are made there meanwhile (worker_share): the same numbers."""
+        features are made there meanwhile (worker_share; worker_busy: the work already queued there, in upright
+        windows): the same numbers."""
         centres_xy = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
         angles = np.zeros(len(centres_xy)) if angles_deg is None else np.asarray(angles_deg, dtype=np.float64)
         if angles.shape != (len(centres_xy),):
@@ -89,7 +93,7 @@ class DecisionFilter:
             return [translation_features.extract_features(
                 turned_patch(image, (float(centres_xy[k, 0]), float(centres_xy[k, 1])), cells * px_per_cell,
                              cells * cell_size, float(angles[k])), cell_size, colour_table) for k in indices]
-        theirs = worker_share(int(upright.sum()), turned_order) if worker is not None else []
+        theirs = worker_share(int(upright.sum()), turned_order, worker_busy) if worker is not None else []
         mine = [int(k) for k in turned_order if int(k) not in theirs]
         job = worker.submit(turned_features, theirs) if worker is not None and theirs else None
         windows: list[np.ndarray] = []  # (H, W, C) float32 each, the upright ones views of one feature map
@@ -141,11 +145,12 @@ class DecisionFilter:
         self.in_sync = False
 
 
-def worker_share(upright_count: int, turned_indices: np.ndarray) -> list[int]:
+def worker_share(upright_count: int, turned_indices: np.ndarray, worker_busy: float = 0.0) -> list[int]:
     """The turned windows (of `turned_indices`, in order) a second thread makes while this one makes the
     `upright_count` upright windows and the rest: each goes to the side with less work so far, a turned window
-    costing TURNED_FEATURE_COST upright windows (ties: this thread), so that neither waits long for the other."""
-    work = [float(upright_count), 0.0]  # this thread's, the worker's
+    costing TURNED_FEATURE_COST upright windows (ties: this thread), so that neither waits long for the other;
+    worker_busy: the work (in upright windows) queued on the worker before them."""
+    work = [float(upright_count), float(worker_busy)]  # this thread's, the worker's
     theirs = []
     for k in turned_indices:
         side = 1 if work[1] < work[0] else 0

@@ -95,8 +95,8 @@ class OracleSearchTracker(JsarReTracker):
             return dataclasses.replace(own, score=0.0)
         return own
 
-    def _candidates(self, frame, search, own):  # type: ignore[no-untyped-def]
-        found = super()._candidates(frame, search, own) if self.oracle == "oracle+lattice" else [own]
+    def _candidates(self, frame, search, own, worker_busy=0.0):  # type: ignore[no-untyped-def]
+        found = super()._candidates(frame, search, own, worker_busy) if self.oracle == "oracle+lattice" else [own]
         centre = self._target_centre()
         if centre is None:
             return found

@@ -54,9 +54,11 @@ def test_every_variant_runs_with_its_own_overrides_and_only_those(sequences, mon
     widest: dict[int, int] = {}  # id(decision filter) -> most windows it scored in one call
     real_score_windows = DecisionFilter.score_windows
 
-    def spy_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg=None, worker=None):
+    def spy_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg=None, worker=None,
+                          worker_busy=0.0):
         widest[id(self)] = max(widest.get(id(self), 0), len(centres_xy))
-        return real_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg, worker)
+        return real_score_windows(self, image, colour_table, centres_xy, target_side_px, angles_deg, worker,
+                                  worker_busy)
 
     monkeypatch.setattr(jsar, "create", spy_create)
     monkeypatch.setattr(DecisionFilter, "score_windows", spy_score_windows)

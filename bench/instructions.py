@@ -115,7 +115,8 @@ def summarise(dumps: list[tuple[str, int]]) -> dict[str, dict[str, dict[str, flo
         if not LOST_EVENT.match(kind):
             frames[label] = frames.get(label, 0) + count
     # A sequence counted with a worker: every lost frame gets the three kinds (a frame without a job too).
-    shared = {frame.split("|")[0] for frame, segments in events.items() if any(LOST_EVENT.match(k) for k, _ in segments)}
+    shared = {frame.split("|")[0] for frame, segments in events.items()
+              if any(LOST_EVENT.match(kind) for kind, _ in segments)}
     for frame, segments in events.items():
         sequence, index = frame.split("|")
         if sequence in shared:

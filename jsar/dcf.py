@@ -104,7 +104,7 @@ def response_spectra(filter_f: np.ndarray, spectra: np.ndarray) -> np.ndarray:
 # A chunk of windows goes through the window -> FFT -> correlation chain while its features and spectra are still
 # in the core's cache: for 50 x 50 cells of 42 channels a window is 0.42 MB of features and 0.44 MB of spectra, and a
 # lost frame's 9 windows, stacked whole (3.8 MB, then 4 MB of spectra), ran the chain from memory and faulted fresh
-# pages in (docs/results-cost.md, "Lost frames in time").
+# pages in (docs/results-cost.md, "In time, here").
 WINDOW_CHAIN_BYTES = 2 << 20
 
 

@@ -73,9 +73,10 @@ class DecisionFilter:
         target of side target_side_px centred on centres_xy (N, 2) px, each scored with the image turned by
         angles_deg (N,) degrees about its centre (cv2's sign: counter-clockwise as displayed; 0 or None:
         upright). Upright windows are centred to the nearest cell of one shared feature map (centres on
-        the same cell share a window); a turned window's peak is mapped back to the unturned image. All
-        windows go through one batched FFT. Order: the upright candidates (by cell), then the turned ones
-        as given. With `worker` (a one-thread executor on another core) part of the turned windows' patches and
+        the same cell share a window); a turned window's peak is mapped back to the unturned image. The
+        windows go through the window, FFT and correlation chain a cache-sized chunk at a time
+        (dcf.window_response_spectra). Order: the upright candidates (by cell), then the turned ones as given.
+        With `worker` (a one-thread executor on another core) part of the turned windows' patches and
         features are made there meanwhile (worker_share; worker_busy: the work already queued there, in upright
         windows): the same numbers."""
         centres_xy = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)

@@ -1338,6 +1338,41 @@ def test_a_confident_track_the_verifier_calls_another_object_on_two_checks_in_a_
     assert all(unwatched[i][0] == "tracking" for i in range(1, 50))
 
 
+class _SlideEmbedder(_MarkEmbedder):
+    """A slow slide the target memory learns along: the box at the target's place embeds as the selection (1, 0, 0)
+    on unmarked frames, half-slid (0.6, 0, 0.8; 0.6 from the selection, learnt) on frames marked 128, slid (0.3, 0,
+    0.954; 0.94 from the half-slid look, 0.3 from the selection) on frames marked 255; anything else is a look-alike."""
+
+    def embed(self, frame: np.ndarray, boxes_xywh: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        look = {128: (0.6, 0.0, 0.8), 255: (0.3, 0.0, 0.954)}.get(int(frame[0, 0, 0]), (1.0, 0.0, 0.0))
+        return np.asarray([look if math.dist((x + w / 2, y + h / 2), self.place) < 6 else (0.0, 1.0, 0.0)
+                           for x, y, w, h in np.asarray(boxes_xywh, float).reshape(-1, 4)], np.float32)
+
+
+@pytest.mark.parametrize("bar, lost", [(-1.0, False), (0.4, True)])
+def test_a_slide_the_target_memory_learnt_along_is_a_loss_only_against_the_selections_look(bar, lost):
+    """verify.watch_selection_similarity: the look half-slid is learnt (0.6 from the selection's, over
+    anchor_similarity), so the slid look is near the target memory (0.94: "target") though 0.3 from the selection's.
+    Off (-1), the track stays "tracking" on it; at 0.4 two checks in a row under it are a loss, cause "appearance"."""
+    background = _background()
+    tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={
+        "enabled": True, "watch_frames": 1, "defer_frames": 0, "watch_selection_similarity": bar}),
+        embedder=_SlideEmbedder())
+    tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
+    states, causes = {}, {}
+    for index in range(1, 60):
+        frame = _frame(background, (100, 100))
+        if index >= 25:
+            frame[0, 0] = 128 if index < 45 else 255
+        states[index] = tracker.update(frame).state
+        causes[index] = tracker.loss_cause
+    assert tracker.appearance is not None and any(abs(row[0] - 0.6) < 1e-6 for row in tracker.appearance.target_rows())
+    assert all(states[i] == "tracking" for i in range(1, 45))
+    assert (states[46] == "lost" and causes[46] == "appearance") is lost
+    assert all(state == "tracking" for state in states.values()) is not lost
+
+
 def test_a_worker_thread_gives_the_same_track_as_deferred_work_done_on_the_tracking_thread():
     """set_verifier_worker: the deferred embeddings run on a one-thread executor while the tracker goes on; every
     box, state and loss cause is the one computed without it (the worker only moves where the work runs)."""

@@ -45,11 +45,12 @@ class Verdict(enum.Enum):
 @dataclass(frozen=True)
 class Look:
     """One candidate's similarities (cosine, -1..1) to the target memory and to the look-alike memory
-    (-1 while it is empty), and the verdict they give."""
+    (-1 while it is empty), the verdict they give, and its cosine to the selection's embedding alone."""
 
     target: float
     other: float
     verdict: Verdict
+    selection: float = 1.0
 
 
 def max_cosine(rows: np.ndarray, memory: np.ndarray) -> np.ndarray:
@@ -119,15 +120,16 @@ class AppearanceMemory:
         rows = np.asarray(embeddings, np.float32).reshape(-1, self.first.shape[1])
         target = max_cosine(rows, self.target_rows())
         other = max_cosine(rows, self.other_rows())
+        selection = rows @ self.first[0]
         looks = []
-        for t, o in zip(target.tolist(), other.tolist()):
+        for t, o, first in zip(target.tolist(), other.tolist(), selection.tolist()):
             if t >= self.params.min_similarity and t - o >= self.params.margin:
                 verdict = Verdict.TARGET
             elif t < self.params.reject_similarity and (o >= t or not self.params.reject_nearer_other):
                 verdict = Verdict.OTHER
             else:
                 verdict = Verdict.UNSURE
-            looks.append(Look(t, o, verdict))
+            looks.append(Look(t, o, verdict, first))
         return looks
 
 

@@ -149,6 +149,7 @@ class VerifyParams:
     ring_count: int = checked(8, at_least(1))  # look-alike windows per learnt frame, at evenly spaced angles
     watch_frames: int = checked(3, non_negative)  # while tracking the box is checked once per this many frames (0: never)
     watch_count: int = checked(2, at_least(1))  # "other" on this many checks in a row is a loss (a confident slide)
+    watch_selection_similarity: float = checked(-1.0, COSINE)  # a check under this cosine to the selection's look counts as "other" (a slide the target memory learnt along; -1: off)
     defer_frames: int = checked(3, non_negative)  # a tracked frame's learning and watch check (not on probation) take effect this many frames later: their embeddings can run on another thread meanwhile (0: at once)
     lost_looks: int = checked(2, non_negative)  # candidates the verifier looks at per lost frame at most, those near the pending one first, then by score; one not looked at is not taken on that frame (0: no bound)
     hold_verified: bool = True  # a take called the target when taken and on every check since is not refuted by a loss on probation: a new loss starts from it

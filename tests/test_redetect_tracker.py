@@ -1350,14 +1350,15 @@ class _SlideEmbedder(_MarkEmbedder):
                            for x, y, w, h in np.asarray(boxes_xywh, float).reshape(-1, 4)], np.float32)
 
 
-@pytest.mark.parametrize("bar, lost", [(-1.0, False), (0.4, True)])
-def test_a_slide_the_target_memory_learnt_along_is_a_loss_only_against_the_selections_look(bar, lost):
-    """verify.watch_selection_similarity: the look half-slid is learnt (0.6 from the selection's, over
-    anchor_similarity), so the slid look is near the target memory (0.94: "target") though 0.3 from the selection's.
-    Off (-1), the track stays "tracking" on it; at 0.4 two checks in a row under it are a loss, cause "appearance"."""
+@pytest.mark.parametrize("floor, lost", [(-1.0, False), (0.4, True)])
+def test_a_slide_the_target_memory_learnt_along_is_a_loss_only_against_the_selections_look(floor, lost):
+    """verify.selection_floor: the look half-slid is learnt (0.6 from the selection's, over anchor_similarity), so
+    the slid look is near the target memory (0.94: "target") though 0.3 from the selection's. Off (-1), the track
+    stays "tracking" on it; at 0.4 the slid look is "other", and two watch checks in a row are a loss, cause
+    "appearance"."""
     background = _background()
     tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={
-        "enabled": True, "watch_frames": 1, "defer_frames": 0, "watch_selection_similarity": bar}),
+        "enabled": True, "watch_frames": 1, "defer_frames": 0, "selection_floor": floor}),
         embedder=_SlideEmbedder())
     tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
     states, causes = {}, {}

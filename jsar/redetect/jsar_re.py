@@ -290,13 +290,8 @@ class JsarReTracker:
         look = self.appearance.judge(self.embedder.embed(frame, np.array([self._detection_box(loc)])))[0]
         if self.probation is not None and look.verdict is not Appearance.TARGET:
             self.probation.verified = False
-        self.away_checks = self.away_checks + 1 if self._away(look) else 0
+        self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
         return self.away_checks >= verify.watch_count
-
-    def _away(self, look: Look) -> bool:
-        """Whether a watch check's look counts towards a loss: "other", or under verify.watch_selection_similarity
-        to the selection's look (the target memory learns along a slow slide, the selection's look does not)."""
-        return look.verdict is Appearance.OTHER or look.selection < self.redetect.verify.watch_selection_similarity
 
     def _detection_box(self, loc: Localisation) -> Box:
         """The box (x, y, w, h px) at the core's detection `loc`, at the core's size."""
@@ -612,7 +607,7 @@ class JsarReTracker:
                 self._learn_rows(job.rows())
                 continue
             look = self.appearance.judge(job.rows())[0]
-            self.away_checks = self.away_checks + 1 if self._away(look) else 0
+            self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
             self.watched_now = True
 
     def _learn_appearance(self, frame: np.ndarray, box: Box) -> AppearanceMemory:

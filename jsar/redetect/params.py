@@ -143,13 +143,13 @@ class VerifyParams:
     over_colour_match: bool = True  # a "target" candidate needs no colour-model match (the selection's colours still)
     target_slots: int = checked(6, at_least(1))  # target memory: the selection plus this many minus one recent reliable frames
     anchor_similarity: float = checked(0.5, COSINE)  # a reliable frame's look joins the target memory only at least this near the selection's (cosine; -1: no bound)
+    selection_floor: float = checked(-1.0, COSINE)  # a look under this cosine to the selection's is "other", whatever the memories say (a slide the target memory learnt along; -1: off)
     learn_frames: int = checked(10, at_least(1))  # the verifier learns one reliable frame in this many, with the look-alikes around it
     other_slots: int = checked(32, non_negative)  # look-alike memory size (oldest out first)
     ring_sides: float = checked(2.0, positive)  # look-alike windows' distance from the target (target sides)
     ring_count: int = checked(8, at_least(1))  # look-alike windows per learnt frame, at evenly spaced angles
     watch_frames: int = checked(3, non_negative)  # while tracking the box is checked once per this many frames (0: never)
     watch_count: int = checked(2, at_least(1))  # "other" on this many checks in a row is a loss (a confident slide)
-    watch_selection_similarity: float = checked(-1.0, COSINE)  # a check under this cosine to the selection's look counts as "other" (a slide the target memory learnt along; -1: off)
     defer_frames: int = checked(3, non_negative)  # a tracked frame's learning and watch check (not on probation) take effect this many frames later: their embeddings can run on another thread meanwhile (0: at once)
     lost_looks: int = checked(2, non_negative)  # candidates the verifier looks at per lost frame at most, those near the pending one first, then by score; one not looked at is not taken on that frame (0: no bound)
     hold_verified: bool = True  # a take called the target when taken and on every check since is not refuted by a loss on probation: a new loss starts from it

@@ -1354,23 +1354,25 @@ class _SlideEmbedder(_MarkEmbedder):
 def test_a_slide_the_target_memory_learnt_along_is_a_loss_only_against_the_selections_look(floor, lost):
     """verify.selection_floor: the look half-slid is learnt (0.6 from the selection's, over anchor_similarity), so
     the slid look is near the target memory (0.94: "target") though 0.3 from the selection's. Off (-1), the track
-    stays "tracking" on it; at 0.4 the slid look is "other", and two watch checks in a row are a loss, cause
-    "appearance"."""
+    stays "tracking" on it; at 0.4 two watch checks in a row under it are a loss, cause "appearance", and the core,
+    confident there, does not end the loss on it (only a take, whose look is judged by the memories, does)."""
     background = _background()
     tracker = JsarReTracker(JsarParams.jsar_re(), _redetect(verify={
         "enabled": True, "watch_frames": 1, "defer_frames": 0, "selection_floor": floor}),
         embedder=_SlideEmbedder())
     tracker.init(_frame(background, (100, 100)), _target_box((100, 100)))
-    states, causes = {}, {}
+    states, causes, events = {}, {}, {}
     for index in range(1, 60):
         frame = _frame(background, (100, 100))
         if index >= 25:
             frame[0, 0] = 128 if index < 45 else 255
         states[index] = tracker.update(frame).state
-        causes[index] = tracker.loss_cause
+        causes[index], events[index] = tracker.loss_cause, tracker.last_event
     assert tracker.appearance is not None and any(abs(row[0] - 0.6) < 1e-6 for row in tracker.appearance.target_rows())
     assert all(states[i] == "tracking" for i in range(1, 45))
     assert (states[46] == "lost" and causes[46] == "appearance") is lost
+    if lost:
+        assert "core recovered" not in [events[i] for i in range(46, 60)]  # the core's own way out refused there
     assert all(state == "tracking" for state in states.values()) is not lost
 
 

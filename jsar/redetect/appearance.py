@@ -123,9 +123,7 @@ class AppearanceMemory:
         selection = rows @ self.first[0]
         looks = []
         for t, o, first in zip(target.tolist(), other.tolist(), selection.tolist()):
-            if first < self.params.selection_floor:
-                verdict = Verdict.OTHER  # the memories may have learnt along a slow slide; the selection's look did not
-            elif t >= self.params.min_similarity and t - o >= self.params.margin:
+            if t >= self.params.min_similarity and t - o >= self.params.margin:
                 verdict = Verdict.TARGET
             elif t < self.params.reject_similarity and (o >= t or not self.params.reject_nearer_other):
                 verdict = Verdict.OTHER

@@ -290,8 +290,14 @@ class JsarReTracker:
         look = self.appearance.judge(self.embedder.embed(frame, np.array([self._detection_box(loc)])))[0]
         if self.probation is not None and look.verdict is not Appearance.TARGET:
             self.probation.verified = False
-        self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
+        self.away_checks = self.away_checks + 1 if self._away(look) else 0
         return self.away_checks >= verify.watch_count
+
+    def _away(self, look: Look) -> bool:
+        """Whether the look at the core's box (a watch check, the core's own way out of a loss) is another object:
+        "other", or under verify.selection_floor to the selection's look (the target memory learns along a slow
+        slide; the selection's look does not)."""
+        return look.verdict is Appearance.OTHER or look.selection < self.redetect.verify.selection_floor
 
     def _detection_box(self, loc: Localisation) -> Box:
         """The box (x, y, w, h px) at the core's detection `loc`, at the core's size."""
@@ -607,7 +613,7 @@ class JsarReTracker:
                 self._learn_rows(job.rows())
                 continue
             look = self.appearance.judge(job.rows())[0]
-            self.away_checks = self.away_checks + 1 if look.verdict is Appearance.OTHER else 0
+            self.away_checks = self.away_checks + 1 if self._away(look) else 0
             self.watched_now = True
 
     def _learn_appearance(self, frame: np.ndarray, box: Box) -> AppearanceMemory:
@@ -673,11 +679,11 @@ class JsarReTracker:
         return id(candidate) in looks and looks[id(candidate)][0].verdict is Appearance.TARGET
 
     def _looks_other(self, frame: np.ndarray, centre_xy: tuple[float, float]) -> bool:
-        """Whether the verifier calls the target-sized box centred on centre_xy px another object."""
+        """Whether the target-sized box centred on centre_xy px, where the core is, is another object (_away)."""
         if self.appearance is None or self.embedder is None:
             return False
         rows = self.embedder.embed(frame, np.array([self._loss_box(centre_xy)]))
-        return self.appearance.judge(rows)[0].verdict is Appearance.OTHER
+        return self._away(self.appearance.judge(rows)[0])
 
     def _gate_peaks(self, frame: np.ndarray, loss: LossSearch) -> list[tuple[float, float]]:
         """The whole-gate search on this lost frame (verify.gate_map): the centres (px) where the target's

@@ -117,6 +117,21 @@ def test_lattice_offsets_ring_by_ring_without_the_centre():
     assert np.allclose(lattice_offsets(10.0, 5.0), 2.0 * lattice_offsets(5.0, 2.5))  # offsets scale with the stride
 
 
+def test_a_search_lost_for_hours_keeps_its_floors_instead_of_overflowing():
+    """1.05 ** n (the searched square's growth) overflows a float from about 14,550 lost frames (8 minutes at 30 fps,
+    the real-time soak's car gone for good) and 1.005 ** n (the bar's decay) from about 142,000: every frame after
+    raised OverflowError in the service's loop. Past them the square stays at its largest and the bar at its floor."""
+    accept = AcceptParams()
+    for lost in (14_000, 15_000, 200_000, 10**9):
+        assert decayed_bar(0.06, lost, accept) == pytest.approx(0.06 * accept.floor)
+        assert decayed_bar(None, lost, AcceptParams(peak=0.02, fraction=0.0, floor=0.0), min_peak=0.013) == 0.013
+        search = LossSearch((100.0, 100.0), 20.0, SearchParams(), accept)
+        search.lost_frames = lost
+        assert search.area_sides() == SearchParams().area_max_sides
+        centres, _ = search.windows((640, 480))
+        assert np.isfinite(centres).all()
+
+
 def test_decayed_bar_decays_to_its_floor_and_keeps_the_absolute_part():
     relative = AcceptParams(peak=0.0, fraction=0.5, decay=1.005, floor=0.45)
     assert decayed_bar(0.06, 0, relative) == pytest.approx(0.03)

@@ -107,16 +107,26 @@ def search_cycle(area_sides: float, stride_sides: float, angles_deg: tuple[float
     return np.vstack(entries)
 
 
+def power(base: float, exponent: int) -> float:
+    """base ** exponent, inf where that is beyond a float (a search's growth or decay after hours lost: 1.05 ** n
+    overflows from about 14,550 lost frames, 8 minutes at 30 fps)."""
+    try:
+        return base ** exponent
+    except OverflowError:
+        return math.inf
+
+
 def decayed_bar(reference: float | None, lost_frames: int, accept: AcceptParams, min_peak: float = 0.0,
                 fraction: float | None = None) -> float:
     """The acceptance bar (raw peak) after `lost_frames` failed frames: max(peak / decay^t,
     reference x max(floor, fraction / decay^t), min_peak), fraction = fraction unless given
     (reference None: the absolute part alone, or inf when that is 0: nothing to compare with yet)."""
-    decay = accept.decay ** lost_frames
+    decay = power(accept.decay, lost_frames)
     start = accept.fraction if fraction is None else fraction
     relative = reference * max(accept.floor, start / decay) if reference is not None else 0.0
     bar = max(accept.peak / decay, relative)
-    return max(bar, min_peak) if bar > 0 else math.inf
+    # Nothing to compare with: no absolute part and no reference (not a bar decayed to 0 after hours lost).
+    return max(bar, min_peak) if accept.peak > 0 or relative > 0 else math.inf
 
 
 @dataclass
@@ -145,7 +155,7 @@ class LossSearch:
     def area_sides(self) -> float:
         """Side of the searched square (target sides) on the current lost frame (paper's omega)."""
         s = self.lattice
-        return min(s.area_start_sides * s.area_growth ** max(self.lost_frames - 1, 0), s.area_max_sides)
+        return min(s.area_start_sides * power(s.area_growth, max(self.lost_frames - 1, 0)), s.area_max_sides)
 
     def windows(self, frame_wh: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """This frame's lattice windows: (M, 2) centres px and (M,) angles in degrees (0: upright), the next

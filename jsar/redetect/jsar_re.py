@@ -567,13 +567,17 @@ class JsarReTracker:
         return "reacquired" if kept is not None else "reacquired unguarded"
 
     def _candidate_bar(self, frame: np.ndarray, candidate: Candidate, bar: float, look: Look | None) -> float:
-        """The bar a candidate must pass: none (inf) where the verifier calls it another object;
+        """The bar a candidate must pass: none (inf) where the verifier calls it another object, or, in a loss the
+        watch began, where its look is under verify.selection_floor to the selection's;
         verify.bar_fraction x `bar` where it calls it the target; colour.clear_bar_fraction x `bar` where its
         box clearly holds the target's colours at selection (colour.clear_share; a car that came back turned
         scores low on the decision filter's gradients but keeps its colours); else `bar`."""
         assert self.anchor is not None
         if look is not None and look.verdict is Appearance.OTHER:
             return math.inf
+        floor = self.redetect.verify.selection_floor
+        if look is not None and self.loss_cause == "appearance" and look.selection < floor:
+            return math.inf  # the watch found the track off the selection's look: a take must be nearer it than that
         if look is not None and look.verdict is Appearance.TARGET:
             return min(self.redetect.verify.bar_fraction, self.redetect.colour.clear_bar_fraction) * bar
         colour = self.redetect.colour

@@ -143,7 +143,7 @@ class VerifyParams:
     over_colour_match: bool = True  # a "target" candidate needs no colour-model match (the selection's colours still)
     target_slots: int = checked(6, at_least(1))  # target memory: the selection plus this many minus one recent reliable frames
     anchor_similarity: float = checked(0.5, COSINE)  # a reliable frame's look joins the target memory only at least this near the selection's (cosine; -1: no bound)
-    selection_floor: float = checked(-1.0, COSINE)  # a watch check, or the core's own way out of a loss, whose look is under this cosine to the selection's counts as another object, whatever the memories say (a slide the target memory learnt along; -1: off)
+    selection_floor: float = checked(-1.0, COSINE)  # a watch check, the core's own way out of a loss, or a take in a loss the watch began, whose look is under this cosine to the selection's counts as another object, whatever the memories say (a slide the target memory learnt along; -1: off)
     learn_frames: int = checked(10, at_least(1))  # the verifier learns one reliable frame in this many, with the look-alikes around it
     other_slots: int = checked(32, non_negative)  # look-alike memory size (oldest out first)
     ring_sides: float = checked(2.0, positive)  # look-alike windows' distance from the target (target sides)

@@ -54,14 +54,15 @@ def trace_of(loop: ClosedLoop, result: RunResult) -> RunTrace:
     """The comparable trace of a finished run (call before the loop is closed)."""
     frames = tuple((r.time_s, r.state, r.box, r.truth.box, r.truth.visible, r.vehicle_ne, r.mode, r.link_down)
                    for r in result.records)
-    # In model-time order; at one model time, by type: the MAVLink thread's requests (a message interval on the
-    # autopilot's first heartbeat) and the loop's guidance can reach the mock in either order within one model time,
-    # which is the threads' scheduling, not the loop's. Messages of one type keep their order (a stable sort).
+    # In model-time order; the messages of one model time as a set (sorted by their text): the MAVLink thread's
+    # requests (a message interval on the autopilot's first heartbeat), the gimbal claim and the loop's guidance can
+    # reach the mock in any order within one model time, which is the threads' scheduling, not the loop's.
     commands = tuple(sorted((
         (c.time_s, c.msg_type, c.outcome,
          tuple(sorted((k, _plain(v)) for k, v in c.fields.items() if k not in WALL_CLOCK_FIELDS)))
         for c in loop.autopilot.commands(link="service")
-        if c.src_component == SERVICE_COMPONENT and c.msg_type in CONTROL_TYPES), key=lambda command: command[:2]))
+        if c.src_component == SERVICE_COMPONENT and c.msg_type in CONTROL_TYPES),
+        key=lambda command: (command[0], repr(command[1:]))))
     return RunTrace(frames, commands, result.summary(), result.gimbal_command_timeouts,
                     int(result.counters.get("frame_gap_holds", 0)))
 
